@@ -1,0 +1,145 @@
+/*
+ * Haptic Hand native engine: flat C ABI.
+ *
+ * Shape follows MuJoCo's mjModel/mjData split: an hh_model holds what does not change
+ * during a simulation (rest mesh, material, handle, springs, parameters) and an hh_data
+ * holds the state (node positions and velocities, handle pose and velocity, device frame).
+ *
+ * Every entry point catches every exception and returns HH_OK (0) or a negative status;
+ * hh_last_error() then returns a message (thread-local) that names the problem and the fix.
+ * Arrays are contiguous: positions are float64 [n][3], tets int32 [m][4], quaternions are
+ * (x, y, z, s) as in the paper's Appendix A. SI units throughout (m, kg, s, N).
+ */
+#ifndef HAPTIC_HAND_H
+#define HAPTIC_HAND_H
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+/* The library is built with hidden visibility; only what this header declares is exported. */
+#if defined(__GNUC__)
+#pragma GCC visibility push(default)
+#endif
+
+#define HH_OK 0
+#define HH_ERR_INVALID_ARGUMENT -1 /* bad input: the message names it and the fix */
+#define HH_ERR_NUMERICAL -2        /* a solve failed or produced non-finite values */
+#define HH_ERR_INTERNAL -3         /* a bug: please report the message */
+
+#define HH_SOLVER_CHOLESKY 0 /* sparse Cholesky of At, factored once per step, 8 solves */
+#define HH_SOLVER_CG 1       /* Jacobi-preconditioned conjugate gradient, warm started */
+
+#define HH_API_VERSION 1
+
+typedef struct hh_model hh_model;
+typedef struct hh_data hh_data;
+
+/* Parameters of a hand rig. Fill with hh_default_params() then change what you need. */
+typedef struct hh_params {
+    int struct_size;          /* sizeof(hh_params), checked to catch ABI mismatches */
+    /* material of the flesh (linear co-rotational FEM, Mueller & Gross 2004) */
+    double young_modulus;     /* Pa, > 0 */
+    double poisson_ratio;     /* in (0, 0.5) */
+    double density;           /* kg/m^3, > 0 */
+    double rayleigh_alpha;    /* 1/s, >= 0: mass-proportional damping (breaks momentum conservation) */
+    double rayleigh_beta;     /* s, >= 0: stiffness-proportional damping */
+    /* rigid handle (Section 4): nodes within handle_radius of palm_seed */
+    double palm_seed[3];      /* m */
+    double handle_radius;     /* m, > 0 */
+    double spring_stiffness;  /* k of Eq. 4, N/m, > 0 */
+    double spring_damping;    /* d of Eq. 4, N s/m, >= 0 */
+    /* one-directional viscoelastic virtual coupling device frame -> handle (Fig. 2, top) */
+    double coupling_stiffness;         /* N/m, >= 0 */
+    double coupling_damping;           /* N s/m, >= 0 */
+    double coupling_angular_stiffness; /* N m/rad, >= 0 */
+    double coupling_angular_damping;   /* N m s/rad, >= 0 */
+    /* integration */
+    double gravity[3];        /* m/s^2 */
+    double dt;                /* s, in (0, 0.1] */
+    int solver;               /* HH_SOLVER_CHOLESKY or HH_SOLVER_CG */
+    double cg_tolerance;      /* relative residual for CG, in (0, 1) */
+    int cg_max_iterations;    /* > 0 */
+} hh_params;
+
+typedef struct hh_model_info {
+    int n_nodes;
+    int n_tets;
+    int n_handle_nodes;
+    double total_mass;          /* kg, sum of lumped node masses */
+    double handle_mass;         /* kg, Eq. 3: sum of the captured nodes' lumped masses */
+    double handle_com[3];       /* m, rest centre of mass of the handle */
+    double handle_inertia[9];   /* kg m^2, row-major, about handle_com, world axes at rest */
+    double min_tet_volume;      /* m^3 */
+    double max_tet_volume;      /* m^3 */
+} hh_model_info;
+
+/* Wall-clock cost of the last step, split as the benchmarks report it. */
+typedef struct hh_step_stats {
+    double t_assembly;        /* s: co-rotation, stiffness, springs, Aht/Ath */
+    double t_deformable;      /* s: the 8 solves with At (factorization included) */
+    double t_schur;           /* s: forming and solving the 6x6 Schur complement */
+    double t_total;           /* s: the whole step */
+    int cg_iterations;        /* summed over the 8 solves (0 with Cholesky) */
+    double max_residual;      /* largest relative residual of the 8 At solves */
+} hh_step_stats;
+
+/* --- errors and version --- */
+const char* hh_last_error(void);
+int hh_api_version(void);
+
+/* --- model --- */
+void hh_default_params(hh_params* params);
+/* Validates everything (finite positive parameters, positively oriented tets, a handle
+ * that captures at least 4 nodes and not all of them, a seed inside the mesh). */
+int hh_model_create(const double* rest_positions, int n_nodes, const int* tets, int n_tets,
+                    const hh_params* params, hh_model** out_model);
+void hh_model_free(hh_model* model);
+int hh_model_info_get(const hh_model* model, hh_model_info* out);
+int hh_model_handle_nodes(const hh_model* model, int* out_nodes, int capacity);
+int hh_model_lumped_masses(const hh_model* model, double* out_masses, int n_nodes);
+int hh_model_params(const hh_model* model, hh_params* out);
+/* Nodes a handle of this radius would capture (without building a model). */
+int hh_count_captured(const double* rest_positions, int n_nodes, const double seed[3],
+                      double radius, int* out_count);
+
+/* --- data (state) --- */
+int hh_data_create(const hh_model* model, hh_data** out_data);
+void hh_data_free(hh_data* data);
+int hh_data_reset(const hh_model* model, hh_data* data);
+int hh_get_state(const hh_model* model, const hh_data* data, double* x, double* v, int n_nodes,
+                 double handle_position[3], double handle_quaternion[4],
+                 double handle_velocity[3], double handle_angular_velocity[3]);
+int hh_set_state(const hh_model* model, hh_data* data, const double* x, const double* v, int n_nodes,
+                 const double handle_position[3], const double handle_quaternion[4],
+                 const double handle_velocity[3], const double handle_angular_velocity[3]);
+/* The tracked device frame at the end of the next step. enabled = 0 detaches the
+ * virtual coupling (free flight). */
+int hh_set_device(hh_data* data, int enabled, const double position[3], const double quaternion[4],
+                  const double velocity[3], const double angular_velocity[3]);
+int hh_set_solver(hh_model* model, int solver, double cg_tolerance, int cg_max_iterations);
+
+/* --- simulation --- */
+/* One implicit step of Eq. 7 through the Schur complement (Section 6 pseudocode). */
+int hh_step(const hh_model* model, hh_data* data, hh_step_stats* out_stats);
+/* One step through the monolithic reference solve of Eq. 7 (for tests and benchmarks). */
+int hh_step_monolithic(const hh_model* model, hh_data* data, hh_step_stats* out_stats);
+/* Formulates Eq. 7 at the current state, solves it both ways without changing the state,
+ * and returns max|v_schur - v_mono| / max|v_mono| (0 when both are zero). */
+int hh_compare_solvers(const hh_model* model, const hh_data* data, double* out_relative_difference);
+
+/* --- observables --- */
+/* Total force and torque (about the handle's centre of mass) the springs apply on the handle. */
+int hh_coupling_wrench(const hh_model* model, const hh_data* data, double force[3], double torque[3]);
+/* Kinetic energy of flesh and handle, elastic energy of the flesh, spring energy (J). */
+int hh_energies(const hh_model* model, const hh_data* data, double* kinetic, double* elastic,
+                double* spring);
+/* Linear momentum of flesh plus handle (kg m/s). */
+int hh_linear_momentum(const hh_model* model, const hh_data* data, double out[3]);
+
+#if defined(__GNUC__)
+#pragma GCC visibility pop
+#endif
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,167 @@
+#include "fem/corotational.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+namespace hh {
+
+namespace {
+Vec3 node(const VecX& x, int i) { return x.segment<3>(3 * i); }
+
+// Gradients of the four linear shape functions: rows of Bm for nodes 1..3, minus their sum
+// for node 0.
+Eigen::Matrix<double, 4, 3> shape_gradients(const Mat3& bm) {
+    Eigen::Matrix<double, 4, 3> g;
+    g.bottomRows<3>() = bm;
+    g.row(0) = -bm.colwise().sum();
+    return g;
+}
+}  // namespace
+
+double tet_signed_volume(const Vec3& x0, const Vec3& x1, const Vec3& x2, const Vec3& x3) {
+    Mat3 d;
+    d << x1 - x0, x2 - x0, x3 - x0;
+    return d.determinant() / 6.0;
+}
+
+CorotationalElements precompute_elements(const TetMesh& mesh, const Material& material) {
+    const double e_mod = material.young_modulus, nu = material.poisson_ratio;
+    const double lambda = e_mod * nu / ((1 + nu) * (1 - 2 * nu));
+    const double mu = e_mod / (2 * (1 + nu));
+    CorotationalElements out;
+    const size_t m = mesh.tets.size();
+    out.rest_inverse.resize(m);
+    out.volume.resize(m);
+    out.stiffness.resize(m);
+    for (size_t e = 0; e < m; ++e) {
+        const auto& t = mesh.tets[e];
+        const Vec3 x0 = node(mesh.rest, t[0]);
+        Mat3 dm;
+        dm << node(mesh.rest, t[1]) - x0, node(mesh.rest, t[2]) - x0, node(mesh.rest, t[3]) - x0;
+        const double vol = dm.determinant() / 6.0;
+        double longest = 0;
+        for (int a = 0; a < 4; ++a)
+            for (int b = a + 1; b < 4; ++b)
+                longest = std::max(longest, (node(mesh.rest, t[a]) - node(mesh.rest, t[b])).norm());
+        // "zero volume" relative to the element's own size, so units and scale do not matter
+        if (!(vol > 1e-9 * longest * longest * longest)) {
+            std::ostringstream msg;
+            msg << "tetrahedron " << e << " (nodes " << t[0] << ", " << t[1] << ", " << t[2] << ", "
+                << t[3] << ") has " << (vol < 0 ? "negative volume (inverted)" : "zero volume")
+                << ": signed volume " << vol
+                << " m^3; re-tetrahedralize the hand, or swap two of its vertices if it is "
+                   "only wound the wrong way";
+            throw InvalidArgument(msg.str());
+        }
+        const Mat3 bm = dm.inverse();
+        out.rest_inverse[e] = bm;
+        out.volume[e] = vol;
+        // Linear elasticity: K_ab = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I)
+        const auto g = shape_gradients(bm);
+        Mat12 k;
+        for (int a = 0; a < 4; ++a)
+            for (int b = 0; b < 4; ++b) {
+                const Vec3 ga = g.row(a).transpose(), gb = g.row(b).transpose();
+                k.block<3, 3>(3 * a, 3 * b) =
+                    vol * (lambda * ga * gb.transpose() + mu * gb * ga.transpose() +
+                           mu * ga.dot(gb) * Mat3::Identity());
+            }
+        out.stiffness[e] = k;
+    }
+    return out;
+}
+
+VecX lumped_masses(const TetMesh& mesh, const CorotationalElements& elements, double density) {
+    VecX m = VecX::Zero(mesh.n_nodes);
+    for (size_t e = 0; e < mesh.tets.size(); ++e)
+        for (int a = 0; a < 4; ++a) m[mesh.tets[e][a]] += 0.25 * density * elements.volume[e];
+    return m;
+}
+
+Mat3 element_rotation(const TetMesh& mesh, const CorotationalElements& elements, int e,
+                      const VecX& x) {
+    const auto& t = mesh.tets[e];
+    const Vec3 x0 = node(x, t[0]);
+    Mat3 ds;
+    ds << node(x, t[1]) - x0, node(x, t[2]) - x0, node(x, t[3]) - x0;
+    const Mat3 f = ds * elements.rest_inverse[e];
+    Eigen::JacobiSVD<Mat3> svd(f, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Mat3 u = svd.matrixU();
+    const Mat3 v = svd.matrixV();
+    // An inverted element has det F < 0: flip the axis of the smallest singular value so R
+    // stays a rotation and the elastic force pushes the element back out (Irving et al. 2004).
+    if ((u * v.transpose()).determinant() < 0) u.col(2) = -u.col(2);
+    return u * v.transpose();
+}
+
+double add_elastic_forces(const TetMesh& mesh, const CorotationalElements& elements,
+                          const VecX& x, VecX& f, std::vector<Mat3>* rotations) {
+    double energy = 0;
+    if (rotations) rotations->resize(mesh.tets.size());
+    Eigen::Matrix<double, 12, 1> u, fe;
+    for (size_t e = 0; e < mesh.tets.size(); ++e) {
+        const Mat3 r = element_rotation(mesh, elements, static_cast<int>(e), x);
+        if (rotations) (*rotations)[e] = r;
+        const auto& t = mesh.tets[e];
+        // displacement measured from node 0: Ke ignores translations, and dropping them
+        // keeps round-off from a far-away body out of the energy
+        const Vec3 x0 = node(x, t[0]), rest0 = node(mesh.rest, t[0]);
+        for (int a = 0; a < 4; ++a)
+            u.segment<3>(3 * a) = r.transpose() * (node(x, t[a]) - x0) - (node(mesh.rest, t[a]) - rest0);
+        fe = elements.stiffness[e] * u;  // rest-frame force (negated below)
+        energy += 0.5 * u.dot(fe);
+        for (int a = 0; a < 4; ++a) f.segment<3>(3 * t[a]) -= r * fe.segment<3>(3 * a);
+    }
+    return energy;
+}
+
+StiffnessPattern build_stiffness_pattern(const TetMesh& mesh) {
+    std::vector<Eigen::Triplet<double>> trip;
+    trip.reserve(mesh.tets.size() * 144);
+    for (const auto& t : mesh.tets)
+        for (int a = 0; a < 4; ++a)
+            for (int b = 0; b < 4; ++b)
+                for (int i = 0; i < 3; ++i)
+                    for (int j = 0; j < 3; ++j) trip.emplace_back(3 * t[a] + i, 3 * t[b] + j, 0.0);
+    StiffnessPattern p;
+    p.matrix.resize(3 * mesh.n_nodes, 3 * mesh.n_nodes);
+    p.matrix.setFromTriplets(trip.begin(), trip.end());
+    p.matrix.makeCompressed();
+    const int* outer = p.matrix.outerIndexPtr();
+    const int* inner = p.matrix.innerIndexPtr();
+    auto offset = [&](int row, int col) {
+        const int* begin = inner + outer[col];
+        const int* end = inner + outer[col + 1];
+        return static_cast<int>(std::lower_bound(begin, end, row) - inner);
+    };
+    p.element_offsets.resize(mesh.tets.size() * 144);
+    for (size_t e = 0; e < mesh.tets.size(); ++e) {
+        const auto& t = mesh.tets[e];
+        for (int r = 0; r < 12; ++r)
+            for (int c = 0; c < 12; ++c)
+                p.element_offsets[e * 144 + r * 12 + c] = offset(3 * t[r / 3] + r % 3, 3 * t[c / 3] + c % 3);
+    }
+    p.node_block_offsets.resize(9 * mesh.n_nodes);
+    for (int n = 0; n < mesh.n_nodes; ++n)
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j) p.node_block_offsets[9 * n + 3 * i + j] = offset(3 * n + i, 3 * n + j);
+    return p;
+}
+
+void add_warped_stiffness(const CorotationalElements& elements, const std::vector<Mat3>& rotations,
+                          const StiffnessPattern& pattern, double scale, double* values) {
+    for (size_t e = 0; e < elements.stiffness.size(); ++e) {
+        const Mat3& r = rotations[e];
+        const Mat12& k = elements.stiffness[e];
+        const int* off = &pattern.element_offsets[e * 144];
+        for (int a = 0; a < 4; ++a)
+            for (int b = 0; b < 4; ++b) {
+                const Mat3 block = scale * (r * k.block<3, 3>(3 * a, 3 * b) * r.transpose());
+                for (int i = 0; i < 3; ++i)
+                    for (int j = 0; j < 3; ++j) values[off[(3 * a + i) * 12 + 3 * b + j]] += block(i, j);
+            }
+    }
+}
+
+}  // namespace hh

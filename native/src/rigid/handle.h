@@ -1,0 +1,25 @@
+// The rigid handle of Section 4: the hand nodes inside a sphere around the palm seed, with
+// mass and inertia from their lumped masses (Eq. 3). Its body frame is the world frame at
+// rest, centred at the captured nodes' centre of mass, so each spring's r_B is X_i - x_com.
+#pragma once
+#include <vector>
+
+#include "common/types.h"
+
+namespace hh {
+
+struct HandleModel {
+    std::vector<int> nodes;        // captured hand nodes
+    std::vector<Vec3> r_body;      // r_B of each node's spring, body frame
+    double mass = 0;               // m_h of Eq. 3
+    Vec3 rest_com = Vec3::Zero();  // x_com at rest
+    Mat3 inertia_body = Mat3::Zero();  // M_q of Eq. 3, about the centre of mass
+};
+
+std::vector<int> capture_nodes(const VecX& rest, const Vec3& seed, double radius);
+
+// Throws InvalidArgument when the sphere captures fewer than 4 nodes or every node, or
+// when the captured nodes are collinear (singular inertia).
+HandleModel build_handle(const VecX& rest, const VecX& node_masses, const Vec3& seed, double radius);
+
+}  // namespace hh

@@ -1,0 +1,47 @@
+// The mutable part of a simulation (MuJoCo's mjData in spirit): state, device frame, and
+// the workspaces of the linear systems.
+#pragma once
+#include <vector>
+
+#include "sim/model.h"
+#include "solver/hand_system.h"
+
+namespace hh {
+
+struct DeviceFrame {
+    bool enabled = false;
+    Vec3 position = Vec3::Zero();
+    Vec4 quaternion = Vec4(0, 0, 0, 1);
+    Vec3 velocity = Vec3::Zero();
+    Vec3 angular_velocity = Vec3::Zero();
+};
+
+struct Data {
+    explicit Data(const Model& model);
+    VecX x, v;       // Eq. 1: x_t, v_t
+    HandleState h;   // Eq. 1: x_h = (x_com, q_h), v_h = (v_com, omega_h)
+    DeviceFrame device;
+
+    DeformableSystem tool;
+    RigidSystem rigid;
+    HandSystem hand{tool, rigid};
+    CouplingBlocks coupling;
+    std::vector<Mat3> rotations;
+    VecX f_elastic;
+    double elastic_energy = 0;
+    hh_step_stats stats{};
+};
+
+void reset(const Model& model, Data& data);
+void configure_solver(const Model& model, Data& data);
+
+// Fills data.hand (Ah, At, Aht, Ath, r) with the system of Eq. 7 for one step of dt.
+void formulate(const Model& model, Data& data);
+// Advances x, v and the handle from the velocities s = (v_h, v_t) solved for.
+void integrate(const Model& model, Data& data, const VecX& s);
+// One step: formulate, solve by Schur complement (or the monolithic reference), integrate.
+void step(const Model& model, Data& data, bool monolithic);
+
+Mat3 handle_world_inertia(const Model& model, const HandleState& h);
+
+}  // namespace hh

@@ -1,0 +1,26 @@
+// The static part of a simulation (MuJoCo's mjModel in spirit): rest mesh, material,
+// element data, lumped masses, handle and springs, parameters. Built once, validated.
+#pragma once
+#include "coupling/springs.h"
+#include "fem/corotational.h"
+#include "haptic_hand.h"
+#include "rigid/handle.h"
+
+namespace hh {
+
+struct Model {
+    hh_params params;
+    TetMesh mesh;
+    CorotationalElements elements;
+    VecX masses;  // lumped, per node
+    HandleModel handle;
+    StiffnessPattern pattern;
+};
+
+// Throws InvalidArgument naming the first bad parameter and the fix.
+void validate_params(const hh_params& p);
+
+Model build_model(const double* rest_positions, int n_nodes, const int* tets, int n_tets,
+                  const hh_params& params);
+
+}  // namespace hh

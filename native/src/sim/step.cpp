@@ -1,0 +1,139 @@
+#include <chrono>
+
+#include "rigid/quaternion.h"
+#include "sim/data.h"
+
+namespace hh {
+
+namespace {
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+}  // namespace
+
+Data::Data(const Model& model) {
+    reset(model, *this);
+    configure_solver(model, *this);
+    tool.A = model.pattern.matrix;
+    hand.coupled_nodes = model.handle.nodes;
+}
+
+void reset(const Model& model, Data& data) {
+    data.x = model.mesh.rest;
+    data.v = VecX::Zero(model.mesh.rest.size());
+    data.h = HandleState{};
+    data.h.x_com = model.handle.rest_com;
+    data.device = DeviceFrame{};
+    data.device.position = model.handle.rest_com;
+}
+
+void configure_solver(const Model& model, Data& data) {
+    const hh_params& p = model.params;
+    data.tool.configure(p.solver == HH_SOLVER_CG ? DeformableSolver::ConjugateGradient : DeformableSolver::Cholesky,
+                        p.cg_tolerance, p.cg_max_iterations);
+}
+
+Mat3 handle_world_inertia(const Model& model, const HandleState& h) {
+    const Mat3 r = quat_to_matrix(h.q);
+    return r * model.handle.inertia_body * r.transpose();
+}
+
+void formulate(const Model& model, Data& data) {
+    const hh_params& p = model.params;
+    const double dt = p.dt;
+    const int n = model.mesh.n_nodes;
+    const Vec3 g(p.gravity[0], p.gravity[1], p.gravity[2]);
+
+    // Deformable block: A_t = M (1 + dt alpha) + (dt beta + dt^2) K + springs (Eq. 7 with
+    // Rayleigh damping D = alpha M + beta K); b_t = M v + dt (f_elastic + m g) + springs.
+    data.f_elastic.setZero(3 * n);
+    data.elastic_energy = add_elastic_forces(model.mesh, model.elements, data.x, data.f_elastic, &data.rotations);
+    double* values = data.tool.A.valuePtr();
+    std::fill(values, values + data.tool.A.nonZeros(), 0.0);
+    add_warped_stiffness(model.elements, data.rotations, model.pattern, dt * p.rayleigh_beta + dt * dt, values);
+    for (int i = 0; i < n; ++i)
+        for (int c = 0; c < 3; ++c)
+            values[model.pattern.node_block_offsets[9 * i + 4 * c]] += model.masses[i] * (1 + dt * p.rayleigh_alpha);
+
+    assemble_coupling(p.spring_stiffness, p.spring_damping, dt, model.handle.nodes, model.handle.r_body,
+                      data.x, data.v, data.h, data.coupling);
+    const CouplingBlocks& cb = data.coupling;
+    for (size_t j = 0; j < model.handle.nodes.size(); ++j) {
+        const int* off = &model.pattern.node_block_offsets[9 * model.handle.nodes[j]];
+        for (int a = 0; a < 3; ++a)
+            for (int b = 0; b < 3; ++b) values[off[3 * a + b]] += cb.at_diagonal[j](a, b);
+    }
+    data.tool.matrix_changed();
+
+    VecX& r = data.hand.r;
+    r.resize(6 + 3 * n);
+    auto bt = r.tail(3 * n);
+    for (int i = 0; i < n; ++i)
+        bt.segment<3>(3 * i) = model.masses[i] * data.v.segment<3>(3 * i) +
+                               dt * (data.f_elastic.segment<3>(3 * i) + model.masses[i] * g);
+    for (size_t j = 0; j < model.handle.nodes.size(); ++j) bt.segment<3>(3 * model.handle.nodes[j]) += cb.bt[j];
+
+    // Rigid block (Eq. 3 and 7): gravity acts on the flesh only; the handle's mass is the
+    // captured nodes' mass counted again for its inertia, so the hand's weight is counted once.
+    const Mat3 inertia = handle_world_inertia(model, data.h);
+    Mat6 ah = Mat6::Zero();
+    ah.topLeftCorner<3, 3>() = model.handle.mass * Mat3::Identity();
+    ah.bottomRightCorner<3, 3>() = inertia;
+    Vec6 bh;
+    bh.head<3>() = model.handle.mass * data.h.v_com;
+    bh.tail<3>() = inertia * data.h.omega - dt * data.h.omega.cross(inertia * data.h.omega);  // gyroscopic, explicit
+    const DeviceFrame& dev = data.device;
+    if (dev.enabled) {
+        // One-directional viscoelastic virtual coupling to the device frame at the end of the
+        // step (Fig. 2, top): implicit in the handle's own position and velocity.
+        const double lin = dt * p.coupling_damping + dt * dt * p.coupling_stiffness;
+        const double ang = dt * p.coupling_angular_damping + dt * dt * p.coupling_angular_stiffness;
+        ah.topLeftCorner<3, 3>() += lin * Mat3::Identity();
+        ah.bottomRightCorner<3, 3>() += ang * Mat3::Identity();
+        const Vec3 rot_error = quat_to_rotation_vector(quat_multiply(dev.quaternion, quat_conjugate(data.h.q)));
+        bh.head<3>() += dt * (p.coupling_stiffness * (dev.position - data.h.x_com) + p.coupling_damping * dev.velocity);
+        bh.tail<3>() += dt * (p.coupling_angular_stiffness * rot_error + p.coupling_angular_damping * dev.angular_velocity);
+    }
+    data.hand.Ah = ah + cb.ah;
+    r.head<6>() = bh + cb.bh;
+    data.hand.Ath = cb.ath;
+    data.hand.Aht = cb.aht;
+}
+
+void integrate(const Model& model, Data& data, const VecX& s) {
+    const double dt = model.params.dt;
+    const int n = model.mesh.n_nodes;
+    data.h.v_com = s.segment<3>(0);
+    data.h.omega = s.segment<3>(3);
+    data.v = s.tail(3 * n);
+    data.x += dt * data.v;
+    data.h.x_com += dt * data.h.v_com;
+    // exponential map keeps q_h a unit quaternion (first-order equal to q + dt G omega)
+    data.h.q = quat_multiply(quat_from_rotation_vector(dt * data.h.omega), data.h.q);
+    data.h.q.normalize();
+}
+
+void step(const Model& model, Data& data, bool monolithic) {
+    using clock = std::chrono::steady_clock;
+    const auto t0 = clock::now();
+    formulate(model, data);
+    data.stats = hh_step_stats{};
+    data.stats.t_assembly = seconds_since(t0);
+    data.tool.reset_counters();
+    if (monolithic) {
+        const auto t1 = clock::now();
+        const VecX s = solve_monolithic(data.hand, data.hand.r);
+        data.stats.t_deformable = seconds_since(t1);
+        integrate(model, data, s);
+    } else {
+        data.hand.solve();
+        data.stats.t_deformable = data.hand.t_deformable;
+        data.stats.t_schur = data.hand.t_schur;
+        data.stats.cg_iterations = data.tool.iterations;
+        data.stats.max_residual = data.tool.max_residual;
+        integrate(model, data, data.hand.s);
+    }
+    data.stats.t_total = seconds_since(t0);
+}
+
+}  // namespace hh

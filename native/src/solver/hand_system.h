@@ -1,0 +1,36 @@
+// The complete hand (Section 6): deformable tool + rigid handle + coupling blocks, behind
+// the same LinearSystem interface. solve() is the Schur-complement solution of Eq. 7
+// (Eqs. 12-13): 8 solves with At, one 6x6 solve with the Schur complement of At.
+// r = (b_h, b_t) and s = (v_h, v_t), handle first as in Eq. 7.
+#pragma once
+#include <vector>
+
+#include "solver/deformable_system.h"
+#include "solver/rigid_system.h"
+
+namespace hh {
+
+class HandSystem : public LinearSystem {
+public:
+    HandSystem(DeformableSystem& tool, RigidSystem& handle) : tool(tool), handle(handle) {}
+    DeformableSystem& tool;
+    RigidSystem& handle;
+    Mat6 Ah = Mat6::Zero();            // the handle's own block, kept: handle.A is overwritten
+    std::vector<int> coupled_nodes;    // nodes with a spring to the handle
+    std::vector<Mat36> Ath;            // 3x6 block of Ath per coupled node (Eq. 10)
+    std::vector<Mat63> Aht;            // 6x3 block of Aht per coupled node (Eq. 8)
+
+    void solve() override;
+    double t_deformable = 0;  // s spent in tool solves during the last solve()
+    double t_schur = 0;       // s spent forming and solving the Schur complement
+
+private:
+    Vec6 aht_times(const VecX& vt) const;  // Aht * vt, touching only coupled nodes
+    MatX ath_column_;
+    std::vector<VecX> temp_;              // A_t^-1 Ath(i), i = 1..6
+};
+
+// The reference: Eq. 7 assembled as one sparse (6 + 3n)^2 matrix and solved by sparse LU.
+VecX solve_monolithic(const HandSystem& system, const VecX& rhs);
+
+}  // namespace hh
