@@ -1,0 +1,53 @@
+# Haptic Hand: `make demo` and `make test` set up everything they need on a fresh Debian
+# machine (Debian packages, a pinned venv, the native build), then run.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+BUILD := build/native
+LIB := $(BUILD)/libhaptic_hand.so
+NATIVE_SOURCES := $(shell find native -name '*.cpp' -o -name '*.h' -o -name CMakeLists.txt)
+OUT := out
+
+.PHONY: all deps venv native test test-native test-python test-sanitize demo bench clean
+all: native
+
+deps: $(BUILD)/.deps
+$(BUILD)/.deps: scripts/install_system_deps.sh
+	bash scripts/install_system_deps.sh
+	mkdir -p $(BUILD) && touch $@
+
+venv: $(VENV)/.installed
+$(VENV)/.installed: requirements.txt pyproject.toml | $(BUILD)/.deps
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -r requirements.txt
+	$(PY) -m pip install -q --no-deps -e .
+	touch $@
+
+native: $(LIB)
+$(LIB): $(NATIVE_SOURCES) | $(BUILD)/.deps
+	cmake -S native -B $(BUILD) -DCMAKE_BUILD_TYPE=Release > /dev/null
+	cmake --build $(BUILD) -j2
+
+test-native: native
+	cd $(BUILD) && ctest --output-on-failure
+
+# The native tests again under AddressSanitizer and UndefinedBehaviorSanitizer.
+test-sanitize: | $(BUILD)/.deps
+	cmake -S native -B build/asan -DCMAKE_BUILD_TYPE=Debug -DHH_SANITIZE=address,undefined > /dev/null
+	cmake --build build/asan -j2
+	cd build/asan && ctest --output-on-failure
+
+test-python: native venv
+	$(PY) -m pytest -q tests
+
+test: test-native test-python
+
+demo: native venv
+	$(PY) -m haptic_hand demo --out $(OUT)/demo
+
+bench: native venv
+	$(PY) bench/bench_step.py
+
+clean:
+	rm -rf build $(OUT)

@@ -1,0 +1,391 @@
+"""ctypes bindings of the native engine (native/include/haptic_hand.h).
+
+Arrays cross as contiguous float64 / int32 numpy buffers whose sizes are checked here and
+again in C; a native status becomes a Python exception carrying the native message.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+HH_OK = 0
+HH_ERR_INVALID_ARGUMENT = -1
+HH_ERR_NUMERICAL = -2
+SOLVERS = {"cholesky": 0, "cg": 1}
+API_VERSION = 1
+
+_HERE = Path(__file__).resolve().parent
+LIBRARY_NAME = "libhaptic_hand.so"
+
+
+class NativeError(RuntimeError):
+    """The native engine reported a failure; the message says what and how to fix it."""
+
+
+class InvalidInput(NativeError, ValueError):
+    """Bad input (mesh, parameters, array sizes) rejected by the native engine."""
+
+
+class NumericalFailure(NativeError):
+    """A solve failed or produced non-finite values."""
+
+
+class Params(ctypes.Structure):
+    _fields_ = [
+        ("struct_size", ctypes.c_int),
+        ("young_modulus", ctypes.c_double),
+        ("poisson_ratio", ctypes.c_double),
+        ("density", ctypes.c_double),
+        ("rayleigh_alpha", ctypes.c_double),
+        ("rayleigh_beta", ctypes.c_double),
+        ("palm_seed", ctypes.c_double * 3),
+        ("handle_radius", ctypes.c_double),
+        ("spring_stiffness", ctypes.c_double),
+        ("spring_damping", ctypes.c_double),
+        ("coupling_stiffness", ctypes.c_double),
+        ("coupling_damping", ctypes.c_double),
+        ("coupling_angular_stiffness", ctypes.c_double),
+        ("coupling_angular_damping", ctypes.c_double),
+        ("gravity", ctypes.c_double * 3),
+        ("dt", ctypes.c_double),
+        ("solver", ctypes.c_int),
+        ("cg_tolerance", ctypes.c_double),
+        ("cg_max_iterations", ctypes.c_int),
+    ]
+
+
+class ModelInfo(ctypes.Structure):
+    _fields_ = [
+        ("n_nodes", ctypes.c_int),
+        ("n_tets", ctypes.c_int),
+        ("n_handle_nodes", ctypes.c_int),
+        ("total_mass", ctypes.c_double),
+        ("handle_mass", ctypes.c_double),
+        ("handle_com", ctypes.c_double * 3),
+        ("handle_inertia", ctypes.c_double * 9),
+        ("min_tet_volume", ctypes.c_double),
+        ("max_tet_volume", ctypes.c_double),
+    ]
+
+
+class StepStats(ctypes.Structure):
+    _fields_ = [
+        ("t_assembly", ctypes.c_double),
+        ("t_deformable", ctypes.c_double),
+        ("t_schur", ctypes.c_double),
+        ("t_total", ctypes.c_double),
+        ("cg_iterations", ctypes.c_int),
+        ("max_residual", ctypes.c_double),
+    ]
+
+    def as_dict(self) -> dict:
+        return {name: getattr(self, name) for name, _ in self._fields_}
+
+
+def _candidates() -> list[Path]:
+    found = []
+    if os.environ.get("HAPTIC_HAND_LIB"):
+        found.append(Path(os.environ["HAPTIC_HAND_LIB"]))
+    found.append(_HERE.parent / "lib" / LIBRARY_NAME)  # inside a built extension zip
+    found.append(_HERE.parents[1] / "build" / "native" / LIBRARY_NAME)  # a source checkout
+    return found
+
+
+_lib = None
+
+
+def library() -> ctypes.CDLL:
+    """Loads the native library once, declaring every signature."""
+    global _lib
+    if _lib is not None:
+        return _lib
+    tried = _candidates()
+    path = next((p for p in tried if p.is_file()), None)
+    if path is None:
+        raise NativeError(
+            "the native library libhaptic_hand.so was not found (looked in: "
+            + ", ".join(str(p) for p in tried)
+            + "); build it with `make native` or set HAPTIC_HAND_LIB to its path"
+        )
+    lib = ctypes.CDLL(str(path))
+    _declare(lib)
+    if lib.hh_api_version() != API_VERSION:
+        raise NativeError(
+            f"{path} implements API version {lib.hh_api_version()}, these bindings need "
+            f"{API_VERSION}: rebuild it with `make native`"
+        )
+    _lib = lib
+    return lib
+
+
+def _declare(lib: ctypes.CDLL) -> None:
+    d, i = ctypes.c_double, ctypes.c_int
+    pd, pi, vp = ctypes.POINTER(d), ctypes.POINTER(i), ctypes.c_void_p
+    sig = {
+        "hh_last_error": ([], ctypes.c_char_p),
+        "hh_api_version": ([], i),
+        "hh_default_params": ([ctypes.POINTER(Params)], None),
+        "hh_model_create": ([pd, i, pi, i, ctypes.POINTER(Params), ctypes.POINTER(vp)], i),
+        "hh_model_free": ([vp], None),
+        "hh_model_info_get": ([vp, ctypes.POINTER(ModelInfo)], i),
+        "hh_model_handle_nodes": ([vp, pi, i], i),
+        "hh_model_lumped_masses": ([vp, pd, i], i),
+        "hh_model_params": ([vp, ctypes.POINTER(Params)], i),
+        "hh_count_captured": ([pd, i, pd, d, pi], i),
+        "hh_data_create": ([vp, ctypes.POINTER(vp)], i),
+        "hh_data_free": ([vp], None),
+        "hh_data_reset": ([vp, vp], i),
+        "hh_get_state": ([vp, vp, pd, pd, i, pd, pd, pd, pd], i),
+        "hh_set_state": ([vp, vp, pd, pd, i, pd, pd, pd, pd], i),
+        "hh_set_device": ([vp, i, pd, pd, pd, pd], i),
+        "hh_set_solver": ([vp, i, d, i], i),
+        "hh_step": ([vp, vp, ctypes.POINTER(StepStats)], i),
+        "hh_step_monolithic": ([vp, vp, ctypes.POINTER(StepStats)], i),
+        "hh_compare_solvers": ([vp, vp, pd], i),
+        "hh_coupling_wrench": ([vp, vp, pd, pd], i),
+        "hh_energies": ([vp, vp, pd, pd, pd], i),
+        "hh_linear_momentum": ([vp, vp, pd], i),
+    }
+    for name, (args, res) in sig.items():
+        fn = getattr(lib, name)
+        fn.argtypes = args
+        fn.restype = res
+
+
+def _check(status: int) -> None:
+    if status == HH_OK:
+        return
+    message = library().hh_last_error().decode("utf-8", "replace")
+    if status == HH_ERR_INVALID_ARGUMENT:
+        raise InvalidInput(message)
+    if status == HH_ERR_NUMERICAL:
+        raise NumericalFailure(message)
+    raise NativeError(message)
+
+
+def _f64(a, shape=None, name="array") -> np.ndarray:
+    out = np.ascontiguousarray(a, dtype=np.float64)
+    if shape is not None and out.shape != shape:
+        raise InvalidInput(f"{name} has shape {out.shape}, expected {shape}")
+    return out
+
+
+def _ptr(a: np.ndarray | None, ctype=ctypes.c_double):
+    return None if a is None else a.ctypes.data_as(ctypes.POINTER(ctype))
+
+
+PARAM_NAMES = [name for name, _ in Params._fields_ if name != "struct_size"]
+
+
+def default_params() -> dict:
+    """The engine's defaults as a dict (solver as its name)."""
+    p = Params()
+    library().hh_default_params(ctypes.byref(p))
+    return _params_to_dict(p)
+
+
+def _params_to_dict(p: Params) -> dict:
+    out = {}
+    for name in PARAM_NAMES:
+        value = getattr(p, name)
+        out[name] = list(value) if isinstance(value, ctypes.Array) else value
+    out["solver"] = {v: k for k, v in SOLVERS.items()}[p.solver]
+    return out
+
+
+def _params_from_dict(values: dict) -> Params:
+    p = Params()
+    library().hh_default_params(ctypes.byref(p))
+    for name, value in values.items():
+        if name not in PARAM_NAMES:
+            raise InvalidInput(f"unknown parameter '{name}'; known parameters: {', '.join(PARAM_NAMES)}")
+        if name == "solver":
+            if value not in SOLVERS:
+                raise InvalidInput(f"solver '{value}' is unknown: use one of {', '.join(SOLVERS)}")
+            value = SOLVERS[value]
+        if name in ("palm_seed", "gravity"):
+            v = np.asarray(value, dtype=np.float64)
+            if v.shape != (3,):
+                raise InvalidInput(f"{name} must have 3 components, got {v.shape}")
+            value = (ctypes.c_double * 3)(*v)
+        elif name in ("solver", "cg_max_iterations"):
+            value = int(value)
+        else:
+            value = float(value)
+        setattr(p, name, value)
+    return p
+
+
+def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
+    """How many nodes a handle sphere of this radius around seed captures."""
+    x = _f64(nodes)
+    s = _f64(seed, (3,), "palm_seed")
+    out = ctypes.c_int()
+    _check(library().hh_count_captured(_ptr(x), x.shape[0], _ptr(s), float(radius), ctypes.byref(out)))
+    return out.value
+
+
+@dataclass
+class HandleState:
+    position: np.ndarray
+    quaternion: np.ndarray  # (x, y, z, s)
+    velocity: np.ndarray
+    angular_velocity: np.ndarray
+
+
+class HandModel:
+    """hh_model: the rest mesh, material, handle and springs (static)."""
+
+    def __init__(self, nodes: np.ndarray, tets: np.ndarray, **params):
+        self.nodes = _f64(nodes)
+        if self.nodes.ndim != 2 or self.nodes.shape[1] != 3:
+            raise InvalidInput(f"nodes must be an (n, 3) array, got shape {self.nodes.shape}")
+        self.tets = np.ascontiguousarray(tets, dtype=np.int32)
+        if self.tets.ndim != 2 or self.tets.shape[1] != 4:
+            raise InvalidInput(f"tets must be an (m, 4) array, got shape {self.tets.shape}")
+        p = _params_from_dict(params)
+        handle = ctypes.c_void_p()
+        _check(
+            library().hh_model_create(
+                _ptr(self.nodes), self.nodes.shape[0], _ptr(self.tets, ctypes.c_int), self.tets.shape[0],
+                ctypes.byref(p), ctypes.byref(handle),
+            )
+        )
+        self._handle = handle
+
+    def __del__(self):
+        if getattr(self, "_handle", None):
+            library().hh_model_free(self._handle)
+            self._handle = None
+
+    @property
+    def n_nodes(self) -> int:
+        return self.nodes.shape[0]
+
+    def info(self) -> dict:
+        i = ModelInfo()
+        _check(library().hh_model_info_get(self._handle, ctypes.byref(i)))
+        return {
+            "n_nodes": i.n_nodes,
+            "n_tets": i.n_tets,
+            "n_handle_nodes": i.n_handle_nodes,
+            "total_mass": i.total_mass,
+            "handle_mass": i.handle_mass,
+            "handle_com": list(i.handle_com),
+            "handle_inertia": np.array(i.handle_inertia).reshape(3, 3).tolist(),
+            "min_tet_volume": i.min_tet_volume,
+            "max_tet_volume": i.max_tet_volume,
+        }
+
+    def handle_nodes(self) -> np.ndarray:
+        n = self.info()["n_handle_nodes"]
+        out = np.empty(n, dtype=np.int32)
+        _check(library().hh_model_handle_nodes(self._handle, _ptr(out, ctypes.c_int), n))
+        return out
+
+    def lumped_masses(self) -> np.ndarray:
+        out = np.empty(self.n_nodes)
+        _check(library().hh_model_lumped_masses(self._handle, _ptr(out), self.n_nodes))
+        return out
+
+    def params(self) -> dict:
+        p = Params()
+        _check(library().hh_model_params(self._handle, ctypes.byref(p)))
+        return _params_to_dict(p)
+
+    def set_solver(self, solver: str, cg_tolerance: float = 1e-8, cg_max_iterations: int = 5000) -> None:
+        if solver not in SOLVERS:
+            raise InvalidInput(f"solver '{solver}' is unknown: use one of {', '.join(SOLVERS)}")
+        _check(library().hh_set_solver(self._handle, SOLVERS[solver], cg_tolerance, cg_max_iterations))
+
+
+class HandSimulation:
+    """hh_data: the state of one simulation of a HandModel."""
+
+    def __init__(self, model: HandModel):
+        self.model = model
+        handle = ctypes.c_void_p()
+        _check(library().hh_data_create(model._handle, ctypes.byref(handle)))
+        self._handle = handle
+        self.last_stats = StepStats()
+
+    def __del__(self):
+        if getattr(self, "_handle", None):
+            library().hh_data_free(self._handle)
+            self._handle = None
+
+    def reset(self) -> None:
+        _check(library().hh_data_reset(self.model._handle, self._handle))
+
+    def positions(self) -> np.ndarray:
+        x = np.empty((self.model.n_nodes, 3))
+        _check(library().hh_get_state(self.model._handle, self._handle, _ptr(x), None, self.model.n_nodes,
+                                      None, None, None, None))
+        return x
+
+    def velocities(self) -> np.ndarray:
+        v = np.empty((self.model.n_nodes, 3))
+        _check(library().hh_get_state(self.model._handle, self._handle, None, _ptr(v), self.model.n_nodes,
+                                      None, None, None, None))
+        return v
+
+    def handle(self) -> HandleState:
+        p, q, v, w = np.empty(3), np.empty(4), np.empty(3), np.empty(3)
+        _check(library().hh_get_state(self.model._handle, self._handle, None, None, self.model.n_nodes,
+                                      _ptr(p), _ptr(q), _ptr(v), _ptr(w)))
+        return HandleState(p, q, v, w)
+
+    def set_state(self, positions=None, velocities=None, handle_position=None, handle_quaternion=None,
+                  handle_velocity=None, handle_angular_velocity=None) -> None:
+        n = self.model.n_nodes
+        x = None if positions is None else _f64(positions, (n, 3), "positions")
+        v = None if velocities is None else _f64(velocities, (n, 3), "velocities")
+        hp = None if handle_position is None else _f64(handle_position, (3,), "handle_position")
+        hq = None if handle_quaternion is None else _f64(handle_quaternion, (4,), "handle_quaternion")
+        hv = None if handle_velocity is None else _f64(handle_velocity, (3,), "handle_velocity")
+        hw = None if handle_angular_velocity is None else _f64(handle_angular_velocity, (3,), "handle_angular_velocity")
+        _check(library().hh_set_state(self.model._handle, self._handle, _ptr(x), _ptr(v), n,
+                                      _ptr(hp), _ptr(hq), _ptr(hv), _ptr(hw)))
+
+    def set_device(self, position=None, quaternion=None, velocity=None, angular_velocity=None,
+                   enabled: bool = True) -> None:
+        """The tracked device frame at the end of the next step; enabled=False detaches it."""
+        args = [
+            None if a is None else _f64(a, (k,), name)
+            for a, k, name in ((position, 3, "device position"), (quaternion, 4, "device quaternion"),
+                               (velocity, 3, "device velocity"), (angular_velocity, 3, "device angular velocity"))
+        ]
+        _check(library().hh_set_device(self._handle, int(enabled), *(_ptr(a) for a in args)))
+
+    def step(self, monolithic: bool = False) -> dict:
+        fn = library().hh_step_monolithic if monolithic else library().hh_step
+        _check(fn(self.model._handle, self._handle, ctypes.byref(self.last_stats)))
+        return self.last_stats.as_dict()
+
+    def compare_solvers(self) -> float:
+        """max|v_schur - v_monolithic| / max|v_monolithic| for the step from the current state."""
+        out = ctypes.c_double()
+        _check(library().hh_compare_solvers(self.model._handle, self._handle, ctypes.byref(out)))
+        return out.value
+
+    def coupling_wrench(self) -> tuple[np.ndarray, np.ndarray]:
+        """Total spring force and torque on the handle (N, N m)."""
+        f, t = np.empty(3), np.empty(3)
+        _check(library().hh_coupling_wrench(self.model._handle, self._handle, _ptr(f), _ptr(t)))
+        return f, t
+
+    def energies(self) -> dict:
+        k, e, s = ctypes.c_double(), ctypes.c_double(), ctypes.c_double()
+        _check(library().hh_energies(self.model._handle, self._handle, ctypes.byref(k), ctypes.byref(e),
+                                     ctypes.byref(s)))
+        return {"kinetic": k.value, "elastic": e.value, "spring": s.value}
+
+    def linear_momentum(self) -> np.ndarray:
+        p = np.empty(3)
+        _check(library().hh_linear_momentum(self.model._handle, self._handle, _ptr(p)))
+        return p
