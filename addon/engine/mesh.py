@@ -1,0 +1,613 @@
+"""Surface and tetrahedral meshes of the hand: a procedural hand, OBJ input/output, surface
+checks, tetrahedralization with pytetwild, and barycentric embedding of a render mesh in the
+tet mesh.
+
+Conventions: SI units (metres); positions are float64 arrays of shape (n, 3); triangles and
+tets are int32 index arrays of shape (m, 3) and (m, 4). A tet (x0, x1, x2, x3) is positively
+oriented when det[x1 - x0, x2 - x0, x3 - x0] > 0. Never imports bpy.
+"""
+
+from __future__ import annotations
+
+import math
+import pathlib
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+#: Smallest tet volume (m^3) accepted as non-degenerate: a regular tet with 20 um edges.
+MIN_TET_VOLUME = 1e-15
+
+# Relative tolerance of the barycentric containment test (weights are dimensionless).
+_INSIDE_TOLERANCE = 1e-10
+
+# Simplices (tets, boundary faces) with the nearest centroids tried first for each point.
+_NEAREST_CANDIDATES = 8
+
+# Outward faces of a positively oriented tet, as local vertex indices.
+_TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
+
+
+class MeshError(ValueError):
+    """A mesh that cannot be used; the message names the problem and how to fix it."""
+
+
+# --------------------------------------------------------------------------------------------
+# Procedural hand
+# --------------------------------------------------------------------------------------------
+# Right hand, palm facing -X, thumb towards +Y, fingertips towards -Z (as hand.obj).
+
+_PALM_CENTRE = np.array([0.0, 0.0, -0.0425])
+_PALM_HALF_EXTENTS = np.array([0.0125, 0.045, 0.0525])  # 2.5 cm thick, 9 cm wide, 10.5 cm long
+_PALM_ROUNDING = 0.012
+_FINGER_ROOT_Z = -0.075  # finger capsules start inside the palm so the blend hides their ends
+_KNUCKLE_Z = _PALM_CENTRE[2] - _PALM_HALF_EXTENTS[2]
+
+# (y of the root, radius, length beyond the knuckle line, fan angle in the y-z plane):
+# little, ring, middle, index. Neighbours are 5 mm apart at the root; the fan widens the gap.
+_FINGERS = (
+    (-0.0335, 0.0075, 0.062, -0.12),
+    (-0.0125, 0.0085, 0.080, -0.045),
+    (0.0095, 0.0090, 0.085, 0.0),
+    (0.0320, 0.0085, 0.075, 0.05),
+)
+_FINGER_GAP = 0.005
+_FINGER_BLEND = 0.010
+
+_THUMB_ROOT = np.array([-0.002, 0.028, -0.025])
+_THUMB_DIRECTION = np.array([-0.35, 0.8, -0.55])  # out to the side, down, towards the palm
+_THUMB_LENGTH = 0.06
+_THUMB_RADIUS = 0.0105
+_THUMB_BLEND = 0.015
+
+
+def _rounded_box_distance(p, centre, half_extents, rounding):
+    q = np.abs(p - centre) - (half_extents - rounding)
+    outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
+    inside = np.minimum(q.max(axis=-1), 0.0)
+    return outside + inside - rounding
+
+
+def _capsule_distance(p, a, b, radius):
+    ab = b - a
+    t = np.clip(((p - a) @ ab) / (ab @ ab), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[..., None] * ab), axis=-1) - radius
+
+
+def _smooth_union(d1, d2, k):
+    # Polynomial smooth minimum: a fillet of width about k where the two shapes meet.
+    h = np.maximum(k - np.abs(d1 - d2), 0.0) / k
+    return np.minimum(d1, d2) - h * h * k / 4.0
+
+
+def _finger_segments():
+    """Capsule axis end points (root, tip centre) and radius of each finger and the thumb."""
+    segments = []
+    for root_y, radius, length, angle in _FINGERS:
+        root = np.array([0.0, root_y, _FINGER_ROOT_Z])
+        direction = np.array([0.0, math.sin(angle), -math.cos(angle)])
+        # The tip reaches `length` below the knuckle line, measured along the finger.
+        axis_length = (_FINGER_ROOT_Z - _KNUCKLE_Z) + length - radius
+        segments.append((root, root + axis_length * direction, radius, _FINGER_BLEND))
+    direction = _THUMB_DIRECTION / np.linalg.norm(_THUMB_DIRECTION)
+    segments.append(
+        (_THUMB_ROOT, _THUMB_ROOT + _THUMB_LENGTH * direction, _THUMB_RADIUS, _THUMB_BLEND)
+    )
+    return segments
+
+
+def _hand_distance(p):
+    palm = _rounded_box_distance(p, _PALM_CENTRE, _PALM_HALF_EXTENTS, _PALM_ROUNDING)
+    # Each finger is blended with the palm only, never with its neighbours, so the gaps
+    # between fingers stay open.
+    return np.min(
+        [
+            _smooth_union(palm, _capsule_distance(p, a, b, r), k)
+            for a, b, r, k in _finger_segments()
+        ],
+        axis=0,
+    )
+
+
+def procedural_hand(resolution: float = 0.004):
+    """Closed, outward-wound, genus-0 triangle surface of a right hand (about 19 cm long).
+
+    The hand is a smooth union of a rounded palm slab and five capsules, sampled as a signed
+    distance field on a grid of spacing `resolution` (m) and contoured by marching cubes.
+    Returns (V float64 (n, 3), F int32 (m, 3)); the same arguments give the same mesh.
+    """
+    import pyvista
+
+    if not 0.0 < resolution < _FINGER_GAP:
+        raise MeshError(
+            f"resolution {resolution} m is out of range: the grid must be finer than the "
+            f"{_FINGER_GAP * 1000:.0f} mm gap between fingers or the fingers fuse; "
+            f"pass a resolution between 0 and {_FINGER_GAP} m (default 0.004)"
+        )
+    lower = np.full(3, np.inf)
+    upper = np.full(3, -np.inf)
+    for a, b, radius, _ in _finger_segments():
+        lower = np.minimum(lower, np.minimum(a, b) - radius)
+        upper = np.maximum(upper, np.maximum(a, b) + radius)
+    lower = np.minimum(lower, _PALM_CENTRE - _PALM_HALF_EXTENTS)
+    upper = np.maximum(upper, _PALM_CENTRE + _PALM_HALF_EXTENTS)
+    # Two empty cells of margin so the contour closes inside the grid.
+    lower -= 2 * resolution
+    dims = np.ceil((upper + 2 * resolution - lower) / resolution).astype(int) + 1
+
+    grid = pyvista.ImageData(dimensions=dims, spacing=(resolution,) * 3, origin=lower)
+    distance = _hand_distance(np.asarray(grid.points, dtype=np.float64))
+    # Keep samples off the zero level so marching cubes makes no zero-length edges.
+    tiny = 1e-6 * resolution
+    distance[np.abs(distance) < tiny] = tiny
+    grid.point_data["distance"] = distance
+    contour = grid.contour([0.0], scalars="distance", method="marching_cubes")
+    contour = contour.triangulate()
+
+    V = np.asarray(contour.points, dtype=np.float64)
+    F = np.asarray(contour.faces, dtype=np.int64).reshape(-1, 4)[:, 1:]
+    V, F = _clean_surface(V, F)
+    if surface_volume(V, F) < 0.0:
+        F = F[:, ::-1]
+    return V, F.astype(np.int32)
+
+
+def _clean_surface(V, F):
+    """Merge coincident vertices, drop triangles with repeated vertices, compact indices."""
+    V, inverse = np.unique(V, axis=0, return_inverse=True)
+    F = inverse.reshape(-1)[F]
+    repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])
+    F = F[~repeated]
+    used, F = np.unique(F, return_inverse=True)
+    return V[used], F.reshape(-1, 3)
+
+
+def procedural_hand_palm_seed() -> np.ndarray:
+    """A point inside the palm of `procedural_hand`, 12 mm from its faces."""
+    return _PALM_CENTRE.copy()
+
+
+# --------------------------------------------------------------------------------------------
+# OBJ files
+# --------------------------------------------------------------------------------------------
+
+
+def load_obj(path):
+    """Vertices and triangles of an OBJ file; polygons are split into fans, vt/vn ignored."""
+    vertices = []
+    triangles = []
+    with open(path, encoding="utf-8", errors="replace") as obj:
+        for line_number, line in enumerate(obj, start=1):
+            fields = line.split()
+            if not fields:
+                continue
+            try:
+                if fields[0] == "v":
+                    vertices.append([float(x) for x in fields[1:4]])
+                elif fields[0] == "f":
+                    # "f 1/2/3 ..." keeps only the position index; negative is relative.
+                    corners = [int(field.split("/")[0]) for field in fields[1:]]
+                    corners = [c - 1 if c > 0 else len(vertices) + c for c in corners]
+                    triangles.extend(
+                        [corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1)
+                    )
+            except ValueError as error:
+                raise MeshError(
+                    f"{path}:{line_number}: cannot read {fields[0]!r} line ({error}); "
+                    "re-export the mesh as OBJ with triangulated or polygon faces"
+                ) from None
+    V = np.array(vertices, dtype=np.float64).reshape(-1, 3)
+    F = np.array(triangles, dtype=np.int32).reshape(-1, 3)
+    return V, F
+
+
+def save_obj(path, V, F):
+    """Write vertices and triangles as an OBJ file (1-based indices, full float precision)."""
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    with open(pathlib.Path(path), "w", encoding="utf-8") as obj:
+        obj.write("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in V.tolist()))
+        obj.write("".join(f"f {a} {b} {c}\n" for a, b, c in (F + 1).tolist()))
+
+
+# --------------------------------------------------------------------------------------------
+# Surface checks
+# --------------------------------------------------------------------------------------------
+
+
+def surface_volume(V, F) -> float:
+    """Signed volume enclosed by a closed triangle surface (positive when wound outward)."""
+    V = np.asarray(V, dtype=np.float64)
+    # Cones from a point near the surface rather than the origin, to limit cancellation.
+    a, b, c = (V[np.asarray(F)[:, i]] - V[0] for i in range(3))
+    return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
+
+
+def check_closed_surface(V, F) -> None:
+    """Raise MeshError unless (V, F) is a closed, 2-manifold, outward-wound triangle surface."""
+    V = np.asarray(V)
+    F = np.asarray(F)
+    if V.size == 0 or F.size == 0:
+        raise MeshError(
+            f"surface is empty ({len(V)} vertices, {len(F)} triangles); "
+            "select a mesh object with faces"
+        )
+    if V.ndim != 2 or V.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 3:
+        raise MeshError(
+            f"surface arrays have shapes {V.shape} and {F.shape}; pass vertices as (n, 3) "
+            "and triangles as (m, 3) (triangulate polygons first)"
+        )
+    V = V.astype(np.float64)
+    bad = ~np.isfinite(V).all(axis=1)
+    if bad.any():
+        raise MeshError(
+            f"surface has {bad.sum()} vertices with NaN or infinite coordinates (first is "
+            f"vertex {np.argmax(bad)}); delete or re-place them"
+        )
+    F = F.astype(np.int64)
+    bad = ((F < 0) | (F >= len(V))).any(axis=1)
+    if bad.any():
+        raise MeshError(
+            f"triangle {np.argmax(bad)} refers to a vertex outside 0..{len(V) - 1}; "
+            "fix the face indices (re-export the mesh)"
+        )
+
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    diagonal = np.linalg.norm(V.max(axis=0) - V.min(axis=0))
+    degenerate = area <= 1e-14 * diagonal**2
+    if degenerate.any():
+        first = np.argmax(degenerate)
+        raise MeshError(
+            f"surface has {degenerate.sum()} zero-area triangles (first is triangle {first}, "
+            f"vertices {F[first].tolist()}); merge close vertices and dissolve degenerate "
+            "faces (Blender: Mesh > Clean Up > Merge by Distance, Degenerate Dissolve)"
+        )
+
+    n = len(V)
+    tails = F.reshape(-1)
+    heads = F[:, [1, 2, 0]].reshape(-1)
+    undirected = np.minimum(tails, heads) * n + np.maximum(tails, heads)
+    _, first_use, uses = np.unique(undirected, return_index=True, return_counts=True)
+    for mask, problem, fix in (
+        (
+            uses == 1,
+            "surface is open: {count} boundary edges",
+            "close the holes (Blender: Select > Select All by Trait > Non Manifold, then "
+            "Face > Fill)",
+        ),
+        (
+            uses > 2,
+            "surface is non-manifold: {count} edges shared by more than two triangles",
+            "make every edge border exactly two faces (Blender: Select > Select All by "
+            "Trait > Non Manifold, then delete or separate the extra faces)",
+        ),
+    ):
+        if mask.any():
+            edge = first_use[np.argmax(mask)]
+            raise MeshError(
+                f"{problem.format(count=mask.sum())} (first from vertex {tails[edge]} to "
+                f"vertex {heads[edge]}); {fix} before tetrahedralizing"
+            )
+    # On a closed manifold each edge has two triangles; they agree on the winding exactly
+    # when they traverse the edge in opposite directions.
+    _, first_use, uses = np.unique(tails * n + heads, return_index=True, return_counts=True)
+    if (uses > 1).any():
+        edge = first_use[np.argmax(uses > 1)]
+        raise MeshError(
+            f"surface winding is inconsistent: {(uses > 1).sum()} edges are traversed the same "
+            f"way by both their triangles (first from vertex {tails[edge]} to vertex "
+            f"{heads[edge]}, triangle {edge // 3}); make the normals consistent (Blender: "
+            "Mesh > Normals > Recalculate Outside)"
+        )
+    volume = surface_volume(V, F)
+    if volume <= 0.0:
+        raise MeshError(
+            f"surface encloses a negative volume ({volume:.3g} m^3): its triangles are wound "
+            "inward; flip the normals (Blender: Mesh > Normals > Recalculate Outside, or Flip)"
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Tetrahedra
+# --------------------------------------------------------------------------------------------
+
+
+def tet_signed_volumes(nodes, tets) -> np.ndarray:
+    """Signed volume of each tet, det[x1 - x0, x2 - x0, x3 - x0] / 6."""
+    x = np.asarray(nodes, dtype=np.float64)[np.asarray(tets)]
+    edges = x[:, 1:] - x[:, :1]
+    return np.einsum("ij,ij->i", edges[:, 0], np.cross(edges[:, 1], edges[:, 2])) / 6.0
+
+
+def check_tets(nodes, tets) -> None:
+    """Raise MeshError unless every tet indexes a finite node and has positive volume."""
+    nodes = np.asarray(nodes, dtype=np.float64)
+    tets = np.asarray(tets)
+    if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) < 1:
+        raise MeshError(
+            f"tet array has shape {tets.shape}; a tet mesh needs at least one tet as (m, 4) "
+            "indices: tetrahedralize the surface"
+        )
+    if nodes.ndim != 2 or nodes.shape[1] != 3:
+        raise MeshError(f"node array has shape {nodes.shape}; pass node positions as (n, 3)")
+    bad = ~np.isfinite(nodes).all(axis=1)
+    if bad.any():
+        raise MeshError(
+            f"{bad.sum()} tet nodes have NaN or infinite coordinates (first is node "
+            f"{np.argmax(bad)}); re-tetrahedralize the surface"
+        )
+    bad = ((tets < 0) | (tets >= len(nodes))).any(axis=1)
+    if bad.any():
+        raise MeshError(
+            f"tet {np.argmax(bad)} refers to a node outside 0..{len(nodes) - 1}; "
+            "re-tetrahedralize the surface"
+        )
+    volumes = tet_signed_volumes(nodes, tets)
+    bad = volumes <= MIN_TET_VOLUME
+    if bad.any():
+        first = np.argmax(bad)
+        kind = "inverted" if volumes[first] < 0 else "zero-volume"
+        raise MeshError(
+            f"{bad.sum()} tets are inverted or degenerate; first is tet {first} ({kind}, "
+            f"volume {volumes[first]:.3g} m^3, at most {MIN_TET_VOLUME:g}); re-tetrahedralize "
+            "the surface, or swap two vertices of inverted tets"
+        )
+
+
+def tetrahedralize(V, F, edge_length_fac=0.1, coarsen=False, epsilon=1e-3, progress=None):
+    """Fill a closed surface with positively oriented tets using pytetwild (fTetWild).
+
+    edge_length_fac: target tet edge length as a fraction of the bounding-box diagonal.
+    epsilon: how far the tet boundary may stray from the surface, relative to that diagonal.
+    progress: optional callable progress(fraction, message), called between stages.
+    Returns (nodes float64 (n, 3), tets int32 (m, 4)); every node belongs to a tet.
+    The output of pytetwild differs from run to run: store the tets you simulate.
+    """
+
+    def report(fraction, message):
+        if progress is not None:
+            progress(fraction, message)
+
+    report(0.0, "checking the surface")
+    check_closed_surface(V, F)
+    report(0.05, "tetrahedralizing (fTetWild)")
+    import pytetwild
+
+    nodes, tets = pytetwild.tetrahedralize(
+        np.ascontiguousarray(V, dtype=np.float64),
+        np.ascontiguousarray(F, dtype=np.int32),
+        edge_length_fac=edge_length_fac,
+        coarsen=coarsen,
+        epsilon=epsilon,
+        quiet=True,
+    )
+    nodes = np.asarray(nodes, dtype=np.float64).reshape(-1, 3)
+    tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
+    if len(tets) == 0:
+        raise MeshError(
+            "pytetwild returned no tets; check that the surface encloses a volume larger than "
+            "the target edge length, or lower edge_length_fac"
+        )
+
+    report(0.9, "orienting tets")
+    inverted = tet_signed_volumes(nodes, tets) < 0.0
+    tets[inverted] = tets[inverted][:, [0, 2, 1, 3]]
+    used, compact = np.unique(tets, return_inverse=True)
+    nodes = nodes[used]
+    tets = compact.reshape(-1, 4).astype(np.int32)
+    volumes = tet_signed_volumes(nodes, tets)
+    if (volumes <= MIN_TET_VOLUME).any():
+        first = np.argmax(volumes <= MIN_TET_VOLUME)
+        raise MeshError(
+            f"pytetwild made {(volumes <= MIN_TET_VOLUME).sum()} flat tets (first is tet "
+            f"{first}, volume {volumes[first]:.3g} m^3); tetrahedralize again with a larger "
+            "edge_length_fac or epsilon, or check that the surface is in metres"
+        )
+    report(1.0, f"done: {len(tets)} tets, {len(nodes)} nodes")
+    return nodes, tets
+
+
+def tet_boundary_faces(tets) -> np.ndarray:
+    """Triangles used by exactly one tet, wound outward (for positively oriented tets)."""
+    faces, on_boundary = _boundary_face_mask(tets)
+    return faces[on_boundary].astype(np.int32)
+
+
+# --------------------------------------------------------------------------------------------
+# Barycentric embedding
+# --------------------------------------------------------------------------------------------
+
+
+class _BoundingSpheres:
+    """Spheres about the centroids of simplices (tets or triangles) that hold them, kept in
+    k-d trees, one per octave of radius, so that a search near small simplices is not
+    flooded by the reach of the largest ones."""
+
+    def __init__(self, corners):
+        self.centres = corners.mean(axis=1)
+        self.radii = np.linalg.norm(corners - self.centres[:, None], axis=2).max(axis=1)
+        self.tree = cKDTree(self.centres)
+        octave = np.floor(np.log2(self.radii / self.radii.min())).astype(int)
+        self.buckets = []
+        for level in np.unique(octave):
+            ids = np.flatnonzero(octave == level)
+            self.buckets.append((ids, cKDTree(self.centres[ids]), self.radii[ids].max()))
+
+    def nearest(self, points, k):
+        """(owner, simplex) pairs: the k simplices with centroids nearest each point."""
+        k = min(k, len(self.centres))
+        _, ids = self.tree.query(points, k=k)
+        return np.repeat(np.arange(len(points)), k), ids.reshape(-1)
+
+    def within(self, points, distance):
+        """(owner, simplex) pairs for every simplex whose sphere comes within distance[i] of
+        points[i]: all those that could contain the point or be that close to it."""
+        owners, candidates = [], []
+        for ids, tree, radius in self.buckets:
+            bucket_owners, bucket_ids = _pairs(tree.query_ball_point(points, r=distance + radius))
+            owners.append(bucket_owners)
+            candidates.append(ids[bucket_ids])
+        owners, candidates = np.concatenate(owners), np.concatenate(candidates)
+        gap = np.linalg.norm(points[owners] - self.centres[candidates], axis=1)
+        keep = gap - self.radii[candidates] <= distance[owners]
+        return owners[keep], candidates[keep]
+
+
+def _pairs(candidate_lists):
+    """Flatten ragged candidate lists into (owner row, candidate) index arrays."""
+    counts = np.fromiter(map(len, candidate_lists), dtype=np.int64, count=len(candidate_lists))
+    owners = np.repeat(np.arange(len(candidate_lists)), counts)
+    candidates = np.fromiter(
+        (t for c in candidate_lists for t in c), dtype=np.int64, count=int(counts.sum())
+    )
+    return owners, candidates
+
+
+def _first_per_owner(owners, order_key, count):
+    """For each of `count` owners, the index of its pair with the smallest key, or -1."""
+    chosen = np.full(count, -1, dtype=np.int64)
+    if len(owners) == 0:
+        return chosen
+    order = np.lexsort((order_key, owners))
+    first = order[np.r_[True, owners[order][1:] != owners[order][:-1]]]
+    chosen[owners[first]] = first
+    return chosen
+
+
+def _closest_point_on_triangles(p, a, b, c):
+    """Closest point to p[i] on triangle (a[i], b[i], c[i]), after Ericson, Real-Time
+    Collision Detection, 5.1.5: find the Voronoi region of p (vertex, edge or face)."""
+
+    def dot(u, v):
+        return np.einsum("ij,ij->i", u, v)
+
+    def ratio(num, den):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(den != 0.0, num / den, 0.0)[:, None]
+
+    ab, ac, bc = b - a, c - a, c - b
+    d1, d2 = dot(ab, p - a), dot(ac, p - a)
+    d3, d4 = dot(ab, p - b), dot(ac, p - b)
+    d5, d6 = dot(ab, p - c), dot(ac, p - c)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    total = va + vb + vc
+    regions = [
+        ((d1 <= 0) & (d2 <= 0), a),
+        ((d3 >= 0) & (d4 <= d3), b),
+        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + ratio(d1, d1 - d3) * ab),
+        ((d6 >= 0) & (d5 <= d6), c),
+        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + ratio(d2, d2 - d6) * ac),
+        ((va <= 0) & (d4 >= d3) & (d5 >= d6), b + ratio(d4 - d3, (d4 - d3) + (d5 - d6)) * bc),
+    ]
+    closest = a + ratio(vb, total) * ab + ratio(vc, total) * ac  # inside the face
+    for region, point in reversed(regions):  # so that earlier regions take precedence
+        closest = np.where(region[:, None], point, closest)
+    return closest
+
+
+def _barycentric_weights(corners, points):
+    """Unclamped barycentric weights (m, 4) of points[i] in the tet with corners[i]."""
+    edges = np.transpose(corners[:, 1:] - corners[:, :1], (0, 2, 1))  # columns x1-x0, ...
+    local = np.linalg.solve(edges, (points - corners[:, 0])[..., None])[..., 0]
+    return np.concatenate([1.0 - local.sum(axis=1, keepdims=True), local], axis=1)
+
+
+def _boundary_face_mask(tets):
+    """Outward faces of every tet (4 per tet, in tet order) and which are used only once."""
+    faces = np.asarray(tets)[:, _TET_FACES].reshape(-1, 3)
+    _, inverse, uses = np.unique(
+        np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True
+    )
+    return faces, uses[inverse.reshape(-1)] == 1
+
+
+def embed_points(nodes, tets, points):
+    """Barycentric coordinates of each point in a tet of the mesh.
+
+    A point inside the mesh gets a tet containing it (all weights >= 0 up to rounding).
+    A point outside every tet (pytetwild's envelope lets the surface stray from the tet
+    boundary) gets the nearest tet and unclamped weights, which extrapolate exactly.
+    Either way sum_j weights[i, j] * nodes[tets[tet_index[i], j]] == points[i].
+    Returns (tet_index int32 (p,), weights float64 (p, 4)).
+    """
+    nodes = np.asarray(nodes, dtype=np.float64)
+    tets = np.asarray(tets, dtype=np.int64)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    check_tets(nodes, tets)
+    corners = nodes[tets]
+    spheres = _BoundingSpheres(corners)
+    tet_index = np.full(len(points), -1, dtype=np.int64)
+    weights = np.zeros((len(points), 4))
+
+    def take_containing(rows, owners, candidates):
+        """Give each of points[rows] the lowest-numbered candidate tet containing it."""
+        pair_weights = _barycentric_weights(corners[candidates], points[rows][owners])
+        hits = np.flatnonzero(pair_weights.min(axis=1) >= -_INSIDE_TOLERANCE)
+        chosen = _first_per_owner(owners[hits], candidates[hits], len(rows))
+        found = chosen >= 0
+        tet_index[rows[found]] = candidates[hits[chosen[found]]]
+        weights[rows[found]] = pair_weights[hits[chosen[found]]]
+        return rows[~found]
+
+    # Most points lie in one of the few tets whose centroids are nearest; for the rest,
+    # try every tet whose bounding sphere holds the point (the containment test accepts
+    # points a hair outside, hence the slack).
+    rest = take_containing(np.arange(len(points)), *spheres.nearest(points, _NEAREST_CANDIDATES))
+    if len(rest):
+        slack = np.full(len(rest), 1e-9 * spheres.radii.max())
+        rest = take_containing(rest, *spheres.within(points[rest], slack))
+
+    # Points outside the mesh get the nearest tet, the owner of the nearest boundary face:
+    # the distance to a few faces with nearby centroids bounds the search for it.
+    if len(rest):
+        faces, on_boundary = _boundary_face_mask(tets)
+        face_tets = np.flatnonzero(on_boundary) // 4
+        triangles = nodes[faces[on_boundary]]
+        face_spheres = _BoundingSpheres(triangles)
+        outside = points[rest]
+
+        def distances(owners, face_ids):
+            a, b, c = (triangles[face_ids, i] for i in range(3))
+            closest = _closest_point_on_triangles(outside[owners], a, b, c)
+            return np.linalg.norm(outside[owners] - closest, axis=1)
+
+        owners, face_ids = face_spheres.nearest(outside, _NEAREST_CANDIDATES)
+        bound = np.full(len(rest), np.inf)
+        np.minimum.at(bound, owners, distances(owners, face_ids))
+        owners, face_ids = face_spheres.within(outside, bound * (1 + 1e-9))
+        chosen = _first_per_owner(owners, distances(owners, face_ids), len(rest))
+        tet_index[rest] = face_tets[face_ids[chosen]]
+        weights[rest] = _barycentric_weights(corners[tet_index[rest]], outside)
+
+    return tet_index.astype(np.int32), weights
+
+
+def interpolate_embedded(nodes_positions, tets, tet_index, weights) -> np.ndarray:
+    """Positions of embedded points given (possibly deformed) tet node positions."""
+    corners = np.asarray(nodes_positions, dtype=np.float64)[np.asarray(tets)[tet_index]]
+    return np.einsum("pj,pjk->pk", weights, corners)
+
+
+# --------------------------------------------------------------------------------------------
+# Inside test
+# --------------------------------------------------------------------------------------------
+
+
+def point_inside_surface(V, F, p) -> bool:
+    """True when p is inside the closed surface: its generalized winding number (the solid
+    angle the surface subtends at p over 4 pi) is above one half."""
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F)
+    a, b, c = (V[F[:, i]] - np.asarray(p, dtype=np.float64) for i in range(3))
+    la, lb, lc = (np.linalg.norm(u, axis=1) for u in (a, b, c))
+    # Van Oosterom and Strackee: tan(omega / 2) of the triangle's solid angle.
+    numerator = np.einsum("ij,ij->i", a, np.cross(b, c))
+    denominator = (
+        la * lb * lc
+        + np.einsum("ij,ij->i", a, b) * lc
+        + np.einsum("ij,ij->i", b, c) * la
+        + np.einsum("ij,ij->i", c, a) * lb
+    )
+    winding = 2.0 * np.arctan2(numerator, denominator).sum() / (4.0 * math.pi)
+    return bool(winding > 0.5)
