@@ -24,6 +24,9 @@ _INSIDE_TOLERANCE = 1e-10
 # Simplices (tets, boundary faces) with the nearest centroids tried first for each point.
 _NEAREST_CANDIDATES = 8
 
+# The file fTetWild leaves in the working directory on every run.
+_FTETWILD_STRAY_FILE = "__tracked_surface.stl"
+
 # Outward faces of a positively oriented tet, as local vertex indices.
 _TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
 
@@ -374,14 +377,22 @@ def tetrahedralize(V, F, edge_length_fac=0.1, coarsen=False, epsilon=1e-3, progr
     report(0.05, "tetrahedralizing (fTetWild)")
     import pytetwild
 
-    nodes, tets = pytetwild.tetrahedralize(
-        np.ascontiguousarray(V, dtype=np.float64),
-        np.ascontiguousarray(F, dtype=np.int32),
-        edge_length_fac=edge_length_fac,
-        coarsen=coarsen,
-        epsilon=epsilon,
-        quiet=True,
-    )
+    # fTetWild writes this debug file into the working directory; remove it unless it
+    # was there already.
+    stray = pathlib.Path(_FTETWILD_STRAY_FILE)
+    stray_existed = stray.exists()
+    try:
+        nodes, tets = pytetwild.tetrahedralize(
+            np.ascontiguousarray(V, dtype=np.float64),
+            np.ascontiguousarray(F, dtype=np.int32),
+            edge_length_fac=edge_length_fac,
+            coarsen=coarsen,
+            epsilon=epsilon,
+            quiet=True,
+        )
+    finally:
+        if not stray_existed:
+            stray.unlink(missing_ok=True)
     nodes = np.asarray(nodes, dtype=np.float64).reshape(-1, 3)
     tets = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
     if len(tets) == 0:

@@ -47,13 +47,16 @@ def hand_tets(hand_surface):
 
 
 @pytest.fixture(scope="module")
-def cube_tets():
+def cube_tets(tmp_path_factory):
     V, F = cube_surface()
     progress = []
-    nodes, tets = mesh.tetrahedralize(
-        V, F, edge_length_fac=0.2, progress=lambda f, m: progress.append((f, m))
-    )
-    return nodes, tets, progress
+    workdir = tmp_path_factory.mktemp("cwd")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(workdir)
+        nodes, tets = mesh.tetrahedralize(
+            V, F, edge_length_fac=0.2, progress=lambda f, m: progress.append((f, m))
+        )
+    return nodes, tets, progress, list(workdir.iterdir())
 
 
 # --- procedural hand -------------------------------------------------------------------------
@@ -231,7 +234,7 @@ def test_load_obj_reports_the_bad_line(tmp_path):
 
 
 def test_tetrahedralize_fills_a_cube(cube_tets):
-    nodes, tets, _ = cube_tets
+    nodes, tets, _, _ = cube_tets
     assert tets.dtype == np.int32 and nodes.dtype == np.float64
     volumes = mesh.tet_signed_volumes(nodes, tets)
     assert (volumes > 0).all()
@@ -242,11 +245,16 @@ def test_tetrahedralize_fills_a_cube(cube_tets):
 
 
 def test_tetrahedralize_reports_progress_from_start_to_end(cube_tets):
-    _, _, progress = cube_tets
+    _, _, progress, _ = cube_tets
     fractions = [f for f, _ in progress]
     assert fractions[0] == 0.0 and fractions[-1] == 1.0
     assert fractions == sorted(fractions)
     assert all(isinstance(message, str) and message for _, message in progress)
+
+
+def test_tetrahedralize_leaves_no_files_in_the_working_directory(cube_tets):
+    *_, left_behind = cube_tets
+    assert left_behind == []
 
 
 def test_tetrahedralize_gives_a_positive_hand_with_a_closed_boundary(hand_tets):
