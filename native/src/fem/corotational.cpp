@@ -1,5 +1,7 @@
 #include "fem/corotational.h"
 
+#include "rigid/quaternion.h"
+
 #include <algorithm>
 #include <cmath>
 #include <sstream>
@@ -79,30 +81,50 @@ VecX lumped_masses(const TetMesh& mesh, const CorotationalElements& elements, do
     return m;
 }
 
-Mat3 element_rotation(const TetMesh& mesh, const CorotationalElements& elements, int e,
-                      const VecX& x) {
+Mat3 deformation_gradient(const TetMesh& mesh, const CorotationalElements& elements, int e, const VecX& x) {
     const auto& t = mesh.tets[e];
     const Vec3 x0 = node(x, t[0]);
     Mat3 ds;
     ds << node(x, t[1]) - x0, node(x, t[2]) - x0, node(x, t[3]) - x0;
-    const Mat3 f = ds * elements.rest_inverse[e];
-    Eigen::JacobiSVD<Mat3> svd(f, Eigen::ComputeFullU | Eigen::ComputeFullV);
-    Mat3 u = svd.matrixU();
-    const Mat3 v = svd.matrixV();
-    // An inverted element has det F < 0: flip the axis of the smallest singular value so R
-    // stays a rotation and the elastic force pushes the element back out (Irving et al. 2004).
-    if ((u * v.transpose()).determinant() < 0) u.col(2) = -u.col(2);
-    return u * v.transpose();
+    return ds * elements.rest_inverse[e];
+}
+
+Mat3 polar_rotation(const Mat3& f, Vec4& q) {
+    if (f.determinant() <= 0) {
+        Eigen::JacobiSVD<Mat3> svd(f, Eigen::ComputeFullU | Eigen::ComputeFullV);
+        Mat3 u = svd.matrixU();
+        const Mat3 v = svd.matrixV();
+        if ((u * v.transpose()).determinant() < 0) u.col(2) = -u.col(2);
+        const Mat3 r = u * v.transpose();
+        q = quat_from_matrix(r);
+        return r;
+    }
+    Mat3 r = quat_to_matrix(q);
+    for (int iter = 0; iter < 50; ++iter) {
+        // rotate R towards F about the axis sum_i r_i x f_i (Mueller et al. 2016, Alg. 1)
+        const Vec3 torque = r.col(0).cross(f.col(0)) + r.col(1).cross(f.col(1)) + r.col(2).cross(f.col(2));
+        const double align = std::abs(r.col(0).dot(f.col(0)) + r.col(1).dot(f.col(1)) + r.col(2).dot(f.col(2)));
+        const Vec3 omega = torque / (align + 1e-300);
+        if (omega.norm() < 1e-15) break;
+        q = quat_multiply(quat_from_rotation_vector(omega), q);
+        q.normalize();
+        r = quat_to_matrix(q);
+    }
+    return r;
 }
 
 double add_elastic_forces(const TetMesh& mesh, const CorotationalElements& elements,
-                          const VecX& x, VecX& f, std::vector<Mat3>* rotations) {
+                          const VecX& x, VecX& f, ElementRotations* rotations) {
+    const size_t m = mesh.tets.size();
+    ElementRotations local;
+    ElementRotations& rot = rotations ? *rotations : local;
+    if (rot.q.size() != m) rot.q.assign(m, quat_identity());
+    rot.r.resize(m);
     double energy = 0;
-    if (rotations) rotations->resize(mesh.tets.size());
     Eigen::Matrix<double, 12, 1> u, fe;
-    for (size_t e = 0; e < mesh.tets.size(); ++e) {
-        const Mat3 r = element_rotation(mesh, elements, static_cast<int>(e), x);
-        if (rotations) (*rotations)[e] = r;
+    for (size_t e = 0; e < m; ++e) {
+        const Mat3 r = polar_rotation(deformation_gradient(mesh, elements, static_cast<int>(e), x), rot.q[e]);
+        rot.r[e] = r;
         const auto& t = mesh.tets[e];
         // displacement measured from node 0: Ke ignores translations, and dropping them
         // keeps round-off from a far-away body out of the energy
@@ -155,11 +177,15 @@ void add_warped_stiffness(const CorotationalElements& elements, const std::vecto
         const Mat3& r = rotations[e];
         const Mat12& k = elements.stiffness[e];
         const int* off = &pattern.element_offsets[e * 144];
+        // R Ke R^T is symmetric: compute the blocks with a <= b and mirror the others
         for (int a = 0; a < 4; ++a)
-            for (int b = 0; b < 4; ++b) {
+            for (int b = a; b < 4; ++b) {
                 const Mat3 block = scale * (r * k.block<3, 3>(3 * a, 3 * b) * r.transpose());
                 for (int i = 0; i < 3; ++i)
-                    for (int j = 0; j < 3; ++j) values[off[(3 * a + i) * 12 + 3 * b + j]] += block(i, j);
+                    for (int j = 0; j < 3; ++j) {
+                        values[off[(3 * a + i) * 12 + 3 * b + j]] += block(i, j);
+                        if (a != b) values[off[(3 * b + j) * 12 + 3 * a + i]] += block(i, j);
+                    }
             }
     }
 }

@@ -36,14 +36,26 @@ CorotationalElements precompute_elements(const TetMesh& mesh, const Material& ma
 // Eq. 2: each tet gives a quarter of its mass to each of its nodes.
 VecX lumped_masses(const TetMesh& mesh, const CorotationalElements& elements, double density);
 
-// Rotation of the polar decomposition of F (a proper rotation even for inverted elements).
-Mat3 element_rotation(const TetMesh& mesh, const CorotationalElements& elements, int e,
-                      const VecX& x);
+// Per-element rotations, kept between steps: each step's polar decomposition starts from
+// the previous step's rotation, so it converges in one or two iterations.
+struct ElementRotations {
+    std::vector<Vec4> q;  // unit quaternions (x, y, z, s)
+    std::vector<Mat3> r;  // the same as matrices
+};
 
-// Adds the elastic forces of all elements to f and returns the elastic energy; if
-// rotations is non-null it receives each element's rotation.
+// Deformation gradient F = Ds Bm of element e.
+Mat3 deformation_gradient(const TetMesh& mesh, const CorotationalElements& elements, int e, const VecX& x);
+
+// Rotation of the polar decomposition of F: the rotation R maximizing trace(R^T F), found
+// by the iteration of Mueller, Bender, Chentanez & Macklin 2016 from the guess q (updated in
+// place). For an inverted element (det F <= 0) the rotation comes from the SVD with the
+// smallest singular direction flipped, so R stays proper and pushes the element back out.
+Mat3 polar_rotation(const Mat3& f, Vec4& q);
+
+// Adds the elastic forces of all elements to f and returns the elastic energy. rotations,
+// if non-null, supplies warm starts (when sized for the mesh) and receives the rotations.
 double add_elastic_forces(const TetMesh& mesh, const CorotationalElements& elements,
-                          const VecX& x, VecX& f, std::vector<Mat3>* rotations);
+                          const VecX& x, VecX& f, ElementRotations* rotations);
 
 // Sparse pattern of the 3n x 3n node-node matrix, with for every element the 144 offsets
 // of its entries in the value array, so assembly is a scatter with no search.

@@ -25,6 +25,11 @@ Mat3 quat_to_matrix(const Vec4& q) {
     return r;
 }
 
+Vec4 quat_from_matrix(const Mat3& r) {
+    const Eigen::Quaterniond e(r);  // Eigen stores (x, y, z, w) as coeffs()
+    return Vec4(e.x(), e.y(), e.z(), e.w()).normalized();
+}
+
 Eigen::Matrix4d quat_left_matrix(const Vec4& q) {
     Eigen::Matrix4d m;
     m.topLeftCorner<3, 3>() = q.w() * Mat3::Identity() + skew(q.head<3>());

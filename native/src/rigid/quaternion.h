@@ -10,6 +10,7 @@ Vec4 quat_identity();
 Vec4 quat_multiply(const Vec4& a, const Vec4& b);
 Vec4 quat_conjugate(const Vec4& q);
 Mat3 quat_to_matrix(const Vec4& q);  // R such that R r = q o (r, 0) o q'
+Vec4 quat_from_matrix(const Mat3& r);  // inverse of quat_to_matrix for a rotation matrix
 // q o p written as a matrix acting on p (left factor fixed) or on q (right factor fixed).
 Eigen::Matrix4d quat_left_matrix(const Vec4& q);
 Eigen::Matrix4d quat_right_matrix(const Vec4& p);

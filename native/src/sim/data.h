@@ -26,7 +26,7 @@ struct Data {
     RigidSystem rigid;
     HandSystem hand{tool, rigid};
     CouplingBlocks coupling;
-    std::vector<Mat3> rotations;
+    ElementRotations rotations;
     VecX f_elastic;
     double elastic_energy = 0;
     hh_step_stats stats{};

@@ -22,6 +22,7 @@ void reset(const Model& model, Data& data) {
     data.x = model.mesh.rest;
     data.v = VecX::Zero(model.mesh.rest.size());
     data.h = HandleState{};
+    data.rotations = ElementRotations{};
     data.h.x_com = model.handle.rest_com;
     data.device = DeviceFrame{};
     data.device.position = model.handle.rest_com;
@@ -50,7 +51,7 @@ void formulate(const Model& model, Data& data) {
     data.elastic_energy = add_elastic_forces(model.mesh, model.elements, data.x, data.f_elastic, &data.rotations);
     double* values = data.tool.A.valuePtr();
     std::fill(values, values + data.tool.A.nonZeros(), 0.0);
-    add_warped_stiffness(model.elements, data.rotations, model.pattern, dt * p.rayleigh_beta + dt * dt, values);
+    add_warped_stiffness(model.elements, data.rotations.r, model.pattern, dt * p.rayleigh_beta + dt * dt, values);
     for (int i = 0; i < n; ++i)
         for (int c = 0; c < 3; ++c)
             values[model.pattern.node_block_offsets[9 * i + 4 * c]] += model.masses[i] * (1 + dt * p.rayleigh_alpha);
