@@ -43,8 +43,9 @@ def cmd_demo(args) -> int:
     summary = simulate.summary(result)
     (out_dir / "summary.txt").write_text(summary + "\n")
     plot_path = plots.force_plot(result, out_dir / "coupling_force.png")
+    hand_path = plots.hand_plot(result, out_dir / "hand.png")
     print(summary)
-    print(f"result:  {result_path}\nsummary: {out_dir / 'summary.txt'}\nplot:    {plot_path}")
+    print(f"result:  {result_path}\nsummary: {out_dir / 'summary.txt'}\nforces:  {plot_path}\nhand:    {hand_path}")
     return 0
 
 

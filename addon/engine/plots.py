@@ -33,3 +33,47 @@ def force_plot(result: dict, path: Path | str) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def hand_plot(result: dict, path: Path | str, frame: int | None = None) -> Path:
+    """The render surface at rest and at one frame (default: the most deformed one), with the
+    handle nodes marked: a quick look without Blender."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .mesh import interpolate_embedded
+    from .simulate import flesh_deformation
+
+    if frame is None:
+        frame = int(np.argmax(flesh_deformation(result)))
+    faces = result["surface_faces"]
+    fig = plt.figure(figsize=(10, 5))
+    for col, (k, title) in enumerate([(0, "rest"), (frame, f"frame {frame} (t = {result['time'][frame]:.2f} s)")]):
+        ax = fig.add_subplot(1, 2, col + 1, projection="3d")
+        surf = interpolate_embedded(result["positions"][k], result["tets"], result["surface_tet_index"],
+                                    result["surface_weights"])
+        ax.plot_trisurf(surf[:, 0], surf[:, 1], surf[:, 2], triangles=faces, color="#e0b8a0",
+                        edgecolor="none", alpha=0.6, shade=True)
+        handle = result["positions"][k][result["handle_nodes"]]
+        ax.scatter(handle[:, 0], handle[:, 1], handle[:, 2], color="tab:green", s=12, label="handle nodes")
+        d = result["device_pose"][k, :3]
+        ax.scatter([d[0]], [d[1]], [d[2]], color="tab:red", s=40, marker="x", label="device")
+        ax.set_title(title)
+        lo, hi = result["rest_nodes"].min(0) - 0.03, result["rest_nodes"].max(0) + 0.03
+        centre, half = (lo + hi) / 2, (hi - lo).max() / 2
+        ax.set_xlim(centre[0] - half, centre[0] + half)
+        ax.set_ylim(centre[1] - half, centre[1] + half)
+        ax.set_zlim(centre[2] - half, centre[2] + half)
+        ax.set_box_aspect((1, 1, 1))
+        ax.view_init(elev=20, azim=-130)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_zlabel("z (m)")
+    fig.axes[0].legend(loc="upper left")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
