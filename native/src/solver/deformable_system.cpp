@@ -1,8 +1,8 @@
 #include "solver/deformable_system.h"
 
 #include <Eigen/IterativeLinearSolvers>
-#include <Eigen/SparseCholesky>
-#include <sstream>
+
+#include "solver/block_ldlt.h"
 
 namespace hh {
 
@@ -12,8 +12,7 @@ struct DeformableSystem::Impl {
     int cg_max_iterations = 2000;
     // The pattern of At never changes, so the symbolic analysis (AMD ordering, elimination
     // tree) is done once and only the numeric factorization is repeated each step.
-    Eigen::SimplicialLLT<SpMat, Eigen::Lower, Eigen::AMDOrdering<int>> cholesky;
-    bool analysed = false;
+    BlockLDLT cholesky;
     Eigen::ConjugateGradient<SpMat, Eigen::Lower | Eigen::Upper, Eigen::DiagonalPreconditioner<double>> cg;
     std::vector<VecX> warm;
 };
@@ -34,15 +33,8 @@ void DeformableSystem::solve() {
     Impl& m = *impl_;
     if (m.solver == DeformableSolver::Cholesky) {
         if (!factor_valid_) {
-            if (!m.analysed) {
-                m.cholesky.analyzePattern(A);
-                m.analysed = true;
-            }
+            if (!m.cholesky.analysed()) m.cholesky.analyze(A);
             m.cholesky.factorize(A);
-            if (m.cholesky.info() != Eigen::Success)
-                throw NumericalError(
-                    "the deformable system At is not positive definite (Cholesky failed): check "
-                    "for inverted elements, negative parameters or a far too large time step");
             factor_valid_ = true;
         }
         s = m.cholesky.solve(r);
