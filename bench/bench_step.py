@@ -109,6 +109,7 @@ def machine_info() -> dict:
         commit += " (native/ has uncommitted changes)" if dirty else ""
     except (OSError, subprocess.CalledProcessError):
         commit = "unknown"
+    library = str(native.library()._name)
     return {
         "cpu": cpu,
         "logical_cores": os.cpu_count(),
@@ -120,7 +121,10 @@ def machine_info() -> dict:
         "platform": platform.platform(),
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
         "git_commit": commit,
-        "library": str(native.library()._name),
+        "library": library,
+        "library_sha1": hashlib.sha1(Path(library).read_bytes()).hexdigest()[:12],
+        "library_built": datetime.datetime.fromtimestamp(Path(library).stat().st_mtime).astimezone()
+        .isoformat(timespec="seconds"),
     }
 
 
@@ -138,7 +142,7 @@ def print_machine(info: dict) -> None:
     print(f"OS:       {info['platform']}")
     print(f"date:     {info['date']}")
     print(f"commit:   {info['git_commit']}")
-    print(f"library:  {info['library']}")
+    print(f"library:  {info['library']} (sha1 {info['library_sha1']}, built {info['library_built']})")
 
 
 # ------------------------------------------------------------------------------------------
@@ -423,7 +427,7 @@ def plot(results: list[dict], sweep: dict | None, path: Path) -> None:
 
     colors = {"t_assembly": "#4c72b0", "t_deformable": "#dd8452", "t_schur": "#55a868", "t_other": "#8c8c8c"}
     n = max(len(results), 1)
-    fig = plt.figure(figsize=(3.3 * n + 1.5, 8.6), constrained_layout=True)
+    fig = plt.figure(figsize=(max(12.0, 3.3 * n + 1.5), 8.6), constrained_layout=True)
     grid = fig.add_gridspec(2, n, height_ratios=[1.15, 1])
     limits = dict(TARGETS)
     for i, r in enumerate(results):
@@ -489,9 +493,9 @@ def plot(results: list[dict], sweep: dict | None, path: Path) -> None:
             ax.legend(fontsize=7, loc="upper left")
             ax.set_xlabel("handle nodes (handle radius 15-60 mm)")
             ax.set_ylabel(f"{unit} per step (median)")
-        panels[0][0].set_title(f"Cost vs handle nodes: {sweep['n_tets']} tets, Cholesky, one trajectory replayed",
+        panels[0][0].set_title(f"Cost vs handle nodes: {sweep['n_tets']} tets, Cholesky,\none trajectory replayed for every radius",
                                fontsize=9)
-        panels[1][0].set_title("zoom: the handle's share outside assembly and solves", fontsize=9)
+        panels[1][0].set_title("zoom on the handle's share outside\nassembly and deformable solves", fontsize=9)
     else:
         ax = fig.add_subplot(grid[1, :])
         ax.text(0.5, 0.5, f"handle-node sweep not run (needs the ~{SWEEP_SIZE}-tet hand)", ha="center",

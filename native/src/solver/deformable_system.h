@@ -1,6 +1,6 @@
 // The deformable body's linear system: At is sparse symmetric positive definite (Eq. 7).
-// Two solvers: sparse Cholesky (factored on the first solve after At changes, then reused
-// by all the solves of the step) and Jacobi-preconditioned conjugate gradient, warm started
+// Two solvers: sparse block LDL^T, "cholesky" (factored on the first solve after At
+// changes, then reused by all the solves of the step) and Jacobi-preconditioned conjugate gradient, warm started
 // from the previous solution of the same right-hand-side slot.
 #pragma once
 #include <memory>
