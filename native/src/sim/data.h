@@ -3,6 +3,7 @@
 #pragma once
 #include <vector>
 
+#include "sim/flesh_step.h"
 #include "sim/model.h"
 #include "solver/hand_system.h"
 
@@ -16,9 +17,9 @@ struct DeviceFrame {
     Vec3 angular_velocity = Vec3::Zero();
 };
 
-struct Data {
+// FleshState holds x_t, v_t of Eq. 1 and the element rotations.
+struct Data : FleshState {
     explicit Data(const Model& model);
-    VecX x, v;       // Eq. 1: x_t, v_t
     HandleState h;   // Eq. 1: x_h = (x_com, q_h), v_h = (v_com, omega_h)
     DeviceFrame device;
 
@@ -26,9 +27,6 @@ struct Data {
     RigidSystem rigid;
     HandSystem hand{tool, rigid};
     CouplingBlocks coupling;
-    ElementRotations rotations;
-    VecX f_elastic;
-    double elastic_energy = 0;
     hh_step_stats stats{};
 };
 

@@ -66,38 +66,46 @@ void validate_params(const hh_params& p) {
     require(p.cg_max_iterations > 0, describe("cg_max_iterations", p.cg_max_iterations, "positive"));
 }
 
-Model build_model(const double* rest_positions, int n_nodes, const int* tets, int n_tets,
-                  const hh_params& params) {
+Flesh build_flesh(const double* rest_positions, int n_nodes, const int* tets, int n_tets, const Material& material) {
     require(rest_positions && tets, "rest positions and tets must not be null");
-    require(n_nodes >= 5, "the hand mesh needs at least 5 nodes (a handle of 4 and some flesh); got " +
-                              std::to_string(n_nodes));
-    require(n_tets >= 1, "the hand mesh has no tetrahedra: tetrahedralize the surface first");
-    validate_params(params);
-    Model m;
-    m.params = params;
-    m.mesh.n_nodes = n_nodes;
-    m.mesh.rest = Eigen::Map<const VecX>(rest_positions, 3 * n_nodes);
+    require(n_tets >= 1, "the mesh has no tetrahedra: tetrahedralize the surface first");
+    Flesh f;
+    f.mesh.n_nodes = n_nodes;
+    f.mesh.rest = Eigen::Map<const VecX>(rest_positions, 3 * n_nodes);
     for (int i = 0; i < 3 * n_nodes; ++i)
-        require(std::isfinite(m.mesh.rest[i]),
+        require(std::isfinite(f.mesh.rest[i]),
                 "node " + std::to_string(i / 3) + " has a non-finite coordinate: fix the mesh");
     std::vector<int> use(n_nodes, 0);
-    m.mesh.tets.resize(n_tets);
+    f.mesh.tets.resize(n_tets);
     for (int e = 0; e < n_tets; ++e) {
         for (int a = 0; a < 4; ++a) {
             const int i = tets[4 * e + a];
             require(i >= 0 && i < n_nodes, "tetrahedron " + std::to_string(e) + " refers to node " +
                                                std::to_string(i) + ", outside 0.." +
                                                std::to_string(n_nodes - 1));
-            m.mesh.tets[e][a] = i;
+            f.mesh.tets[e][a] = i;
             ++use[i];
         }
     }
     for (int i = 0; i < n_nodes; ++i)
         require(use[i] > 0, "node " + std::to_string(i) +
                                 " belongs to no tetrahedron, so it has no mass: remove unreferenced nodes");
-    m.elements = precompute_elements(m.mesh, Material{params.young_modulus, params.poisson_ratio, params.density});
-    m.masses = lumped_masses(m.mesh, m.elements, params.density);
+    f.elements = precompute_elements(f.mesh, material);
+    f.masses = lumped_masses(f.mesh, f.elements, material.density);
+    f.pattern = build_stiffness_pattern(f.mesh);
+    return f;
+}
 
+Model build_model(const double* rest_positions, int n_nodes, const int* tets, int n_tets,
+                  const hh_params& params) {
+    require(rest_positions && tets, "rest positions and tets must not be null");
+    require(n_nodes >= 5, "the hand mesh needs at least 5 nodes (a handle of 4 and some flesh); got " +
+                              std::to_string(n_nodes));
+    validate_params(params);
+    Model m;
+    static_cast<Flesh&>(m) = build_flesh(rest_positions, n_nodes, tets, n_tets,
+                                         Material{params.young_modulus, params.poisson_ratio, params.density});
+    m.params = params;
     const Vec3 seed(params.palm_seed[0], params.palm_seed[1], params.palm_seed[2]);
     bool inside = false;
     for (const auto& t : m.mesh.tets)
@@ -112,7 +120,6 @@ Model build_model(const double* rest_positions, int n_nodes, const int* tets, in
         throw InvalidArgument(msg.str());
     }
     m.handle = build_handle(m.mesh.rest, m.masses, seed, params.handle_radius);
-    m.pattern = build_stiffness_pattern(m.mesh);
     return m;
 }
 

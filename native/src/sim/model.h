@@ -8,13 +8,21 @@
 
 namespace hh {
 
-struct Model {
-    hh_params params;
+// Static data of any co-rotational FEM body: the hand's flesh or another soft body.
+struct Flesh {
     TetMesh mesh;
     CorotationalElements elements;
     VecX masses;  // lumped, per node
-    HandleModel handle;
     StiffnessPattern pattern;
+};
+
+// Validates the mesh (indices, finite coordinates, every node in a tet, orientation) and
+// precomputes elements, masses and the sparse pattern.
+Flesh build_flesh(const double* rest_positions, int n_nodes, const int* tets, int n_tets, const Material& material);
+
+struct Model : Flesh {
+    hh_params params;
+    HandleModel handle;
 };
 
 // Throws InvalidArgument naming the first bad parameter and the fix.

@@ -19,10 +19,8 @@ Data::Data(const Model& model) {
 }
 
 void reset(const Model& model, Data& data) {
-    data.x = model.mesh.rest;
-    data.v = VecX::Zero(model.mesh.rest.size());
+    reset_flesh(model, data);
     data.h = HandleState{};
-    data.rotations = ElementRotations{};
     data.h.x_com = model.handle.rest_com;
     data.device = DeviceFrame{};
     data.device.position = model.handle.rest_com;
@@ -45,34 +43,18 @@ void formulate(const Model& model, Data& data) {
     const int n = model.mesh.n_nodes;
     const Vec3 g(p.gravity[0], p.gravity[1], p.gravity[2]);
 
-    // Deformable block: A_t = M (1 + dt alpha) + (dt beta + dt^2) K + springs (Eq. 7 with
-    // Rayleigh damping D = alpha M + beta K); b_t = M v + dt (f_elastic + m g) + springs.
-    data.f_elastic.setZero(3 * n);
-    data.elastic_energy = add_elastic_forces(model.mesh, model.elements, data.x, data.f_elastic, &data.rotations);
-    double* values = data.tool.A.valuePtr();
-    std::fill(values, values + data.tool.A.nonZeros(), 0.0);
-    add_warped_stiffness(model.elements, data.rotations.r, model.pattern, dt * p.rayleigh_beta + dt * dt, values);
-    for (int i = 0; i < n; ++i)
-        for (int c = 0; c < 3; ++c)
-            values[model.pattern.node_block_offsets[9 * i + 4 * c]] += model.masses[i] * (1 + dt * p.rayleigh_alpha);
-
+    // Deformable block (shared with every soft body), then the springs' part of A_t and b_t.
+    VecX& r = data.hand.r;
+    r.resize(6 + 3 * n);
+    auto bt = r.tail(3 * n);
+    formulate_flesh(model, data, dt, g, p.rayleigh_alpha, p.rayleigh_beta, data.tool, bt);
     assemble_coupling(p.spring_stiffness, p.spring_damping, dt, model.handle.nodes, model.handle.r_body,
                       data.x, data.v, data.h, data.coupling);
     const CouplingBlocks& cb = data.coupling;
     for (size_t j = 0; j < model.handle.nodes.size(); ++j) {
-        const int* off = &model.pattern.node_block_offsets[9 * model.handle.nodes[j]];
-        for (int a = 0; a < 3; ++a)
-            for (int b = 0; b < 3; ++b) values[off[3 * a + b]] += cb.at_diagonal[j](a, b);
+        add_node_block(model, model.handle.nodes[j], cb.at_diagonal[j], data.tool.A.valuePtr());
+        bt.segment<3>(3 * model.handle.nodes[j]) += cb.bt[j];
     }
-    data.tool.matrix_changed();
-
-    VecX& r = data.hand.r;
-    r.resize(6 + 3 * n);
-    auto bt = r.tail(3 * n);
-    for (int i = 0; i < n; ++i)
-        bt.segment<3>(3 * i) = model.masses[i] * data.v.segment<3>(3 * i) +
-                               dt * (data.f_elastic.segment<3>(3 * i) + model.masses[i] * g);
-    for (size_t j = 0; j < model.handle.nodes.size(); ++j) bt.segment<3>(3 * model.handle.nodes[j]) += cb.bt[j];
 
     // Rigid block (Eq. 3 and 7): gravity acts on the flesh only; the handle's mass is the
     // captured nodes' mass counted again for its inertia, so the hand's weight is counted once.

@@ -1,0 +1,26 @@
+// The deformable block of Eq. 7 for any co-rotational body (the hand's flesh, a soft
+// object): A_t = M (1 + dt alpha) + (dt beta + dt^2) R K R^T, and
+// b_t = M v + dt (f_elastic + m g), with Rayleigh damping D = alpha M + beta K.
+#pragma once
+#include "sim/model.h"
+#include "solver/deformable_system.h"
+
+namespace hh {
+
+struct FleshState {
+    VecX x, v;
+    ElementRotations rotations;
+    VecX f_elastic;
+    double elastic_energy = 0;
+};
+
+void reset_flesh(const Flesh& flesh, FleshState& state);
+
+// Fills tool.A (pattern from flesh.pattern) and bt; marks the matrix changed.
+void formulate_flesh(const Flesh& flesh, FleshState& state, double dt, const Vec3& gravity, double alpha,
+                     double beta, DeformableSystem& tool, Eigen::Ref<VecX> bt);
+
+// Adds a 3x3 block to node i's diagonal block of A (pattern offsets from flesh).
+void add_node_block(const Flesh& flesh, int node, const Mat3& block, double* values);
+
+}  // namespace hh
