@@ -452,7 +452,8 @@ def plot(results: list[dict], sweep: dict | None, path: Path) -> None:
         if r["target"] in limits:
             ax.axhline(1e3 * limits[r["target"]], color="k", ls="--", lw=1)
             ax.text(-0.45, 1e3 * limits[r["target"]], f"target {1e3 * limits[r['target']]:g} ms",
-                    ha="left", va="bottom", fontsize=8)
+                    ha="left", va="bottom", fontsize=8,
+                    bbox=dict(facecolor="white", edgecolor="none", pad=1, alpha=0.8))
             top = max(top, 1e3 * limits[r["target"]])
         ax.set_ylim(0, 1.12 * top)
         ax.set_xticks(range(3), labels, fontsize=8)
@@ -474,24 +475,25 @@ def plot(results: list[dict], sweep: dict | None, path: Path) -> None:
         h = np.array([p["n_handle_nodes"] for p in sweep["points"]])
         xs = np.array([h.min(), h.max()])
         panels = (
-            (fig.add_subplot(bottom[0]), 1e3, "ms",
+            (fig.add_subplot(bottom[0]), 1e3, "ms", 1.7,
              (("t_total", "total", "k", "o"), ("t_deformable", "deformable solves", colors["t_deformable"], "o"),
               ("t_schur_coupling", "Schur+coupling (total - deformable)", "#8172b3", "x"),
               ("t_assembly", "assembly (FEM + springs)", colors["t_assembly"], "o"))),
-            (fig.add_subplot(bottom[1]), 1e6, "us",
+            (fig.add_subplot(bottom[1]), 1e6, "us", 1.35,
              (("t_schur_other", "Schur 6x6 + Aht products, rhs, integration", "#8172b3", "o"),
               ("t_schur", "Schur complement 6x6 (engine's t_schur)", colors["t_schur"], "o"))),
         )
-        for ax, scale, unit, series in panels:
+        for ax, scale, unit, headroom, series in panels:
             for key, label, color, marker in series:
                 y = scale * np.array([p[key] for p in sweep["points"]])
                 f = sweep["fits"][key]
                 ax.plot(h, y, marker, color=color, ms=6 if marker == "x" else 4,
                         label=f"{label}: {1e6 * f['slope_s_per_node']:.3g} us/node, R$^2$ {f['r2']:.2f}")
                 ax.plot(xs, scale * (f["slope_s_per_node"] * xs + f["intercept_s"]), "-", color=color, lw=1)
-            ax.set_ylim(0, ax.get_ylim()[1] * 1.35)
+            ax.set_ylim(0, ax.get_ylim()[1] * headroom)
             ax.legend(fontsize=7, loc="upper left")
-            ax.set_xlabel("handle nodes (handle radius 15-60 mm)")
+            ax.set_xlabel(f"handle nodes (handle radius {1e3 * sweep['points'][0]['radius']:g}-"
+                          f"{1e3 * sweep['points'][-1]['radius']:g} mm)")
             ax.set_ylabel(f"{unit} per step (median)")
         panels[0][0].set_title(f"Cost vs handle nodes: {sweep['n_tets']} tets, Cholesky,\none trajectory replayed for every radius",
                                fontsize=9)
