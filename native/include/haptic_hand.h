@@ -136,6 +136,87 @@ int hh_energies(const hh_model* model, const hh_data* data, double* kinetic, dou
 /* Linear momentum of flesh plus handle (kg m/s). */
 int hh_linear_momentum(const hh_model* model, const hh_data* data, double out[3]);
 
+
+/* ===================== scenes with contact (the visual loop) =====================
+ * A world holds the hand and other bodies and steps them together with contact and
+ * Coulomb friction. Collision surfaces are triangles over surface vertices; vertex v is
+ * sum_k weights[4v+k] * point(nodes[4v+k]) (unused slots: weight 0), where the points are
+ * the tet nodes of a hand or soft body (so a fine surface rides on coarse tets) or the
+ * vertices themselves for mesh bodies. Body poses are of the body's centre of mass. */
+typedef struct hh_world hh_world;
+
+#define HH_BODY_HAND 0
+#define HH_BODY_SOFT 1
+#define HH_BODY_RIGID 2      /* free rigid body */
+#define HH_BODY_KINEMATIC 3  /* moved by hh_world_set_pose along a script */
+#define HH_BODY_STATIC 4
+#define HH_BODY_PLANE 5
+
+typedef struct hh_world_params {
+    int struct_size;
+    double dt;                /* s, in (0, 0.1] */
+    double gravity[3];        /* m/s^2 */
+    double contact_thickness; /* m, > 0: surfaces are kept this far apart */
+    int max_iterations;       /* projected Gauss-Seidel sweeps, > 0 */
+    double tolerance;         /* relative impulse change that ends the sweeps, > 0 */
+} hh_world_params;
+
+typedef struct hh_material {
+    int struct_size;
+    double young_modulus, poisson_ratio, density, rayleigh_alpha, rayleigh_beta;
+} hh_material;
+
+typedef struct hh_world_stats {
+    int contacts;
+    double max_penetration; /* m: deepest a contact ended inside the thickness layer */
+    double min_distance;    /* m: smallest signed distance of a contact after the step */
+    double residual;        /* m/s: largest constraint violation left by the contact solver */
+    int iterations;         /* Gauss-Seidel sweeps */
+    double t_detection, t_dynamics, t_contact, t_total; /* s */
+} hh_world_stats;
+
+void hh_default_world_params(hh_world_params* params);
+void hh_default_material(hh_material* material);
+int hh_world_create(const hh_world_params* params, hh_world** out_world);
+void hh_world_free(hh_world* world);
+/* The hand: a copy of the model (its dt and gravity are replaced by the world's). */
+int hh_world_add_hand(hh_world* world, const hh_model* model, const int* surface_nodes,
+                      const double* surface_weights, int n_surface_vertices, const int* faces,
+                      int n_faces, double friction, int self_collision, int* out_body);
+int hh_world_add_soft_body(hh_world* world, const double* nodes, int n_nodes, const int* tets,
+                           int n_tets, const hh_material* material, const int* fixed_nodes,
+                           int n_fixed, const int* surface_nodes, const double* surface_weights,
+                           int n_surface_vertices, const int* faces, int n_faces, double friction,
+                           int* out_body);
+/* kind: HH_BODY_RIGID (needs a closed mesh and a density), HH_BODY_KINEMATIC or HH_BODY_STATIC. */
+int hh_world_add_mesh_body(hh_world* world, int kind, const double* vertices, int n_vertices,
+                           const int* faces, int n_faces, double density, double friction,
+                           int* out_body);
+int hh_world_add_plane(hh_world* world, const double point[3], const double normal[3], double friction,
+                       int* out_body);
+/* Kinematic: the pose and velocity at the end of the next step. Rigid: the current state. */
+int hh_world_set_pose(hh_world* world, int body, const double position[3], const double quaternion[4],
+                      const double velocity[3], const double angular_velocity[3]);
+int hh_world_get_pose(const hh_world* world, int body, double position[3], double quaternion[4],
+                      double velocity[3], double angular_velocity[3]);
+int hh_world_set_device(hh_world* world, int hand_body, int enabled, const double position[3],
+                        const double quaternion[4], const double velocity[3],
+                        const double angular_velocity[3]);
+int hh_world_step(hh_world* world, hh_world_stats* out_stats);
+int hh_world_body_kind(const hh_world* world, int body, int* out_kind, int* out_n_nodes,
+                       int* out_n_surface_vertices);
+/* hand and soft bodies: node positions and velocities (either pointer may be null). */
+int hh_world_body_nodes(const hh_world* world, int body, double* x, double* v, int n_nodes);
+int hh_world_set_body_nodes(hh_world* world, int body, const double* x, const double* v, int n_nodes);
+int hh_world_surface_positions(const hh_world* world, int body, double* x, int n_vertices);
+/* Total contact force on the body during the last step (N). */
+int hh_world_contact_force(const hh_world* world, int body, double force[3]);
+/* The hand's handle pose and the springs' force and torque on the handle. */
+int hh_world_hand_state(const hh_world* world, int hand_body, double handle_position[3],
+                        double handle_quaternion[4], double force[3], double torque[3]);
+/* Linear momentum of all dynamic bodies (kg m/s). */
+int hh_world_linear_momentum(const hh_world* world, double out[3]);
+
 #if defined(__GNUC__)
 #pragma GCC visibility pop
 #endif

@@ -6,59 +6,18 @@
 
 #include "haptic_hand.h"
 #include "rigid/quaternion.h"
-#include "sim/data.h"
 
-struct hh_model {
-    hh::Model m;
-};
-struct hh_data {
-    explicit hh_data(const hh::Model& model) : d(model) {}
-    hh::Data d;
-};
+#include "capi/guard.h"
 
-namespace {
-thread_local std::string last_error;
-
-template <class F>
-int guard(F&& body) {
-    try {
-        last_error.clear();
-        return body();
-    } catch (const hh::InvalidArgument& e) {
-        last_error = e.what();
-        return HH_ERR_INVALID_ARGUMENT;
-    } catch (const hh::NumericalError& e) {
-        last_error = e.what();
-        return HH_ERR_NUMERICAL;
-    } catch (const std::bad_alloc&) {
-        last_error = "out of memory: the mesh is too large for this machine";
-        return HH_ERR_INTERNAL;
-    } catch (const std::exception& e) {
-        last_error = std::string("internal error: ") + e.what();
-        return HH_ERR_INTERNAL;
-    } catch (...) {
-        last_error = "internal error: unknown exception";
-        return HH_ERR_INTERNAL;
-    }
-}
-
-void require(bool ok, const char* message) {
-    if (!ok) throw hh::InvalidArgument(message);
-}
-void require_size(int given, int expected, const char* what) {
-    if (given != expected)
-        throw hh::InvalidArgument(std::string(what) + ": array size " + std::to_string(given) +
-                                  " does not match the model's " + std::to_string(expected));
-}
-hh::Vec3 vec3(const double* p) { return hh::Vec3(p[0], p[1], p[2]); }
-void put3(const hh::Vec3& v, double* out) {
-    if (out) std::memcpy(out, v.data(), 3 * sizeof(double));
-}
-}  // namespace
+using hh::capi::guard;
+using hh::capi::put3;
+using hh::capi::require;
+using hh::capi::require_size;
+using hh::capi::vec3;
 
 extern "C" {
 
-const char* hh_last_error(void) { return last_error.c_str(); }
+const char* hh_last_error(void) { return hh::capi::last_error().c_str(); }
 int hh_api_version(void) { return HH_API_VERSION; }
 
 void hh_default_params(hh_params* p) {
@@ -304,16 +263,8 @@ int hh_compare_solvers(const hh_model* model, const hh_data* data, double* out_r
 int hh_coupling_wrench(const hh_model* model, const hh_data* data, double force[3], double torque[3]) {
     return guard([&] {
         require(model && data, "hh_coupling_wrench: null pointer");
-        const hh::Model& m = model->m;
-        hh::Vec3 f = hh::Vec3::Zero(), t = hh::Vec3::Zero();
-        for (size_t j = 0; j < m.handle.nodes.size(); ++j) {
-            const int i = m.handle.nodes[j];
-            const hh::SpringForce s = hh::spring_force(m.params.spring_stiffness, m.params.spring_damping,
-                                                       data->d.x.segment<3>(3 * i), data->d.v.segment<3>(3 * i),
-                                                       m.handle.r_body[j], data->d.h);
-            f += s.on_handle;
-            t += s.torque;
-        }
+        hh::Vec3 f, t;
+        hh::coupling_wrench(model->m, data->d, f, t);
         put3(f, force);
         put3(t, torque);
         return HH_OK;

@@ -42,4 +42,7 @@ void step(const Model& model, Data& data, bool monolithic);
 
 Mat3 handle_world_inertia(const Model& model, const HandleState& h);
 
+// Total force and torque (about x_com) the springs apply on the handle.
+void coupling_wrench(const Model& model, const Data& data, Vec3& force, Vec3& torque);
+
 }  // namespace hh

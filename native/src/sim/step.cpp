@@ -37,6 +37,18 @@ Mat3 handle_world_inertia(const Model& model, const HandleState& h) {
     return r * model.handle.inertia_body * r.transpose();
 }
 
+void coupling_wrench(const Model& model, const Data& data, Vec3& force, Vec3& torque) {
+    force.setZero();
+    torque.setZero();
+    for (size_t j = 0; j < model.handle.nodes.size(); ++j) {
+        const int i = model.handle.nodes[j];
+        const SpringForce s = spring_force(model.params.spring_stiffness, model.params.spring_damping,
+                                           data.x.segment<3>(3 * i), data.v.segment<3>(3 * i), model.handle.r_body[j], data.h);
+        force += s.on_handle;
+        torque += s.torque;
+    }
+}
+
 void formulate(const Model& model, Data& data) {
     const hh_params& p = model.params;
     const double dt = p.dt;

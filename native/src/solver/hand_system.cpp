@@ -69,6 +69,21 @@ void HandSystem::solve() {
     s.tail(n3) = tool.s;
 }
 
+VecX HandSystem::apply_inverse(const VecX& rhs) {
+    const Eigen::Index n3 = tool.A.rows();
+    tool.r = rhs.tail(n3);
+    tool.select_slot(8);
+    tool.solve();
+    const VecX s0 = tool.s;
+    handle.r = rhs.head<6>() - aht_times(s0);
+    handle.solve();  // handle.A still holds the Schur complement
+    VecX out(6 + n3);
+    out.head<6>() = handle.s;
+    out.tail(n3) = s0;
+    for (int i = 0; i < 6; ++i) out.tail(n3) -= temp_[i] * handle.s[i];
+    return out;
+}
+
 VecX solve_monolithic(const HandSystem& system, const VecX& rhs) {
     const SpMat& at = system.tool.A;
     const Eigen::Index n3 = at.rows();

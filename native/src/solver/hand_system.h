@@ -21,6 +21,10 @@ public:
     std::vector<Mat63> Aht;            // 6x3 block of Aht per coupled node (Eq. 8)
 
     void solve() override;
+    // After solve(): A^-1 rhs for another right-hand side, reusing the factor of At, the
+    // columns A_t^-1 Ath and the Schur complement (one At solve instead of eight). The
+    // contact solver uses it to build the Delassus operator.
+    VecX apply_inverse(const VecX& rhs);
     double t_deformable = 0;  // s spent in tool solves during the last solve()
     double t_schur = 0;       // s spent forming and solving the Schur complement
 

@@ -1,0 +1,156 @@
+#include "contact/detection.h"
+
+#include <cmath>
+
+#include "contact/geometry.h"
+
+namespace hh {
+
+void tangent_frame(const Vec3& n, Vec3& t1, Vec3& t2) {
+    const Vec3 helper = std::abs(n.x()) < 0.57 ? Vec3(1, 0, 0) : Vec3(0, 1, 0);
+    t1 = n.cross(helper).normalized();
+    t2 = n.cross(t1);
+}
+
+namespace {
+
+Contact make_contact(int body_a, int body_b, const Vec3& normal, double distance, const Vec3& point) {
+    Contact c;
+    c.a.body = body_a;
+    c.b.body = body_b;
+    c.normal = normal;
+    tangent_frame(normal, c.tangent1, c.tangent2);
+    c.distance = distance;
+    c.point = point;
+    return c;
+}
+
+bool shares_vertex(const Eigen::Vector3i& tri, int v) { return tri[0] == v || tri[1] == v || tri[2] == v; }
+
+// Vertices of sa against triangles of sb. For self-collision (same surface) the vertex must
+// not belong to the triangle and the two surfaces must face each other, so neighbouring
+// points of one smooth surface never count as a contact.
+void vertices_against_triangles(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,
+                                bool self, double reach, std::vector<Contact>& out) {
+    for (int v = 0; v < sa.n_vertices(); ++v) {
+        const Vec3& p = sa.x[v];
+        Aabb query;
+        query.grow(p);
+        double best = reach;
+        Contact found;
+        bool have = false;
+        sb.bvh.query(query, [&](int t) {
+            const auto& tri = sb.triangles[t];
+            if (self && (shares_vertex(tri, v) || sa.vertex_normal[v].dot(sb.triangle_normal[t]) > -0.5)) return;
+            const Vec3 w = closest_on_triangle(p, sb.x[tri[0]], sb.x[tri[1]], sb.x[tri[2]]);
+            const Vec3 q = w[0] * sb.x[tri[0]] + w[1] * sb.x[tri[1]] + w[2] * sb.x[tri[2]];
+            const Vec3 d = p - q;
+            const double dist = d.norm();
+            const Vec3& tn = sb.triangle_normal[t];
+            // in front of the triangle: separate along p - q; behind it: penetrated, push out
+            // along the triangle's normal
+            const bool front = d.dot(tn) >= 0;
+            const double signed_dist = front ? dist : -dist;
+            if (signed_dist >= best || (self && !front)) return;
+            const Vec3 n = (front && dist > 1e-12) ? Vec3(d / dist) : tn;
+            best = signed_dist;
+            found = make_contact(body_a, body_b, n, signed_dist, q);
+            found.a.count = 1;
+            found.a.vertex[0] = v;
+            found.a.weight[0] = 1;
+            found.b.count = 3;
+            for (int k = 0; k < 3; ++k) {
+                found.b.vertex[k] = tri[k];
+                found.b.weight[k] = w[k];
+            }
+            have = true;
+        });
+        if (have) out.push_back(found);
+    }
+}
+
+Vec3 edge_normal(const CollisionSurface& s, int e) {
+    Vec3 n = s.triangle_normal[s.edge_triangles[e][0]];
+    if (s.edge_triangles[e][1] >= 0) n += s.triangle_normal[s.edge_triangles[e][1]];
+    return n;
+}
+
+// Edges of sa against edges of sb whose closest points are inside both edges (the other
+// configurations are vertex-triangle contacts).
+void edges_against_edges(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b, bool self,
+                         double reach, std::vector<Contact>& out) {
+    std::vector<int> stamp(sb.edges.size(), -1);
+    for (size_t ea = 0; ea < sa.edges.size(); ++ea) {
+        const Vec3& p0 = sa.x[sa.edges[ea][0]];
+        const Vec3& p1 = sa.x[sa.edges[ea][1]];
+        Aabb query;
+        query.grow(p0);
+        query.grow(p1);
+        const Vec3 na = edge_normal(sa, static_cast<int>(ea));
+        sb.bvh.query(query, [&](int t) {
+            for (int k = 0; k < 3; ++k) {
+                const int eb = sb.triangle_edges[t][k];
+                if (stamp[eb] == static_cast<int>(ea)) continue;
+                stamp[eb] = static_cast<int>(ea);
+                if (self && (static_cast<int>(ea) >= eb || sa.edges[ea][0] == sb.edges[eb][0] ||
+                             sa.edges[ea][0] == sb.edges[eb][1] || sa.edges[ea][1] == sb.edges[eb][0] ||
+                             sa.edges[ea][1] == sb.edges[eb][1]))
+                    continue;
+                const Vec3& q0 = sb.x[sb.edges[eb][0]];
+                const Vec3& q1 = sb.x[sb.edges[eb][1]];
+                double s, u;
+                closest_between_segments(p0, p1, q0, q1, s, u);
+                if (s <= 1e-6 || s >= 1 - 1e-6 || u <= 1e-6 || u >= 1 - 1e-6) continue;
+                const Vec3 pa = p0 + s * (p1 - p0), pb = q0 + u * (q1 - q0);
+                const Vec3 d = pa - pb;
+                const double dist = d.norm();
+                if (dist >= reach || dist < 1e-12) continue;
+                const Vec3 n = d / dist;
+                // separated edges face each other: a's surface looks along -n, b's along +n
+                if (na.dot(n) >= 0 || edge_normal(sb, eb).dot(n) <= 0) continue;
+                Contact c = make_contact(body_a, body_b, n, dist, pb);
+                c.a.count = 2;
+                c.a.vertex[0] = sa.edges[ea][0];
+                c.a.vertex[1] = sa.edges[ea][1];
+                c.a.weight[0] = 1 - s;
+                c.a.weight[1] = s;
+                c.b.count = 2;
+                c.b.vertex[0] = sb.edges[eb][0];
+                c.b.vertex[1] = sb.edges[eb][1];
+                c.b.weight[0] = 1 - u;
+                c.b.weight[1] = u;
+                out.push_back(c);
+            }
+        });
+    }
+}
+
+}  // namespace
+
+void detect_pair(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,
+                 const DetectionSettings& settings, std::vector<Contact>& out) {
+    if (!sa.bvh.empty() && !sb.bvh.empty() && !sa.bvh.bounds().overlaps(sb.bvh.bounds())) return;
+    vertices_against_triangles(sa, body_a, sb, body_b, false, settings.distance, out);
+    vertices_against_triangles(sb, body_b, sa, body_a, false, settings.distance, out);
+    edges_against_edges(sa, body_a, sb, body_b, false, settings.distance, out);
+}
+
+void detect_self(const CollisionSurface& s, int body, const DetectionSettings& settings, std::vector<Contact>& out) {
+    vertices_against_triangles(s, body, s, body, true, settings.distance, out);
+    edges_against_edges(s, body, s, body, true, settings.distance, out);
+}
+
+void detect_plane(const CollisionSurface& s, int body, const Vec3& plane_point, const Vec3& plane_normal,
+                  int plane_body, const DetectionSettings& settings, std::vector<Contact>& out) {
+    for (int v = 0; v < s.n_vertices(); ++v) {
+        const double dist = (s.x[v] - plane_point).dot(plane_normal);
+        if (dist >= settings.distance) continue;
+        Contact c = make_contact(body, plane_body, plane_normal, dist, s.x[v] - dist * plane_normal);
+        c.a.count = 1;
+        c.a.vertex[0] = v;
+        c.a.weight[0] = 1;
+        out.push_back(c);
+    }
+}
+
+}  // namespace hh

@@ -1,0 +1,37 @@
+// A body's collision surface: triangles over surface vertices, each vertex a fixed linear
+// combination of up to four body points (the tet nodes that embed it, or itself for a rigid
+// mesh). Positions, normals and the BVH are updated every step from the body's state.
+#pragma once
+#include <vector>
+
+#include "contact/bvh.h"
+
+namespace hh {
+
+struct CollisionSurface {
+    // surface vertex v = sum_k weights[v][k] * point(nodes[v][k]); unused slots have weight 0
+    std::vector<Eigen::Vector4i> nodes;
+    std::vector<Vec4> weights;
+    std::vector<Eigen::Vector3i> triangles;
+    std::vector<Eigen::Vector2i> edges;              // each edge once
+    std::vector<Eigen::Vector2i> edge_triangles;     // the (one or two) triangles of each edge
+    std::vector<Eigen::Vector3i> triangle_edges;     // the three edges of each triangle
+    std::vector<std::vector<int>> vertex_triangles;  // triangles around each vertex
+
+    // per step
+    std::vector<Vec3> x;               // vertex positions
+    std::vector<Vec3> vertex_normal;   // area-weighted, outward
+    std::vector<Vec3> triangle_normal; // unit, outward
+    std::vector<Aabb> triangle_box;    // inflated by the detection distance
+    Bvh bvh;
+
+    int n_vertices() const { return static_cast<int>(nodes.size()); }
+};
+
+// Checks indices and builds edges and adjacency; throws InvalidArgument naming the problem.
+void init_surface(CollisionSurface& s, int n_points);
+
+// Recomputes x from the body's points, normals, boxes (inflated by margin) and the BVH.
+void update_surface(CollisionSurface& s, const std::vector<Vec3>& points, double margin);
+
+}  // namespace hh

@@ -1,0 +1,105 @@
+// A scene of several bodies simulated together in the visual loop: the hand (flesh + handle),
+// soft FEM bodies, free rigid bodies, kinematic bodies moved along a script, static meshes and
+// planes. One step: every dynamic body formulates and solves its own implicit system (the
+// hand through the Schur complement), contacts are detected at the start of the step, and the
+// contact impulses are solved together with the implicit step through each body's black-box
+// solve (Delassus operator W = J A^-1 J^T, projected Gauss-Seidel), then all bodies advance.
+#pragma once
+#include <memory>
+#include <vector>
+
+#include "contact/detection.h"
+#include "contact/pgs.h"
+#include "sim/data.h"
+
+namespace hh {
+
+enum class BodyKind { Hand, Soft, Rigid, Kinematic, Static, Plane };
+
+struct RigidState {
+    Vec3 com = Vec3::Zero();
+    Vec4 q = Vec4(0, 0, 0, 1);
+    Vec3 v = Vec3::Zero();
+    Vec3 omega = Vec3::Zero();
+};
+
+struct Body {
+    BodyKind kind = BodyKind::Static;
+    double friction = 0.5;
+    bool self_collision = false;
+    bool has_surface = false;
+    CollisionSurface surface;
+    std::vector<Vec3> points;  // the points the surface is made of, this step (world frame)
+
+    // hand
+    std::unique_ptr<Model> hand_model;
+    std::unique_ptr<Data> hand;
+    // soft body
+    std::unique_ptr<Flesh> flesh;
+    FleshState state;
+    std::unique_ptr<DeformableSystem> tool;
+    std::vector<char> fixed;         // per node
+    std::vector<int> fixed_entries;  // offsets in At's values zeroed for fixed nodes
+    double alpha = 0, beta = 0;
+    VecX soft_rhs;
+    // rigid, kinematic, static mesh: vertices in the body frame (origin at the centre of mass)
+    std::vector<Vec3> local;
+    RigidState rigid;
+    RigidState target;  // kinematic: the pose and velocity at the end of the next step
+    double mass = 0;
+    Mat3 inertia_body = Mat3::Zero();
+    std::unique_ptr<RigidSystem> rigid_system;
+    // plane
+    Vec3 plane_point = Vec3::Zero(), plane_normal = Vec3::UnitZ();
+
+    // last step
+    VecX v_free, v_new;     // velocities of the body's unknowns (dofs())
+    Vec3 contact_force = Vec3::Zero();  // N, total over the last step
+
+    bool dynamic() const { return kind == BodyKind::Hand || kind == BodyKind::Soft || kind == BodyKind::Rigid; }
+    int dofs() const;
+};
+
+struct WorldSettings {
+    double dt = 1.0 / 30.0;
+    Vec3 gravity = Vec3(0, 0, -9.81);
+    double contact_thickness = 1e-3;  // m: surfaces are kept this far apart
+    int max_iterations = 200;         // projected Gauss-Seidel sweeps
+    double tolerance = 1e-6;          // relative change of the impulses that ends the sweeps
+};
+
+struct WorldStats {
+    int contacts = 0;
+    double max_penetration = 0;  // m: deepest a contact ended inside the thickness layer
+    double min_distance = 0;     // m: smallest signed distance of a contact after the step
+    double residual = 0;         // m/s: largest constraint violation left by the solver
+    int iterations = 0;
+    double t_detection = 0, t_dynamics = 0, t_contact = 0, t_total = 0;  // s
+};
+
+class World {
+public:
+    explicit World(const WorldSettings& settings);
+    WorldSettings settings;
+    std::vector<std::unique_ptr<Body>> bodies;
+    std::vector<Contact> contacts;  // of the last step
+    WorldStats stats;
+
+    int add(std::unique_ptr<Body> body);
+    void step();
+
+private:
+    void update_points(Body& b);
+    void detect();
+    void solve_free();
+    void solve_contacts();
+    void integrate();
+    double contact_distance(const Contact& c) const;
+};
+
+// Mass, centre of mass and inertia about it of a closed, outward-wound triangle mesh of
+// uniform density (divergence theorem over the tetrahedra it makes with the origin).
+void mesh_mass_properties(const std::vector<Vec3>& vertices, const std::vector<Eigen::Vector3i>& triangles,
+                          double density, double& mass, Vec3& com, Mat3& inertia);
+
+}  // namespace hh
