@@ -87,6 +87,45 @@ class StepStats(ctypes.Structure):
         return {name: getattr(self, name) for name, _ in self._fields_}
 
 
+class WorldParams(ctypes.Structure):
+    _fields_ = [
+        ("struct_size", ctypes.c_int),
+        ("dt", ctypes.c_double),
+        ("gravity", ctypes.c_double * 3),
+        ("contact_thickness", ctypes.c_double),
+        ("max_iterations", ctypes.c_int),
+        ("tolerance", ctypes.c_double),
+    ]
+
+
+class Material(ctypes.Structure):
+    _fields_ = [
+        ("struct_size", ctypes.c_int),
+        ("young_modulus", ctypes.c_double),
+        ("poisson_ratio", ctypes.c_double),
+        ("density", ctypes.c_double),
+        ("rayleigh_alpha", ctypes.c_double),
+        ("rayleigh_beta", ctypes.c_double),
+    ]
+
+
+class WorldStats(ctypes.Structure):
+    _fields_ = [
+        ("contacts", ctypes.c_int),
+        ("max_penetration", ctypes.c_double),
+        ("min_distance", ctypes.c_double),
+        ("residual", ctypes.c_double),
+        ("iterations", ctypes.c_int),
+        ("t_detection", ctypes.c_double),
+        ("t_dynamics", ctypes.c_double),
+        ("t_contact", ctypes.c_double),
+        ("t_total", ctypes.c_double),
+    ]
+
+    def as_dict(self) -> dict:
+        return {name: getattr(self, name) for name, _ in self._fields_}
+
+
 def _candidates() -> list[Path]:
     found = []
     if os.environ.get("HAPTIC_HAND_LIB"):
@@ -150,6 +189,26 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hh_coupling_wrench": ([vp, vp, pd, pd], i),
         "hh_energies": ([vp, vp, pd, pd, pd], i),
         "hh_linear_momentum": ([vp, vp, pd], i),
+        # worlds (scenes with contact)
+        "hh_default_world_params": ([ctypes.POINTER(WorldParams)], None),
+        "hh_default_material": ([ctypes.POINTER(Material)], None),
+        "hh_world_create": ([ctypes.POINTER(WorldParams), ctypes.POINTER(vp)], i),
+        "hh_world_free": ([vp], None),
+        "hh_world_add_hand": ([vp, vp, pi, pd, i, pi, i, d, i, pi], i),
+        "hh_world_add_soft_body": ([vp, pd, i, pi, i, ctypes.POINTER(Material), pi, i, pi, pd, i, pi, i, d, pi], i),
+        "hh_world_add_mesh_body": ([vp, i, pd, i, pi, i, d, d, pi], i),
+        "hh_world_add_plane": ([vp, pd, pd, d, pi], i),
+        "hh_world_set_pose": ([vp, i, pd, pd, pd, pd], i),
+        "hh_world_get_pose": ([vp, i, pd, pd, pd, pd], i),
+        "hh_world_set_device": ([vp, i, i, pd, pd, pd, pd], i),
+        "hh_world_step": ([vp, ctypes.POINTER(WorldStats)], i),
+        "hh_world_body_kind": ([vp, i, pi, pi, pi], i),
+        "hh_world_body_nodes": ([vp, i, pd, pd, i], i),
+        "hh_world_set_body_nodes": ([vp, i, pd, pd, i], i),
+        "hh_world_surface_positions": ([vp, i, pd, i], i),
+        "hh_world_contact_force": ([vp, i, pd], i),
+        "hh_world_hand_state": ([vp, i, pd, pd, pd, pd], i),
+        "hh_world_linear_momentum": ([vp, pd], i),
     }
     for name, (args, res) in sig.items():
         fn = getattr(lib, name)

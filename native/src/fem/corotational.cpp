@@ -101,11 +101,17 @@ Mat3 polar_rotation(const Mat3& f, Vec4& q) {
     }
     Mat3 r = quat_to_matrix(q);
     for (int iter = 0; iter < 50; ++iter) {
-        // rotate R towards F about the axis sum_i r_i x f_i (Mueller et al. 2016, Alg. 1)
+        // Ascent on trace(R^T F) over rotations R <- exp(omega) R: the gradient is
+        // sum_i r_i x f_i (Mueller et al. 2016); with M = F R^T the Hessian is
+        // trace(M) I - sym(M). Newton steps converge quadratically near the polar rotation;
+        // where the Hessian is not positive definite we take Mueller's scaled step instead.
         const Vec3 torque = r.col(0).cross(f.col(0)) + r.col(1).cross(f.col(1)) + r.col(2).cross(f.col(2));
-        const double align = std::abs(r.col(0).dot(f.col(0)) + r.col(1).dot(f.col(1)) + r.col(2).dot(f.col(2)));
-        const Vec3 omega = torque / (align + 1e-300);
-        if (omega.norm() < 1e-15) break;
+        const Mat3 m = f * r.transpose();
+        const Mat3 hessian = m.trace() * Mat3::Identity() - 0.5 * (m + m.transpose());
+        Eigen::LLT<Mat3> llt(hessian);
+        const Vec3 omega = llt.info() == Eigen::Success ? Vec3(llt.solve(torque))
+                                                         : Vec3(torque / (std::abs(m.trace()) + 1e-300));
+        if (!(omega.norm() > 1e-13)) break;
         q = quat_multiply(quat_from_rotation_vector(omega), q);
         q.normalize();
         r = quat_to_matrix(q);

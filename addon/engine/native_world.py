@@ -1,0 +1,165 @@
+"""ctypes bindings of worlds: the hand together with soft, rigid, kinematic and static bodies,
+stepped with contact and Coulomb friction (native/include/haptic_hand.h, second part)."""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from .native import HandModel, InvalidInput, Material, WorldParams, WorldStats, _check, _f64, _ptr, library
+
+HAND, SOFT, RIGID, KINEMATIC, STATIC, PLANE = range(6)
+KIND_NAMES = {HAND: "hand", SOFT: "soft", RIGID: "rigid", KINEMATIC: "kinematic", STATIC: "static", PLANE: "plane"}
+
+
+def _i32(a, shape_tail: int, name: str) -> np.ndarray:
+    out = np.ascontiguousarray(a, dtype=np.int32)
+    if out.ndim != 2 or out.shape[1] != shape_tail:
+        raise InvalidInput(f"{name} must be an (n, {shape_tail}) integer array, got shape {out.shape}")
+    return out
+
+
+def vertex_surface(n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """Surface whose vertices are the body's points themselves (weight 1)."""
+    nodes = np.zeros((n_vertices, 4), dtype=np.int32)
+    nodes[:, 0] = np.arange(n_vertices)
+    weights = np.zeros((n_vertices, 4))
+    weights[:, 0] = 1.0
+    return nodes, weights
+
+
+def embedded_surface(tets: np.ndarray, tet_index: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Surface vertices embedded in tets (mesh.embed_points) as node indices and weights."""
+    return np.ascontiguousarray(np.asarray(tets)[tet_index], dtype=np.int32), np.ascontiguousarray(weights, dtype=np.float64)
+
+
+class World:
+    """hh_world: bodies stepped together with contact. Body indices are returned by add_*."""
+
+    def __init__(self, dt: float = 1 / 30, gravity=(0.0, 0.0, -9.81), contact_thickness: float = 1e-3,
+                 max_iterations: int = 200, tolerance: float = 1e-6):
+        p = WorldParams()
+        library().hh_default_world_params(ctypes.byref(p))
+        p.dt = float(dt)
+        p.gravity = (ctypes.c_double * 3)(*_f64(gravity, (3,), "gravity"))
+        p.contact_thickness = float(contact_thickness)
+        p.max_iterations = int(max_iterations)
+        p.tolerance = float(tolerance)
+        handle = ctypes.c_void_p()
+        _check(library().hh_world_create(ctypes.byref(p), ctypes.byref(handle)))
+        self._handle = handle
+        self.dt = float(dt)
+        self.last_stats = WorldStats()
+
+    def __del__(self):
+        if getattr(self, "_handle", None):
+            library().hh_world_free(self._handle)
+            self._handle = None
+
+    # --- building ---
+    def add_hand(self, model: HandModel, surface_nodes, surface_weights, faces, friction=0.5,
+                 self_collision=True) -> int:
+        n4 = _i32(surface_nodes, 4, "surface_nodes")
+        w4 = _f64(surface_weights, (len(n4), 4), "surface_weights")
+        f3 = _i32(faces, 3, "faces")
+        out = ctypes.c_int()
+        _check(library().hh_world_add_hand(self._handle, model._handle, _ptr(n4, ctypes.c_int), _ptr(w4), len(n4),
+                                           _ptr(f3, ctypes.c_int), len(f3), float(friction), int(self_collision),
+                                           ctypes.byref(out)))
+        return out.value
+
+    def add_soft_body(self, nodes, tets, surface_nodes, surface_weights, faces, young_modulus=5e4,
+                      poisson_ratio=0.3, density=1000.0, rayleigh_alpha=0.0, rayleigh_beta=0.01,
+                      fixed_nodes=(), friction=0.5) -> int:
+        x = _f64(nodes)
+        t = _i32(tets, 4, "tets")
+        n4 = _i32(surface_nodes, 4, "surface_nodes")
+        w4 = _f64(surface_weights, (len(n4), 4), "surface_weights")
+        f3 = _i32(faces, 3, "faces")
+        fixed = np.ascontiguousarray(fixed_nodes, dtype=np.int32).reshape(-1)
+        m = Material()
+        library().hh_default_material(ctypes.byref(m))
+        m.young_modulus, m.poisson_ratio, m.density = float(young_modulus), float(poisson_ratio), float(density)
+        m.rayleigh_alpha, m.rayleigh_beta = float(rayleigh_alpha), float(rayleigh_beta)
+        out = ctypes.c_int()
+        _check(library().hh_world_add_soft_body(
+            self._handle, _ptr(x), len(x), _ptr(t, ctypes.c_int), len(t), ctypes.byref(m),
+            _ptr(fixed, ctypes.c_int) if len(fixed) else None, len(fixed), _ptr(n4, ctypes.c_int), _ptr(w4), len(n4),
+            _ptr(f3, ctypes.c_int), len(f3), float(friction), ctypes.byref(out)))
+        return out.value
+
+    def add_mesh_body(self, kind: int, vertices, faces, density=1000.0, friction=0.5) -> int:
+        v = _f64(vertices)
+        f3 = _i32(faces, 3, "faces")
+        out = ctypes.c_int()
+        _check(library().hh_world_add_mesh_body(self._handle, int(kind), _ptr(v), len(v), _ptr(f3, ctypes.c_int),
+                                                len(f3), float(density), float(friction), ctypes.byref(out)))
+        return out.value
+
+    def add_plane(self, point, normal, friction=0.5) -> int:
+        p, n = _f64(point, (3,), "plane point"), _f64(normal, (3,), "plane normal")
+        out = ctypes.c_int()
+        _check(library().hh_world_add_plane(self._handle, _ptr(p), _ptr(n), float(friction), ctypes.byref(out)))
+        return out.value
+
+    # --- driving ---
+    def set_pose(self, body: int, position=None, quaternion=None, velocity=None, angular_velocity=None) -> None:
+        args = [None if a is None else _f64(a, (k,), "pose") for a, k in
+                ((position, 3), (quaternion, 4), (velocity, 3), (angular_velocity, 3))]
+        _check(library().hh_world_set_pose(self._handle, body, *(_ptr(a) for a in args)))
+
+    def set_device(self, hand: int, position=None, quaternion=None, velocity=None, angular_velocity=None,
+                   enabled=True) -> None:
+        args = [None if a is None else _f64(a, (k,), "device") for a, k in
+                ((position, 3), (quaternion, 4), (velocity, 3), (angular_velocity, 3))]
+        _check(library().hh_world_set_device(self._handle, hand, int(enabled), *(_ptr(a) for a in args)))
+
+    def step(self) -> dict:
+        _check(library().hh_world_step(self._handle, ctypes.byref(self.last_stats)))
+        return self.last_stats.as_dict()
+
+    # --- reading ---
+    def body_kind(self, body: int) -> tuple[int, int, int]:
+        k, n, s = ctypes.c_int(), ctypes.c_int(), ctypes.c_int()
+        _check(library().hh_world_body_kind(self._handle, body, ctypes.byref(k), ctypes.byref(n), ctypes.byref(s)))
+        return k.value, n.value, s.value
+
+    def pose(self, body: int):
+        p, q, v, w = np.empty(3), np.empty(4), np.empty(3), np.empty(3)
+        _check(library().hh_world_get_pose(self._handle, body, _ptr(p), _ptr(q), _ptr(v), _ptr(w)))
+        return p, q, v, w
+
+    def nodes(self, body: int) -> tuple[np.ndarray, np.ndarray]:
+        n = self.body_kind(body)[1]
+        x, v = np.empty((n, 3)), np.empty((n, 3))
+        _check(library().hh_world_body_nodes(self._handle, body, _ptr(x), _ptr(v), n))
+        return x, v
+
+    def set_nodes(self, body: int, positions=None, velocities=None) -> None:
+        n = self.body_kind(body)[1]
+        x = None if positions is None else _f64(positions, (n, 3), "positions")
+        v = None if velocities is None else _f64(velocities, (n, 3), "velocities")
+        _check(library().hh_world_set_body_nodes(self._handle, body, _ptr(x), _ptr(v), n))
+
+    def surface(self, body: int) -> np.ndarray:
+        n = self.body_kind(body)[2]
+        x = np.empty((n, 3))
+        _check(library().hh_world_surface_positions(self._handle, body, _ptr(x), n))
+        return x
+
+    def contact_force(self, body: int) -> np.ndarray:
+        f = np.empty(3)
+        _check(library().hh_world_contact_force(self._handle, body, _ptr(f)))
+        return f
+
+    def hand_state(self, hand: int):
+        """Handle position, quaternion, and the springs' force and torque on the handle."""
+        p, q, f, t = np.empty(3), np.empty(4), np.empty(3), np.empty(3)
+        _check(library().hh_world_hand_state(self._handle, hand, _ptr(p), _ptr(q), _ptr(f), _ptr(t)))
+        return p, q, f, t
+
+    def linear_momentum(self) -> np.ndarray:
+        p = np.empty(3)
+        _check(library().hh_world_linear_momentum(self._handle, _ptr(p)))
+        return p
