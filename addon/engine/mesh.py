@@ -425,6 +425,29 @@ def tet_boundary_faces(tets) -> np.ndarray:
     return faces[on_boundary].astype(np.int32)
 
 
+def structured_box(size, cells, origin=(0.0, 0.0, 0.0)):
+    """A box of cells[0] x cells[1] x cells[2] cubes, each split into six positively oriented
+    tets around its main diagonal (a conforming Kuhn subdivision): a deterministic soft body
+    for tests and sample scenes. Returns (nodes, tets); its surface is tet_boundary_faces."""
+    size = np.asarray(size, dtype=np.float64)
+    cells = np.asarray(cells, dtype=np.int64)
+    axes = [np.linspace(0.0, size[k], cells[k] + 1) + origin[k] for k in range(3)]
+    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    nodes = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+
+    def node_id(i, j, k):
+        return (k * (cells[1] + 1) + j) * (cells[0] + 1) + i
+
+    i, j, k = np.meshgrid(np.arange(cells[0]), np.arange(cells[1]), np.arange(cells[2]), indexing="ij")
+    i, j, k = i.ravel(), j.ravel(), k.ravel()
+    corner = [node_id(i + (b & 1), j + ((b >> 1) & 1), k + ((b >> 2) & 1)) for b in range(8)]
+    paths = [(1, 3), (1, 5), (2, 3), (2, 6), (4, 5), (4, 6)]
+    tets = np.concatenate([np.stack([corner[0], corner[a], corner[b], corner[7]], axis=1) for a, b in paths])
+    flip = tet_signed_volumes(nodes, tets) < 0
+    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
+    return nodes, tets.astype(np.int32)
+
+
 # --------------------------------------------------------------------------------------------
 # Barycentric embedding
 # --------------------------------------------------------------------------------------------

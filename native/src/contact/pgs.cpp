@@ -26,12 +26,17 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
             const double ln = std::max(0.0, lambda[n] - (u[n] + bias[i]) / wnn);
             const double dn = ln - lambda[n];
             apply(n, dn);
-            // friction: the impulse that stops sliding, projected onto the disk mu * lambda_n
+            // friction: a step against the sliding velocity, projected onto the disk of radius
+            // mu lambda_n. The step is isotropic (1 / largest eigenvalue of the 2x2 block): its
+            // fixed points have the impulse exactly opposite the sliding velocity, as Coulomb's
+            // maximal dissipation requires; a full 2x2 solve followed by a radial projection
+            // would tilt the friction whenever the block is anisotropic (rigid bodies).
             const Eigen::Matrix2d wtt = p.W.block<2, 2>(n + 1, n + 1);
-            if (wtt.trace() <= 0) continue;
+            const double wmax = 0.5 * (wtt.trace() + std::sqrt(std::pow(wtt(0, 0) - wtt(1, 1), 2) + 4 * wtt(0, 1) * wtt(1, 0)));
+            if (!(wmax > 0)) continue;
             const Eigen::Vector2d ut(u[n + 1], u[n + 2]);
-            Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
-            Eigen::Vector2d target = lt - wtt.ldlt().solve(ut);
+            const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
+            Eigen::Vector2d target = lt - ut / wmax;
             const double limit = p.friction[i] * lambda[n];
             const double norm = target.norm();
             if (norm > limit) target *= limit / norm;

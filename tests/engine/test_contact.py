@@ -1,0 +1,121 @@
+"""Contact in the visual loop, against physics: Coulomb friction on an incline, a resting
+body's weight carried by the ground, momentum in a collision, friction drag by a moving
+body. (The hand's own contact tests are in test_hand_contact.py.)"""
+
+import math
+
+import numpy as np
+import pytest
+
+from haptic_hand.engine import mesh
+from haptic_hand.engine import native_world as W
+
+G = 9.81
+
+
+def cube_surface(half: float):
+    v = np.array([[x, y, z] for z in (-half, half) for y in (-half, half) for x in (-half, half)], float)
+    f = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
+                  [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
+    return v, f
+
+
+def rotation_y(theta):
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def add_soft_block(world, size, cells, origin, **material):
+    nodes, tets = mesh.structured_box([size] * 3, [cells] * 3, origin)
+    faces = mesh.tet_boundary_faces(tets)
+    sn, sw = W.vertex_surface(len(nodes))
+    return world.add_soft_body(nodes, tets, sn, sw, faces, **material), nodes
+
+
+def incline(theta_deg: float, mu: float, seconds: float, dt=0.01):
+    """A 4 cm rigid cube resting on a plane tilted by theta about y; returns the cube's
+    displacement along the slope (downhill positive) at every step."""
+    theta = math.radians(theta_deg)
+    rot = rotation_y(theta)
+    normal = rot @ [0, 0, 1]  # (sin, 0, cos): the plane z = -x tan(theta) descends towards +x
+    downhill = rot @ [1, 0, 0]
+    world = W.World(dt=dt, contact_thickness=1e-3)
+    world.add_plane([0, 0, 0], normal, friction=mu)
+    v, f = cube_surface(0.02)
+    centre = (0.02 + 0.0009) * normal  # resting 0.9 mm above: inside the contact thickness
+    cube = world.add_mesh_body(W.RIGID, v @ rot.T + centre, f, density=500.0, friction=mu)
+    start = world.pose(cube)[0]
+    travel = []
+    for _ in range(int(round(seconds / dt))):
+        world.step()
+        travel.append((world.pose(cube)[0] - start) @ downhill)
+    return np.array(travel), downhill
+
+
+def test_block_stays_on_an_incline_flatter_than_its_friction_angle():
+    travel, _ = incline(20.0, 0.5, 2.0)  # tan 20 deg = 0.36 < 0.5
+    assert np.abs(travel).max() < 1e-3
+
+
+@pytest.mark.parametrize("theta_deg, mu", [(30.0, 0.3), (40.0, 0.5)])
+def test_block_slides_with_the_coulomb_acceleration(theta_deg, mu):
+    dt = 0.01
+    travel, _ = incline(theta_deg, mu, 1.0, dt)
+    t = dt * np.arange(1, len(travel) + 1)
+    expected = G * (math.sin(math.radians(theta_deg)) - mu * math.cos(math.radians(theta_deg)))
+    measured = 2 * np.polyfit(t[10:], travel[10:], 2)[0]
+    assert measured == pytest.approx(expected, rel=0.05)
+
+
+def test_soft_block_on_the_ground_carries_its_weight():
+    world = W.World(dt=1 / 60, contact_thickness=1e-3)
+    world.add_plane([0, 0, 0], [0, 0, 1], friction=0.5)
+    size, density = 0.04, 1000.0
+    block, _ = add_soft_block(world, size, 3, (-0.02, -0.02, 0.0009), young_modulus=1e5, density=density)
+    for _ in range(240):
+        stats = world.step()
+    _, v = world.nodes(block)
+    assert np.abs(v).max() < 1e-3  # at rest
+    weight = density * size**3 * G
+    force = world.contact_force(block)
+    assert force[2] == pytest.approx(weight, rel=0.01)
+    assert np.hypot(force[0], force[1]) < 0.01 * weight
+    assert stats["max_penetration"] < 1e-3
+
+
+def test_colliding_soft_bodies_conserve_momentum():
+    world = W.World(dt=1 / 100, gravity=[0, 0, 0], contact_thickness=1e-3)
+    a, _ = add_soft_block(world, 0.03, 2, (-0.0305, 0.0, 0.0), young_modulus=5e4, rayleigh_beta=0.0)
+    b, _ = add_soft_block(world, 0.03, 2, (0.0005, 0.005, 0.005), young_modulus=5e4, rayleigh_beta=0.0, density=600.0)
+    xa, _ = world.nodes(a)
+    xb, _ = world.nodes(b)
+    world.set_nodes(a, velocities=np.tile([0.3, 0.0, 0.0], (len(xa), 1)))
+    world.set_nodes(b, velocities=np.tile([-0.2, 0.05, 0.0], (len(xb), 1)))
+    p0 = world.linear_momentum()
+    touched = 0
+    for _ in range(60):
+        stats = world.step()
+        touched += stats["contacts"] > 0
+        assert np.linalg.norm(world.linear_momentum() - p0) < 1e-6 * np.linalg.norm(p0)
+    assert touched > 0
+    # they bounced: a no longer moves towards b as fast as it started
+    assert world.nodes(a)[1][:, 0].mean() < 0.3 - 0.05
+
+
+def test_moving_platform_drags_a_resting_block_by_friction():
+    dt = 1 / 60
+    world = W.World(dt=dt, contact_thickness=1e-3)
+    v, f = cube_surface(0.5)
+    platform_top = 0.0
+    verts = v * [0.4, 0.4, 0.02] / 0.5 + [0, 0, platform_top - 0.02]
+    platform = world.add_mesh_body(W.KINEMATIC, verts, f, friction=0.8)
+    block, _ = add_soft_block(world, 0.04, 2, (-0.02, -0.02, platform_top + 0.0009), young_modulus=1e5, friction=0.8)
+    speed = np.array([0.1, 0.0, 0.0])
+    p0 = world.pose(platform)[0]
+    for k in range(1, 181):
+        world.set_pose(platform, p0 + speed * k * dt, [0, 0, 0, 1], speed, [0, 0, 0])
+        world.step()
+    _, vel = world.nodes(block)
+    mean = vel.mean(axis=0)
+    assert mean[0] == pytest.approx(speed[0], rel=0.01)
+    assert abs(mean[2]) < 1e-3
