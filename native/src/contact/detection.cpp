@@ -31,7 +31,8 @@ bool shares_vertex(const Eigen::Vector3i& tri, int v) { return tri[0] == v || tr
 // not belong to the triangle and the two surfaces must face each other, so neighbouring
 // points of one smooth surface never count as a contact.
 void vertices_against_triangles(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,
-                                bool self, double reach, std::vector<Contact>& out) {
+                                bool self, const SelfExclusions* skip, double reach, std::vector<Contact>& out,
+                                SelfExclusions* record = nullptr) {
     for (int v = 0; v < sa.n_vertices(); ++v) {
         const Vec3& p = sa.x[v];
         Aabb query;
@@ -42,6 +43,7 @@ void vertices_against_triangles(const CollisionSurface& sa, int body_a, const Co
         sb.bvh.query(query, [&](int t) {
             const auto& tri = sb.triangles[t];
             if (self && (shares_vertex(tri, v) || sa.vertex_normal[v].dot(sb.triangle_normal[t]) > -0.5)) return;
+            if (skip && skip->vertex_triangle.count(SelfExclusions::key(v, t))) return;
             const Vec3 w = closest_on_triangle(p, sb.x[tri[0]], sb.x[tri[1]], sb.x[tri[2]]);
             const Vec3 q = w[0] * sb.x[tri[0]] + w[1] * sb.x[tri[1]] + w[2] * sb.x[tri[2]];
             const Vec3 d = p - q;
@@ -52,6 +54,7 @@ void vertices_against_triangles(const CollisionSurface& sa, int body_a, const Co
             const bool front = d.dot(tn) >= 0;
             const double signed_dist = front ? dist : -dist;
             if (signed_dist >= best || (self && !front)) return;
+            if (record) record->vertex_triangle.insert(SelfExclusions::key(v, t));
             const Vec3 n = (front && dist > 1e-12) ? Vec3(d / dist) : tn;
             best = signed_dist;
             found = make_contact(body_a, body_b, n, signed_dist, q);
@@ -78,7 +81,8 @@ Vec3 edge_normal(const CollisionSurface& s, int e) {
 // Edges of sa against edges of sb whose closest points are inside both edges (the other
 // configurations are vertex-triangle contacts).
 void edges_against_edges(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b, bool self,
-                         double reach, std::vector<Contact>& out) {
+                         const SelfExclusions* skip, double reach, std::vector<Contact>& out,
+                         SelfExclusions* record = nullptr) {
     std::vector<int> stamp(sb.edges.size(), -1);
     for (size_t ea = 0; ea < sa.edges.size(); ++ea) {
         const Vec3& p0 = sa.x[sa.edges[ea][0]];
@@ -88,6 +92,10 @@ void edges_against_edges(const CollisionSurface& sa, int body_a, const Collision
         query.grow(p1);
         const Vec3 na = edge_normal(sa, static_cast<int>(ea));
         sb.bvh.query(query, [&](int t) {
+            // self: the edge's own neighbourhood, and surfaces not facing each other, are no contact
+            if (self && (shares_vertex(sb.triangles[t], sa.edges[ea][0]) || shares_vertex(sb.triangles[t], sa.edges[ea][1]) ||
+                         na.dot(sb.triangle_normal[t]) > -0.5 * na.norm()))
+                return;
             for (int k = 0; k < 3; ++k) {
                 const int eb = sb.triangle_edges[t][k];
                 if (stamp[eb] == static_cast<int>(ea)) continue;
@@ -96,6 +104,7 @@ void edges_against_edges(const CollisionSurface& sa, int body_a, const Collision
                              sa.edges[ea][0] == sb.edges[eb][1] || sa.edges[ea][1] == sb.edges[eb][0] ||
                              sa.edges[ea][1] == sb.edges[eb][1]))
                     continue;
+                if (skip && skip->edge_edge.count(SelfExclusions::key(static_cast<int>(ea), eb))) continue;
                 const Vec3& q0 = sb.x[sb.edges[eb][0]];
                 const Vec3& q1 = sb.x[sb.edges[eb][1]];
                 double s, u;
@@ -108,6 +117,7 @@ void edges_against_edges(const CollisionSurface& sa, int body_a, const Collision
                 const Vec3 n = d / dist;
                 // separated edges face each other: a's surface looks along -n, b's along +n
                 if (na.dot(n) >= 0 || edge_normal(sb, eb).dot(n) <= 0) continue;
+                if (record) record->edge_edge.insert(SelfExclusions::key(static_cast<int>(ea), eb));
                 Contact c = make_contact(body_a, body_b, n, dist, pb);
                 c.a.count = 2;
                 c.a.vertex[0] = sa.edges[ea][0];
@@ -130,14 +140,34 @@ void edges_against_edges(const CollisionSurface& sa, int body_a, const Collision
 void detect_pair(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,
                  const DetectionSettings& settings, std::vector<Contact>& out) {
     if (!sa.bvh.empty() && !sb.bvh.empty() && !sa.bvh.bounds().overlaps(sb.bvh.bounds())) return;
-    vertices_against_triangles(sa, body_a, sb, body_b, false, settings.distance, out);
-    vertices_against_triangles(sb, body_b, sa, body_a, false, settings.distance, out);
-    edges_against_edges(sa, body_a, sb, body_b, false, settings.distance, out);
+    vertices_against_triangles(sa, body_a, sb, body_b, false, nullptr, settings.distance, out);
+    vertices_against_triangles(sb, body_b, sa, body_a, false, nullptr, settings.distance, out);
+    edges_against_edges(sa, body_a, sb, body_b, false, nullptr, settings.distance, out);
 }
 
-void detect_self(const CollisionSurface& s, int body, const DetectionSettings& settings, std::vector<Contact>& out) {
-    vertices_against_triangles(s, body, s, body, true, settings.distance, out);
-    edges_against_edges(s, body, s, body, true, settings.distance, out);
+void detect_self(const CollisionSurface& s, int body, const DetectionSettings& settings, const SelfExclusions* skip,
+                 std::vector<Contact>& out) {
+    vertices_against_triangles(s, body, s, body, true, skip, settings.distance, out);
+    edges_against_edges(s, body, s, body, true, skip, settings.distance, out);
+}
+
+SelfExclusions rest_exclusions(const CollisionSurface& s, const DetectionSettings& settings) {
+    SelfExclusions found;
+    std::vector<Contact> ignored;
+    // every pair within reach, not only each vertex's closest triangle
+    for (int v = 0; v < s.n_vertices(); ++v) {
+        Aabb query;
+        query.grow(s.x[v]);
+        s.bvh.query(query, [&](int t) {
+            const auto& tri = s.triangles[t];
+            if (shares_vertex(tri, v)) return;
+            const Vec3 w = closest_on_triangle(s.x[v], s.x[tri[0]], s.x[tri[1]], s.x[tri[2]]);
+            const Vec3 q = w[0] * s.x[tri[0]] + w[1] * s.x[tri[1]] + w[2] * s.x[tri[2]];
+            if ((s.x[v] - q).norm() < settings.distance) found.vertex_triangle.insert(SelfExclusions::key(v, t));
+        });
+    }
+    edges_against_edges(s, -1, s, -1, true, nullptr, settings.distance, ignored, &found);
+    return found;
 }
 
 void detect_plane(const CollisionSurface& s, int body, const Vec3& plane_point, const Vec3& plane_normal,

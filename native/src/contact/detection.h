@@ -2,6 +2,8 @@
 // a pair of bodies or within one body (self-collision, skipping primitives that share a
 // vertex and surfaces that do not face each other), and vertices against planes.
 #pragma once
+#include <cstdint>
+#include <unordered_set>
 #include <vector>
 
 #include "contact/surface.h"
@@ -33,9 +35,19 @@ struct DetectionSettings {
     double distance;  // report pairs closer than this (contact thickness plus a speculative margin)
 };
 
+// Self-collision pairs to ignore: those already closer than the thickness at rest (folds of
+// the same flesh, such as the crease at the root of the thumb), found once by detect_self.
+struct SelfExclusions {
+    std::unordered_set<std::uint64_t> vertex_triangle, edge_edge;
+    static std::uint64_t key(int a, int b) { return (static_cast<std::uint64_t>(a) << 32) | static_cast<std::uint32_t>(b); }
+};
+
 void detect_pair(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,
                  const DetectionSettings& settings, std::vector<Contact>& out);
-void detect_self(const CollisionSurface& s, int body, const DetectionSettings& settings, std::vector<Contact>& out);
+void detect_self(const CollisionSurface& s, int body, const DetectionSettings& settings, const SelfExclusions* skip,
+                 std::vector<Contact>& out);
+// The pairs detect_self finds in the surface's current (rest) configuration.
+SelfExclusions rest_exclusions(const CollisionSurface& s, const DetectionSettings& settings);
 void detect_plane(const CollisionSurface& s, int body, const Vec3& plane_point, const Vec3& plane_normal,
                   int plane_body, const DetectionSettings& settings, std::vector<Contact>& out);
 

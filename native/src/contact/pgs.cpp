@@ -5,10 +5,35 @@
 
 namespace hh {
 
+namespace {
+// argmin over |x| <= radius of 1/2 x^T W x - c^T x, W symmetric positive definite 2x2:
+// inside, x = W^-1 c; else x = (W + nu I)^-1 c with nu >= 0 such that |x| = radius (the norm
+// decreases monotonically in nu; Newton's method from nu = 0 converges from the left).
+Eigen::Vector2d disk_constrained_minimum(const Eigen::Matrix2d& w, const Eigen::Vector2d& c, double radius) {
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(w);
+    const Eigen::Vector2d a = eig.eigenvalues().cwiseMax(1e-300);
+    const Eigen::Vector2d d = eig.eigenvectors().transpose() * c;
+    auto point = [&](double nu) { return Eigen::Vector2d(d[0] / (a[0] + nu), d[1] / (a[1] + nu)); };
+    if (point(0).norm() <= radius) return eig.eigenvectors() * point(0);
+    if (radius <= 0) return Eigen::Vector2d::Zero();
+    double nu = 0;
+    for (int it = 0; it < 50; ++it) {
+        const Eigen::Vector2d x = point(nu);
+        const double norm = x.norm();
+        if (std::abs(norm - radius) <= 1e-12 * radius) break;
+        // d|x|/dnu = -sum x_k^2 / (a_k + nu) / |x|; Newton on 1/|x| - 1/radius is better behaved
+        const double slope = (x[0] * x[0] / (a[0] + nu) + x[1] * x[1] / (a[1] + nu)) / (norm * norm * norm);
+        nu += (1.0 / radius - 1.0 / norm) / slope;
+    }
+    return eig.eigenvectors() * point(nu);
+}
+}  // namespace
+
 PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, double tolerance) {
     const int c = static_cast<int>(p.gap.size());
-    lambda = VecX::Zero(3 * c);
-    VecX u = p.u_free;
+    if (lambda.size() != 3 * c) lambda = VecX::Zero(3 * c);  // else: a warm start
+    for (int i = 0; i < c; ++i) lambda[3 * i] = std::max(0.0, lambda[3 * i]);
+    VecX u = p.u_free + p.W * lambda;
     PgsResult result;
     // target normal velocity: close the gap exactly within the step, never faster
     VecX bias(c);
@@ -26,20 +51,15 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
             const double ln = std::max(0.0, lambda[n] - (u[n] + bias[i]) / wnn);
             const double dn = ln - lambda[n];
             apply(n, dn);
-            // friction: a step against the sliding velocity, projected onto the disk of radius
-            // mu lambda_n. The step is isotropic (1 / largest eigenvalue of the 2x2 block): its
-            // fixed points have the impulse exactly opposite the sliding velocity, as Coulomb's
-            // maximal dissipation requires; a full 2x2 solve followed by a radial projection
-            // would tilt the friction whenever the block is anisotropic (rigid bodies).
-            const Eigen::Matrix2d wtt = p.W.block<2, 2>(n + 1, n + 1);
-            const double wmax = 0.5 * (wtt.trace() + std::sqrt(std::pow(wtt(0, 0) - wtt(1, 1), 2) + 4 * wtt(0, 1) * wtt(1, 0)));
-            if (!(wmax > 0)) continue;
+            // friction: the exact solution of this contact's 2x2 subproblem (impulse inside
+            // the disk of radius mu lambda_n minimizing the block's kinetic energy), whose
+            // optimality conditions are Coulomb's: sticking inside the disk, or on its rim
+            // exactly opposite the post-step sliding velocity (maximal dissipation).
+            const Eigen::Matrix2d wtt = 0.5 * (p.W.block<2, 2>(n + 1, n + 1) + p.W.block<2, 2>(n + 1, n + 1).transpose());
+            if (!(wtt.trace() > 0)) continue;
             const Eigen::Vector2d ut(u[n + 1], u[n + 2]);
             const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
-            Eigen::Vector2d target = lt - ut / wmax;
-            const double limit = p.friction[i] * lambda[n];
-            const double norm = target.norm();
-            if (norm > limit) target *= limit / norm;
+            const Eigen::Vector2d target = disk_constrained_minimum(wtt, wtt * lt - ut, p.friction[i] * lambda[n]);
             const Eigen::Vector2d dt = target - lt;
             apply(n + 1, dt[0]);
             apply(n + 2, dt[1]);

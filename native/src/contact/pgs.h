@@ -24,6 +24,8 @@ struct PgsResult {
     double residual = 0;  // largest violation of the normal constraint or the cone (m/s)
 };
 
+// lambda: in, a warm start when it has 3c entries (the previous step's impulses of the same
+// contacts); out, the impulses.
 PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, double tolerance);
 
 }  // namespace hh

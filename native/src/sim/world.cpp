@@ -8,6 +8,20 @@
 namespace hh {
 
 namespace {
+// Identity of a contact across steps: its sides' bodies and first vertices (a vertex against
+// a body keeps its identity when the closest triangle changes).
+std::uint64_t contact_key(const Contact& c) {
+    std::uint64_t h = 1469598103934665603ull;
+    auto mix = [&](std::uint64_t v) { h = (h ^ v) * 1099511628211ull; };
+    mix(static_cast<std::uint64_t>(c.a.body));
+    mix(static_cast<std::uint64_t>(c.a.count));
+    for (int k = 0; k < c.a.count; ++k) mix(static_cast<std::uint64_t>(c.a.vertex[k]));
+    mix(static_cast<std::uint64_t>(c.b.body) + 7919);
+    if (c.b.count == 2)
+        for (int k = 0; k < 2; ++k) mix(static_cast<std::uint64_t>(c.b.vertex[k]));
+    return h;
+}
+
 double seconds_since(std::chrono::steady_clock::time_point t0) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -44,7 +58,9 @@ int World::add(std::unique_ptr<Body> body) {
     update_points(b);
     if (b.has_surface) {
         init_surface(b.surface, static_cast<int>(b.points.size()));
-        update_surface(b.surface, b.points, 2 * settings.contact_thickness);
+        const double rest_reach = 2 * settings.contact_thickness;
+        update_surface(b.surface, b.points, rest_reach);
+        if (b.self_collision) b.self_exclusions = rest_exclusions(b.surface, DetectionSettings{rest_reach});
     }
     return static_cast<int>(bodies.size() - 1);
 }
@@ -80,7 +96,7 @@ void World::detect() {
         if (b.kind == BodyKind::Rigid || b.kind == BodyKind::Kinematic)
             speed = std::max(speed, b.rigid.v.norm() + b.rigid.omega.norm() * 0.5);
     }
-    const double reach = settings.contact_thickness + std::min(2.0 * speed * settings.dt, 0.05);
+    const double reach = settings.contact_thickness + std::min(speed * settings.dt, 2 * settings.contact_thickness);
     for (auto& bp : bodies) {
         update_points(*bp);
         if (bp->has_surface) update_surface(bp->surface, bp->points, reach);
@@ -89,7 +105,8 @@ void World::detect() {
     const DetectionSettings ds{reach};
     for (size_t i = 0; i < bodies.size(); ++i) {
         Body& a = *bodies[i];
-        if (a.dynamic() && a.has_surface && a.self_collision) detect_self(a.surface, static_cast<int>(i), ds, contacts);
+        if (a.dynamic() && a.has_surface && a.self_collision)
+            detect_self(a.surface, static_cast<int>(i), ds, &a.self_exclusions, contacts);
         for (size_t j = 0; j < bodies.size(); ++j) {
             if (j == i) continue;
             Body& b = *bodies[j];
@@ -154,7 +171,10 @@ void World::solve_free() {
 
 void World::solve_contacts() {
     const int nc = static_cast<int>(contacts.size());
-    if (nc == 0) return;
+    if (nc == 0) {
+        previous_impulse.clear();
+        return;
+    }
     const int rows = 3 * nc;
     // every (body, row) pair: the sparse Jacobian row as (unknown offset, coefficient) terms
     struct Term {
@@ -272,8 +292,16 @@ void World::solve_contacts() {
                 if (cols[col].size() > 0) prob.W(row, col) += gather(ts, direction(row), cols[col]);
         }
     }
-    VecX lambda;
+    VecX lambda = VecX::Zero(rows);
+    for (int c = 0; c < nc; ++c) {
+        auto it = previous_impulse.find(contact_key(contacts[c]));
+        if (it == previous_impulse.end()) continue;
+        lambda[3 * c] = it->second.dot(contacts[c].normal);
+        lambda[3 * c + 1] = it->second.dot(contacts[c].tangent1);
+        lambda[3 * c + 2] = it->second.dot(contacts[c].tangent2);
+    }
     const PgsResult res = solve_pgs(prob, lambda, settings.max_iterations, settings.tolerance);
+    previous_impulse.clear();
     stats.iterations = res.iterations;
     stats.residual = res.residual;
     for (int bi : involved) {
@@ -284,6 +312,7 @@ void World::solve_contacts() {
     for (int c = 0; c < nc; ++c) {
         const Contact& k = contacts[c];
         const Vec3 impulse = lambda[3 * c] * k.normal + lambda[3 * c + 1] * k.tangent1 + lambda[3 * c + 2] * k.tangent2;
+        previous_impulse[contact_key(k)] = impulse;
         bodies[k.a.body]->contact_force += impulse / settings.dt;
         bodies[k.b.body]->contact_force -= impulse / settings.dt;
     }

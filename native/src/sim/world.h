@@ -5,7 +5,9 @@
 // contact impulses are solved together with the implicit step through each body's black-box
 // solve (Delassus operator W = J A^-1 J^T, projected Gauss-Seidel), then all bodies advance.
 #pragma once
+#include <cstdint>
 #include <memory>
+#include <unordered_map>
 #include <vector>
 
 #include "contact/detection.h"
@@ -27,6 +29,7 @@ struct Body {
     BodyKind kind = BodyKind::Static;
     double friction = 0.5;
     bool self_collision = false;
+    SelfExclusions self_exclusions;  // self-collision pairs already in contact at rest
     bool has_surface = false;
     CollisionSurface surface;
     std::vector<Vec3> points;  // the points the surface is made of, this step (world frame)
@@ -84,6 +87,9 @@ public:
     std::vector<std::unique_ptr<Body>> bodies;
     std::vector<Contact> contacts;  // of the last step
     WorldStats stats;
+    // impulses of the last step's contacts (world frame, N s), by contact identity, to warm
+    // start the next step's solve: a resting contact's impulse changes little between steps
+    std::unordered_map<std::uint64_t, Vec3> previous_impulse;
 
     int add(std::unique_ptr<Body> body);
     void step();
