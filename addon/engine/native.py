@@ -93,6 +93,7 @@ class WorldParams(ctypes.Structure):
         ("dt", ctypes.c_double),
         ("gravity", ctypes.c_double * 3),
         ("contact_thickness", ctypes.c_double),
+        ("contact_patch", ctypes.c_double),
         ("max_iterations", ctypes.c_int),
         ("tolerance", ctypes.c_double),
     ]
@@ -112,6 +113,7 @@ class Material(ctypes.Structure):
 class WorldStats(ctypes.Structure):
     _fields_ = [
         ("contacts", ctypes.c_int),
+        ("self_contacts", ctypes.c_int),
         ("max_penetration", ctypes.c_double),
         ("min_distance", ctypes.c_double),
         ("residual", ctypes.c_double),

@@ -38,12 +38,13 @@ class World:
     """hh_world: bodies stepped together with contact. Body indices are returned by add_*."""
 
     def __init__(self, dt: float = 1 / 30, gravity=(0.0, 0.0, -9.81), contact_thickness: float = 1e-3,
-                 max_iterations: int = 200, tolerance: float = 1e-6):
+                 contact_patch: float = 4e-3, max_iterations: int = 1000, tolerance: float = 1e-6):
         p = WorldParams()
         library().hh_default_world_params(ctypes.byref(p))
         p.dt = float(dt)
         p.gravity = (ctypes.c_double * 3)(*_f64(gravity, (3,), "gravity"))
         p.contact_thickness = float(contact_thickness)
+        p.contact_patch = float(contact_patch)
         p.max_iterations = int(max_iterations)
         p.tolerance = float(tolerance)
         handle = ctypes.c_void_p()

@@ -157,6 +157,8 @@ typedef struct hh_world_params {
     double dt;                /* s, in (0, 0.1] */
     double gravity[3];        /* m/s^2 */
     double contact_thickness; /* m, > 0: surfaces are kept this far apart */
+    double contact_patch;     /* m, > 0: per pair of bodies, one contact (the deepest) per cell
+                                 of this size, which bounds the contact count of large areas */
     int max_iterations;       /* projected Gauss-Seidel sweeps, > 0 */
     double tolerance;         /* relative impulse change that ends the sweeps, > 0 */
 } hh_world_params;
@@ -168,6 +170,7 @@ typedef struct hh_material {
 
 typedef struct hh_world_stats {
     int contacts;
+    int self_contacts;      /* of them, between two parts of the same body (fingers) */
     double max_penetration; /* m: deepest a contact ended inside the thickness layer */
     double min_distance;    /* m: smallest signed distance of a contact after the step */
     double residual;        /* m/s: largest constraint violation left by the contact solver */

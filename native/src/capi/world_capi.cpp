@@ -57,7 +57,8 @@ void hh_default_world_params(hh_world_params* p) {
     p->dt = 1.0 / 30.0;
     p->gravity[2] = -9.81;
     p->contact_thickness = 1e-3;
-    p->max_iterations = 200;
+    p->contact_patch = 4e-3;
+    p->max_iterations = 1000;
     p->tolerance = 1e-6;
 }
 
@@ -81,12 +82,14 @@ int hh_world_create(const hh_world_params* p, hh_world** out) {
         require(p->dt <= 0.1, "dt = " + std::to_string(p->dt) + " is invalid: it must be at most 0.1 s");
         for (double g : p->gravity) require(std::isfinite(g), "gravity must be finite");
         require_finite_positive(p->contact_thickness, "contact_thickness", "a positive distance in metres (e.g. 1e-3)");
+        require_finite_positive(p->contact_patch, "contact_patch", "a positive distance in metres (e.g. 4e-3)");
         require(p->max_iterations > 0, "max_iterations must be positive");
         require_finite_positive(p->tolerance, "tolerance", "positive (e.g. 1e-6)");
         hh::WorldSettings s;
         s.dt = p->dt;
         s.gravity = vec3(p->gravity);
         s.contact_thickness = p->contact_thickness;
+        s.contact_patch = p->contact_patch;
         s.max_iterations = p->max_iterations;
         s.tolerance = p->tolerance;
         *out = new hh_world(s);
@@ -291,6 +294,7 @@ int hh_world_step(hh_world* world, hh_world_stats* out) {
         const hh::WorldStats& s = world->w.stats;
         if (out) {
             out->contacts = s.contacts;
+            out->self_contacts = s.self_contacts;
             out->max_penetration = s.max_penetration;
             out->min_distance = s.min_distance;
             out->residual = s.residual;

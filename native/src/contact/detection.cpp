@@ -25,10 +25,46 @@ Contact make_contact(int body_a, int body_b, const Vec3& normal, double distance
     return c;
 }
 
+Vec3 edge_normal_at(const CollisionSurface& s, int e) {
+    Vec3 n = s.triangle_normal[s.edge_triangles[e][0]];
+    if (s.edge_triangles[e][1] >= 0) n += s.triangle_normal[s.edge_triangles[e][1]];
+    return n;
+}
+
 bool shares_vertex(const Eigen::Vector3i& tri, int v) { return tri[0] == v || tri[1] == v || tri[2] == v; }
+
+// Surface points embedded in the same element cannot move apart except by deforming it: no
+// contact between them.
+bool same_element(const CollisionSurface& s, int v, const Eigen::Vector3i& tri) {
+    for (int k = 0; k < 3; ++k)
+        if (s.nodes[tri[k]] == s.nodes[v]) return true;
+    return false;
+}
 
 // Vertices of sa against triangles of sb. For self-collision (same surface) the vertex must
 // not belong to the triangle and the two surfaces must face each other, so neighbouring
+// points of one smooth surface never count as a contact.
+// Outward pseudo-normal of surface b at the closest point with barycentric weights w on
+// triangle t: the face normal inside the face, the mean of the two faces' normals on an edge,
+// the vertex normal at a corner. Its sign tells inside from outside even near edges, where
+// one face's plane would misclassify a point beside the body as behind it.
+Vec3 pseudo_normal(const CollisionSurface& s, int t, const Vec3& w) {
+    const double eps = 1e-9;
+    const int zero = (w[0] <= eps) + (w[1] <= eps) + (w[2] <= eps);
+    if (zero == 0) return s.triangle_normal[t];
+    if (zero == 2) {
+        int k;
+        w.maxCoeff(&k);
+        return s.vertex_normal[s.triangles[t][k]];
+    }
+    int k;  // the edge opposite the zero weight: triangle_edges[t][j] joins corners j and j+1
+    w.minCoeff(&k);
+    return edge_normal_at(s, s.triangle_edges[t][(k + 1) % 3]);
+}
+
+// Vertices of sa against triangles of sb: each vertex's closest triangle within reach. For
+// self-collision (same surface) the vertex must not belong to the triangle or share its
+// element, the surfaces must face each other, and the vertex must be outside, so neighbouring
 // points of one smooth surface never count as a contact.
 void vertices_against_triangles(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,
                                 bool self, const SelfExclusions* skip, double reach, std::vector<Contact>& out,
@@ -38,45 +74,44 @@ void vertices_against_triangles(const CollisionSurface& sa, int body_a, const Co
         Aabb query;
         query.grow(p);
         double best = reach;
-        Contact found;
-        bool have = false;
+        int best_t = -1;
+        Vec3 best_w, best_q;
         sb.bvh.query(query, [&](int t) {
             const auto& tri = sb.triangles[t];
-            if (self && (shares_vertex(tri, v) || sa.vertex_normal[v].dot(sb.triangle_normal[t]) > -0.5)) return;
+            if (self && (shares_vertex(tri, v) || sa.vertex_normal[v].dot(sb.triangle_normal[t]) > -0.5 ||
+                         same_element(sa, v, tri)))
+                return;
             if (skip && skip->vertex_triangle.count(SelfExclusions::key(v, t))) return;
             const Vec3 w = closest_on_triangle(p, sb.x[tri[0]], sb.x[tri[1]], sb.x[tri[2]]);
             const Vec3 q = w[0] * sb.x[tri[0]] + w[1] * sb.x[tri[1]] + w[2] * sb.x[tri[2]];
-            const Vec3 d = p - q;
-            const double dist = d.norm();
-            const Vec3& tn = sb.triangle_normal[t];
-            // in front of the triangle: separate along p - q; behind it: penetrated, push out
-            // along the triangle's normal
-            const bool front = d.dot(tn) >= 0;
-            const double signed_dist = front ? dist : -dist;
-            if (signed_dist >= best || (self && !front)) return;
-            if (record) record->vertex_triangle.insert(SelfExclusions::key(v, t));
-            const Vec3 n = (front && dist > 1e-12) ? Vec3(d / dist) : tn;
-            best = signed_dist;
-            found = make_contact(body_a, body_b, n, signed_dist, q);
-            found.a.count = 1;
-            found.a.vertex[0] = v;
-            found.a.weight[0] = 1;
-            found.b.count = 3;
-            for (int k = 0; k < 3; ++k) {
-                found.b.vertex[k] = tri[k];
-                found.b.weight[k] = w[k];
-            }
-            have = true;
+            const double dist = (p - q).norm();
+            if (dist >= best) return;
+            best = dist;
+            best_t = t;
+            best_w = w;
+            best_q = q;
         });
-        if (have) out.push_back(found);
+        if (best_t < 0) continue;
+        const Vec3 d = p - best_q;
+        const Vec3 outward = pseudo_normal(sb, best_t, best_w);
+        const bool outside = d.dot(outward) >= 0;
+        if (self && !outside) continue;
+        if (record) record->vertex_triangle.insert(SelfExclusions::key(v, best_t));
+        // outside: separate along p - q; inside: move p back out through q
+        Vec3 n = best > 1e-12 ? Vec3((outside ? d : Vec3(-d)) / best) : outward.normalized();
+        Contact c = make_contact(body_a, body_b, n, outside ? best : -best, best_q);
+        c.a.count = 1;
+        c.a.vertex[0] = v;
+        c.a.weight[0] = 1;
+        c.b.count = 3;
+        for (int k = 0; k < 3; ++k) {
+            c.b.vertex[k] = sb.triangles[best_t][k];
+            c.b.weight[k] = best_w[k];
+        }
+        out.push_back(c);
     }
 }
 
-Vec3 edge_normal(const CollisionSurface& s, int e) {
-    Vec3 n = s.triangle_normal[s.edge_triangles[e][0]];
-    if (s.edge_triangles[e][1] >= 0) n += s.triangle_normal[s.edge_triangles[e][1]];
-    return n;
-}
 
 // Edges of sa against edges of sb whose closest points are inside both edges (the other
 // configurations are vertex-triangle contacts).
@@ -90,7 +125,7 @@ void edges_against_edges(const CollisionSurface& sa, int body_a, const Collision
         Aabb query;
         query.grow(p0);
         query.grow(p1);
-        const Vec3 na = edge_normal(sa, static_cast<int>(ea));
+        const Vec3 na = edge_normal_at(sa, static_cast<int>(ea));
         sb.bvh.query(query, [&](int t) {
             // self: the edge's own neighbourhood, and surfaces not facing each other, are no contact
             if (self && (shares_vertex(sb.triangles[t], sa.edges[ea][0]) || shares_vertex(sb.triangles[t], sa.edges[ea][1]) ||
@@ -116,7 +151,7 @@ void edges_against_edges(const CollisionSurface& sa, int body_a, const Collision
                 if (dist >= reach || dist < 1e-12) continue;
                 const Vec3 n = d / dist;
                 // separated edges face each other: a's surface looks along -n, b's along +n
-                if (na.dot(n) >= 0 || edge_normal(sb, eb).dot(n) <= 0) continue;
+                if (na.dot(n) >= 0 || edge_normal_at(sb, eb).dot(n) <= 0) continue;
                 if (record) record->edge_edge.insert(SelfExclusions::key(static_cast<int>(ea), eb));
                 Contact c = make_contact(body_a, body_b, n, dist, pb);
                 c.a.count = 2;
@@ -147,8 +182,11 @@ void detect_pair(const CollisionSurface& sa, int body_a, const CollisionSurface&
 
 void detect_self(const CollisionSurface& s, int body, const DetectionSettings& settings, const SelfExclusions* skip,
                  std::vector<Contact>& out) {
+    // Vertex-triangle only: edge-edge pairs within one body also pair edges across the folds
+    // between fingers and palm, whose relative motion is that of a few shared elements, and
+    // made the contact problem ill-conditioned (measured: squeezed fingers blew up). Between a
+    // vertex and a facing triangle, both directions are found, which covers finger contact.
     vertices_against_triangles(s, body, s, body, true, skip, settings.distance, out);
-    edges_against_edges(s, body, s, body, true, skip, settings.distance, out);
 }
 
 SelfExclusions rest_exclusions(const CollisionSurface& s, const DetectionSettings& settings) {

@@ -35,9 +35,11 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
     for (int i = 0; i < c; ++i) lambda[3 * i] = std::max(0.0, lambda[3 * i]);
     VecX u = p.u_free + p.W * lambda;
     PgsResult result;
-    // target normal velocity: close the gap exactly within the step, never faster
+    // target normal velocity: close an open gap exactly within the step, never faster; push
+    // out of a penetration at a bounded speed, so a deep one is resolved over a few steps
+    // instead of by one violent impulse that would feed energy into the scene
     VecX bias(c);
-    for (int i = 0; i < c; ++i) bias[i] = p.gap[i] / p.dt;
+    for (int i = 0; i < c; ++i) bias[i] = std::max(p.gap[i] / p.dt, -p.recovery_speed);
     auto apply = [&](int col, double delta) {
         if (delta != 0) u.noalias() += p.W.col(col) * delta;
         lambda[col] += delta;

@@ -17,6 +17,7 @@ struct ContactProblem {
     VecX gap;       // c: signed distance minus the contact thickness
     VecX friction;  // c: Coulomb coefficient
     double dt = 0;
+    double recovery_speed = 0.05;  // m/s: largest speed at which a penetration is pushed out
 };
 
 struct PgsResult {

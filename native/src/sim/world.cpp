@@ -1,6 +1,7 @@
 #include "sim/world.h"
 
 #include <chrono>
+#include <cmath>
 #include <map>
 
 #include "rigid/quaternion.h"
@@ -116,6 +117,32 @@ void World::detect() {
             } else if (b.has_surface && (j > i || !b.dynamic())) {
                 detect_pair(a.surface, static_cast<int>(i), b.surface, static_cast<int>(j), ds, contacts);
             }
+        }
+    }
+}
+
+void World::reduce_contacts() {
+    // Keep, per pair of bodies and per patch cell, the deepest contact whose normal points the
+    // same way (octant of the normal), so two sides of a thin part stay apart. A large contact
+    // area then costs a bounded number of constraints; the dropped pairs are within a patch of
+    // a kept one and are still measured in the statistics.
+    detected.swap(contacts);
+    contacts.clear();
+    std::unordered_map<std::uint64_t, int> best;
+    const double h = settings.contact_patch;
+    for (const Contact& c : detected) {
+        std::uint64_t key = 1469598103934665603ull;
+        auto mix = [&](std::int64_t v) { key = (key ^ static_cast<std::uint64_t>(v)) * 1099511628211ull; };
+        mix(c.a.body);
+        mix(c.b.body);
+        for (int d = 0; d < 3; ++d) mix(static_cast<std::int64_t>(std::floor(c.point[d] / h)));
+        mix((c.normal.x() > 0) | ((c.normal.y() > 0) << 1) | ((c.normal.z() > 0) << 2));
+        auto it = best.find(key);
+        if (it == best.end()) {
+            best[key] = static_cast<int>(contacts.size());
+            contacts.push_back(c);
+        } else if (c.distance < contacts[it->second].distance) {
+            contacts[it->second] = c;
         }
     }
 }
@@ -300,6 +327,11 @@ void World::solve_contacts() {
         lambda[3 * c + 1] = it->second.dot(contacts[c].tangent1);
         lambda[3 * c + 2] = it->second.dot(contacts[c].tangent2);
     }
+    // The hand's system is not symmetric (spring torques), so neither is W; Gauss-Seidel is
+    // only sure to converge on a symmetric one. Its symmetric part differs by terms of the
+    // order of the springs' damping times the handle's spin; the velocities below use the
+    // true columns.
+    prob.W = 0.5 * (prob.W + prob.W.transpose()).eval();
     const PgsResult res = solve_pgs(prob, lambda, settings.max_iterations, settings.tolerance);
     previous_impulse.clear();
     stats.iterations = res.iterations;
@@ -365,6 +397,7 @@ void World::step() {
     const auto t0 = clock::now();
     stats = WorldStats{};
     detect();
+    reduce_contacts();
     const auto t1 = clock::now();
     stats.t_detection = seconds_since(t0);
     solve_free();
@@ -374,12 +407,13 @@ void World::step() {
     stats.t_contact = seconds_since(t2);
     integrate();
     stats.contacts = static_cast<int>(contacts.size());
-    stats.min_distance = contacts.empty() ? 0 : 1e300;
-    for (const Contact& c : contacts) {
+    stats.min_distance = detected.empty() ? 0 : 1e300;
+    for (const Contact& c : detected) {
         const double d = contact_distance(c);
         stats.min_distance = std::min(stats.min_distance, d);
         stats.max_penetration = std::max(stats.max_penetration, settings.contact_thickness - d);
     }
+    for (const Contact& c : contacts) stats.self_contacts += c.a.body == c.b.body;
     stats.t_total = seconds_since(t0);
 }
 

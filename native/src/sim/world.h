@@ -67,12 +67,14 @@ struct WorldSettings {
     double dt = 1.0 / 30.0;
     Vec3 gravity = Vec3(0, 0, -9.81);
     double contact_thickness = 1e-3;  // m: surfaces are kept this far apart
-    int max_iterations = 200;         // projected Gauss-Seidel sweeps
+    double contact_patch = 4e-3;      // m: one contact per cell of this size per pair of bodies
+    int max_iterations = 1000;        // projected Gauss-Seidel sweeps (most steps end far sooner)
     double tolerance = 1e-6;          // relative change of the impulses that ends the sweeps
 };
 
 struct WorldStats {
     int contacts = 0;
+    int self_contacts = 0;
     double max_penetration = 0;  // m: deepest a contact ended inside the thickness layer
     double min_distance = 0;     // m: smallest signed distance of a contact after the step
     double residual = 0;         // m/s: largest constraint violation left by the solver
@@ -85,7 +87,8 @@ public:
     explicit World(const WorldSettings& settings);
     WorldSettings settings;
     std::vector<std::unique_ptr<Body>> bodies;
-    std::vector<Contact> contacts;  // of the last step
+    std::vector<Contact> contacts;  // of the last step, one per patch
+    std::vector<Contact> detected;  // every pair found within reach, before the reduction
     WorldStats stats;
     // impulses of the last step's contacts (world frame, N s), by contact identity, to warm
     // start the next step's solve: a resting contact's impulse changes little between steps
@@ -97,6 +100,7 @@ public:
 private:
     void update_points(Body& b);
     void detect();
+    void reduce_contacts();
     void solve_free();
     void solve_contacts();
     void integrate();
