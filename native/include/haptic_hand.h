@@ -172,7 +172,7 @@ typedef struct hh_world_stats {
     int contacts;
     int self_contacts;      /* of them, between two parts of the same body (fingers) */
     double max_penetration; /* m: deepest a contact ended inside the thickness layer */
-    double min_distance;    /* m: smallest signed distance of a contact after the step */
+    double min_distance;    /* m: smallest signed distance of a detected pair after the step (inf: none) */
     double residual;        /* m/s: largest constraint violation left by the contact solver */
     int iterations;         /* Gauss-Seidel sweeps */
     double t_detection, t_dynamics, t_contact, t_total; /* s */

@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <map>
 
 #include "rigid/quaternion.h"
@@ -407,7 +408,7 @@ void World::step() {
     stats.t_contact = seconds_since(t2);
     integrate();
     stats.contacts = static_cast<int>(contacts.size());
-    stats.min_distance = detected.empty() ? 0 : 1e300;
+    stats.min_distance = std::numeric_limits<double>::infinity();  // no pair within reach
     for (const Contact& c : detected) {
         const double d = contact_distance(c);
         stats.min_distance = std::min(stats.min_distance, d);
