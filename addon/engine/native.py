@@ -211,6 +211,7 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hh_world_contact_force": ([vp, i, pd], i),
         "hh_world_hand_state": ([vp, i, pd, pd, pd, pd], i),
         "hh_world_linear_momentum": ([vp, pd], i),
+        "hh_world_hand_step_stats": ([vp, i, ctypes.POINTER(StepStats)], i),
     }
     for name, (args, res) in sig.items():
         fn = getattr(lib, name)

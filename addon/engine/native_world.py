@@ -7,7 +7,7 @@ import ctypes
 
 import numpy as np
 
-from .native import HandModel, InvalidInput, Material, WorldParams, WorldStats, _check, _f64, _ptr, library
+from .native import HandModel, InvalidInput, Material, StepStats, WorldParams, WorldStats, _check, _f64, _ptr, library
 
 HAND, SOFT, RIGID, KINEMATIC, STATIC, PLANE = range(6)
 KIND_NAMES = {HAND: "hand", SOFT: "soft", RIGID: "rigid", KINEMATIC: "kinematic", STATIC: "static", PLANE: "plane"}
@@ -159,6 +159,12 @@ class World:
         p, q, f, t = np.empty(3), np.empty(4), np.empty(3), np.empty(3)
         _check(library().hh_world_hand_state(self._handle, hand, _ptr(p), _ptr(q), _ptr(f), _ptr(t)))
         return p, q, f, t
+
+    def hand_step_stats(self, hand: int) -> dict:
+        """Assembly / deformable solves / Schur split of the hand's implicit step (last step)."""
+        s = StepStats()
+        _check(library().hh_world_hand_step_stats(self._handle, hand, ctypes.byref(s)))
+        return s.as_dict()
 
     def linear_momentum(self) -> np.ndarray:
         p = np.empty(3)

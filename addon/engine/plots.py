@@ -44,7 +44,7 @@ def hand_plot(result: dict, path: Path | str, frame: int | None = None) -> Path:
     import matplotlib.pyplot as plt
 
     from .mesh import interpolate_embedded
-    from .simulate import flesh_deformation
+    from .simulate import flesh_deformation, rotation_matrix
 
     if frame is None:
         frame = int(np.argmax(flesh_deformation(result)))
@@ -56,12 +56,26 @@ def hand_plot(result: dict, path: Path | str, frame: int | None = None) -> Path:
                                     result["surface_weights"])
         ax.plot_trisurf(surf[:, 0], surf[:, 1], surf[:, 2], triangles=faces, color="#e0b8a0",
                         edgecolor="none", alpha=0.6, shade=True)
+        for name, kind in zip(result.get("body_names", []), result.get("body_types", [])):
+            key = f"body_{name}"
+            if kind == "soft":
+                pts = interpolate_embedded(result[f"{key}_positions"][k], result[f"{key}_tets"],
+                                           result[f"{key}_surface_tet_index"], result[f"{key}_surface_weights"])
+            elif kind != "plane":
+                pose = result[f"{key}_pose"][k]
+                pts = pose[:3] + result[f"{key}_local_vertices"] @ rotation_matrix(pose[3:]).T
+            else:
+                continue
+            ax.plot_trisurf(pts[:, 0], pts[:, 1], pts[:, 2], triangles=result[f"{key}_faces"], color="#9db4d8",
+                            edgecolor="none", alpha=0.8, shade=True)
         handle = result["positions"][k][result["handle_nodes"]]
         ax.scatter(handle[:, 0], handle[:, 1], handle[:, 2], color="tab:green", s=12, label="handle nodes")
         d = result["device_pose"][k, :3]
         ax.scatter([d[0]], [d[1]], [d[2]], color="tab:red", s=40, marker="x", label="device")
         ax.set_title(title)
-        lo, hi = result["rest_nodes"].min(0) - 0.03, result["rest_nodes"].max(0) + 0.03
+        extent = [result["rest_nodes"]] + [result[f"body_{n}_positions"][0] for n, t in
+                                           zip(result.get("body_names", []), result.get("body_types", [])) if t == "soft"]
+        lo, hi = np.min([e.min(0) for e in extent], axis=0) - 0.02, np.max([e.max(0) for e in extent], axis=0) + 0.02
         centre, half = (lo + hi) / 2, (hi - lo).max() / 2
         ax.set_xlim(centre[0] - half, centre[0] + half)
         ax.set_ylim(centre[1] - half, centre[1] + half)

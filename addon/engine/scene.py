@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import bodies as bodies_module
 from . import mesh as meshing
 from . import native
 
@@ -31,7 +32,11 @@ DEFAULTS = {
         "tetrahedralize": {"edge_length_fac": 0.1, "coarsen": False, "epsilon": 1e-3},
         "palm_seed": None,
         "handle_radius": 0.03,
+        "friction": 0.5,
+        "self_collision": True,
     },
+    "contact": {"thickness": 1e-3, "patch": 4e-3, "max_iterations": 1000, "tolerance": 1e-6},
+    "bodies": [],
     "material": {"young_modulus": 5e4, "poisson_ratio": 0.3, "density": 1000.0,
                  "rayleigh_alpha": 0.0, "rayleigh_beta": 0.01},
     "springs": {"stiffness": 1e4, "damping": 10.0},
@@ -111,10 +116,23 @@ def slerp(q0, q1, a):
     return q / np.linalg.norm(q)
 
 
+def body_trajectory(spec: dict, start: np.ndarray) -> Trajectory:
+    """A kinematic body's script: timed offsets of its centre from where it starts."""
+    points = spec["trajectory"] or [{"t": 0.0, "position": [0, 0, 0], "quaternion": [0, 0, 0, 1]}]
+    times = np.array([float(p.get("t", math.nan)) for p in points])
+    if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+        raise SceneError(f"body '{spec['name']}': trajectory times 't' must be finite and strictly increasing")
+    pos = np.array([_vector(p.get("position", [0, 0, 0]), 3, f"{spec['name']}.trajectory[].position") for p in points])
+    quat = np.array([_vector(p.get("quaternion", [0, 0, 0, 1]), 4, f"{spec['name']}.trajectory[].quaternion")
+                     for p in points])
+    return Trajectory(times, pos + start, quat / np.linalg.norm(quat, axis=1)[:, None])
+
+
 @dataclass
 class Scene:
     data: dict
     base_dir: Path
+    bodies: list = field(default_factory=list)
     surface_vertices: np.ndarray = field(default=None, repr=False)
     surface_faces: np.ndarray = field(default=None, repr=False)
     nodes: np.ndarray = field(default=None, repr=False)
@@ -199,7 +217,14 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     _positive(merged["dt"], "dt")
     _positive(merged["frames"], "frames", integer=True)
     _positive(merged["hand"]["handle_radius"], "hand.handle_radius")
-    return Scene(merged, Path(base_dir))
+    for key in ("thickness", "patch", "tolerance"):
+        _positive(merged["contact"][key], f"contact.{key}")
+    _positive(merged["contact"]["max_iterations"], "contact.max_iterations", integer=True)
+    try:
+        parsed = bodies_module.parse(merged["bodies"], Path(base_dir))
+    except bodies_module.BodyError as e:
+        raise SceneError(str(e)) from None
+    return Scene(merged, Path(base_dir), parsed)
 
 
 def load(path: Path | str) -> Scene:

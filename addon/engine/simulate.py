@@ -7,17 +7,19 @@ from __future__ import annotations
 import json
 import platform
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
+from . import bodies
 from . import mesh as meshing
-from . import native
+from . import native_world
 from . import scene as scenes
 
-RESULT_FORMAT = "haptic_hand.result/1"
-TIMING_FIELDS = ("t_assembly", "t_deformable", "t_schur", "t_total")
+RESULT_FORMAT = "haptic_hand.result/2"
+TIMING_FIELDS = ("t_assembly", "t_deformable", "t_schur", "t_total")  # the hand's implicit step
+VISUAL_TIMING_FIELDS = ("t_detection", "t_dynamics", "t_contact", "t_total")  # the whole visual step
+CONTACT_FIELDS = ("contacts", "self_contacts", "max_penetration", "min_distance", "residual", "iterations")
 
 
 def text_progress(fraction: float, message: str) -> None:
@@ -30,48 +32,81 @@ def text_progress(fraction: float, message: str) -> None:
     sys.stderr.flush()
 
 
+def build_world(scene: scenes.Scene, progress=None):
+    """The native World of a scene: the hand (its render surface embedded in its tets as the
+    collision surface) and the other bodies. Returns (world, hand index, hand model, bodies)."""
+    model = scenes.build_model(scene, progress=progress)
+    c = scene.data["contact"]
+    world = native_world.World(dt=scene.dt, gravity=scene.data["gravity"], contact_thickness=c["thickness"],
+                               contact_patch=c["patch"], max_iterations=c["max_iterations"], tolerance=c["tolerance"])
+    tet_index, weights = meshing.embed_points(scene.nodes, scene.tets, scene.surface_vertices)
+    sn, sw = native_world.embedded_surface(scene.tets, tet_index, weights)
+    hand = world.add_hand(model, sn, sw, scene.surface_faces, friction=scene.data["hand"]["friction"],
+                          self_collision=scene.data["hand"]["self_collision"])
+    others = [bodies.prepare(spec) for spec in scene.bodies]
+    for b in others:
+        bodies.add_to_world(world, b)
+    return world, hand, model, others, (tet_index, weights)
+
+
 def run(scene: scenes.Scene, progress=None) -> dict:
-    """Simulates scene.frames steps and returns the result arrays."""
-    model = scenes.build_model(scene, progress=(lambda f, m: progress(0.2 * f, m)) if progress else None)
-    sim = native.HandSimulation(model)
+    """Simulates scene.frames visual-loop steps and returns the result arrays."""
+    world, hand, model, others, (tet_index, weights) = build_world(
+        scene, progress=(lambda f, m: progress(0.2 * f, m)) if progress else None)
     info = model.info()
     trajectory = scene.trajectory(np.array(info["handle_com"]))
     device_on = bool(scene.data["device"]["enabled"])
     frames, dt, n = scene.frames, scene.dt, model.n_nodes
+    scripted = {b.index: scenes.body_trajectory(b.spec, world.pose(b.index)[0]) for b in others
+                if b.kind == native_world.KINEMATIC}
 
     positions = np.empty((frames + 1, n, 3))
     handle_pose = np.empty((frames + 1, 7))
     device_pose = np.empty((frames + 1, 7))
     wrench = np.empty((frames + 1, 6))
     timings = np.zeros((frames, len(TIMING_FIELDS)))
+    visual_timings = np.zeros((frames, len(VISUAL_TIMING_FIELDS)))
+    contact_stats = np.zeros((frames, len(CONTACT_FIELDS)))
     cg_iterations = np.zeros(frames, dtype=np.int32)
+    body_frames = {b.name: [] for b in others if b.kind != native_world.PLANE}
 
     def record(k: int, t: float) -> None:
-        positions[k] = sim.positions()
-        h = sim.handle()
-        handle_pose[k] = np.concatenate([h.position, h.quaternion])
-        p, q = trajectory.pose(t)
-        device_pose[k] = np.concatenate([p, q])
-        f, tq = sim.coupling_wrench()
+        positions[k] = world.nodes(hand)[0]
+        p, q, f, tq = world.hand_state(hand)
+        handle_pose[k] = np.concatenate([p, q])
+        dp, dq = trajectory.pose(t)
+        device_pose[k] = np.concatenate([dp, dq])
         wrench[k] = np.concatenate([f, tq])
+        for b in others:
+            if b.kind == native_world.SOFT:
+                body_frames[b.name].append(world.nodes(b.index)[0])
+            elif b.kind != native_world.PLANE:
+                bp, bq, _, _ = world.pose(b.index)
+                body_frames[b.name].append(np.concatenate([bp, bq]))
 
     record(0, 0.0)
     for k in range(frames):
         t = (k + 1) * dt
         p, q = trajectory.pose(t)
         v, w = trajectory.velocity(t, dt)
-        sim.set_device(p, q, v, w, enabled=device_on)
-        stats = sim.step()
+        world.set_device(hand, p, q, v, w, enabled=device_on)
+        for index, script in scripted.items():
+            bp, bq = script.pose(t)
+            bv, bw = script.velocity(t, dt)
+            world.set_pose(index, bp, bq, bv, bw)
+        vis = world.step()
+        stats = world.hand_step_stats(hand)
         timings[k] = [stats[f] for f in TIMING_FIELDS]
         cg_iterations[k] = stats["cg_iterations"]
+        visual_timings[k] = [vis[f] for f in VISUAL_TIMING_FIELDS]
+        contact_stats[k] = [vis[f] for f in CONTACT_FIELDS]
         record(k + 1, t)
         if progress and (k % 5 == 0 or k == frames - 1):
             progress(0.2 + 0.8 * (k + 1) / frames, f"frame {k + 1}/{frames}")
 
-    tet_index, weights = meshing.embed_points(scene.nodes, scene.tets, scene.surface_vertices)
-    return {
+    result = {
         "format": np.array(RESULT_FORMAT),
-        "scene": np.array(json.dumps(scene.data)),
+        "scene": np.array(json.dumps({k: v for k, v in scene.data.items()}, default=str)),
         "time": np.arange(frames + 1) * dt,
         "positions": positions,
         "handle_pose": handle_pose,
@@ -79,6 +114,10 @@ def run(scene: scenes.Scene, progress=None) -> dict:
         "coupling_wrench": wrench,
         "timings": timings,
         "timing_fields": np.array(TIMING_FIELDS),
+        "visual_timings": visual_timings,
+        "visual_timing_fields": np.array(VISUAL_TIMING_FIELDS),
+        "contact_stats": contact_stats,
+        "contact_fields": np.array(CONTACT_FIELDS),
         "cg_iterations": cg_iterations,
         "rest_nodes": scene.nodes,
         "tets": scene.tets,
@@ -87,8 +126,27 @@ def run(scene: scenes.Scene, progress=None) -> dict:
         "surface_faces": scene.surface_faces,
         "surface_tet_index": tet_index,
         "surface_weights": weights,
+        "body_names": np.array([b.name for b in others]),
+        "body_types": np.array([b.spec["type"] for b in others]),
         "machine": np.array(f"{platform.machine()} {platform.processor() or ''} {platform.system()}".strip()),
     }
+    for b in others:
+        key = f"body_{b.name}"
+        if b.kind == native_world.PLANE:
+            result[f"{key}_plane"] = np.concatenate([b.spec["point"], b.spec["normal"]]).astype(float)
+            continue
+        result[f"{key}_faces"] = b.faces
+        if b.kind == native_world.SOFT:
+            result[f"{key}_positions"] = np.array(body_frames[b.name])
+            result[f"{key}_tets"] = b.tets
+            result[f"{key}_surface_tet_index"] = b.tet_index
+            result[f"{key}_surface_weights"] = b.weights
+        else:
+            poses = np.array(body_frames[b.name])
+            result[f"{key}_pose"] = poses
+            # vertices in the body frame: rest vertices about the rest centre of mass
+            result[f"{key}_local_vertices"] = b.vertices - poses[0, :3]
+    return result
 
 
 def write(result: dict, path: Path | str) -> Path:
@@ -124,6 +182,9 @@ def flesh_deformation(result: dict) -> np.ndarray:
 
 def summary(result: dict) -> str:
     t = result["timings"]
+    vt = result["visual_timings"]
+    cs = result["contact_stats"]
+    thickness = json.loads(str(result["scene"]))["contact"]["thickness"]
     n_frames = len(result["time"]) - 1
     travel = np.linalg.norm(result["handle_pose"][:, :3] - result["handle_pose"][0, :3], axis=1)
     force = np.linalg.norm(result["coupling_wrench"][:, :3], axis=1)
@@ -134,6 +195,11 @@ def summary(result: dict) -> str:
         f"handle travel: up to {travel.max() * 1000:.1f} mm from its start",
         f"flesh deformation (distance from the handle's rigid motion): up to {flesh_deformation(result).max() * 1000:.1f} mm",
         f"coupling force on handle: max {force.max():.3f} N, final {force[-1]:.3f} N",
-        f"step time: mean {t[:, 3].mean() * 1e3:.2f} ms (assembly {t[:, 0].mean() * 1e3:.2f}, "
+        f"hand step: mean {t[:, 3].mean() * 1e3:.2f} ms (assembly {t[:, 0].mean() * 1e3:.2f}, "
         f"deformable solves {t[:, 1].mean() * 1e3:.2f}, Schur {t[:, 2].mean() * 1e3:.3f})",
+        f"visual step: mean {vt[:, 3].mean() * 1e3:.2f} ms (collision detection {vt[:, 0].mean() * 1e3:.2f}, "
+        f"dynamics {vt[:, 1].mean() * 1e3:.2f}, contact solve {vt[:, 2].mean() * 1e3:.2f}): "
+        f"{1.0 / vt[:, 3].mean():.0f} Hz",
+        f"contacts: up to {int(cs[:, 0].max())} ({int(cs[:, 1].max())} between fingers), deepest into the "
+        f"{thickness * 1e3:.1f} mm thickness: {cs[:, 2].max() * 1e3:.3f} mm",
     ])

@@ -217,6 +217,8 @@ int hh_world_contact_force(const hh_world* world, int body, double force[3]);
 /* The hand's handle pose and the springs' force and torque on the handle. */
 int hh_world_hand_state(const hh_world* world, int hand_body, double handle_position[3],
                         double handle_quaternion[4], double force[3], double torque[3]);
+/* The cost split of the hand's own implicit step within the last world step. */
+int hh_world_hand_step_stats(const hh_world* world, int hand_body, hh_step_stats* out);
 /* Linear momentum of all dynamic bodies (kg m/s). */
 int hh_world_linear_momentum(const hh_world* world, double out[3]);
 

@@ -379,6 +379,15 @@ int hh_world_hand_state(const hh_world* world, int hand_body, double handle_posi
     });
 }
 
+int hh_world_hand_step_stats(const hh_world* world, int hand_body, hh_step_stats* out) {
+    return guard([&] {
+        const hh::Body& b = body_at(world, hand_body);
+        require(b.kind == hh::BodyKind::Hand && out, "not the hand's body index, or a null output");
+        *out = b.hand->stats;
+        return HH_OK;
+    });
+}
+
 int hh_world_linear_momentum(const hh_world* world, double out[3]) {
     return guard([&] {
         require(world && out, "hh_world_linear_momentum: null pointer");

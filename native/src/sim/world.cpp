@@ -153,12 +153,22 @@ void World::solve_free() {
     for (auto& bp : bodies) {
         Body& b = *bp;
         switch (b.kind) {
-            case BodyKind::Hand:
+            case BodyKind::Hand: {
+                const auto t0 = std::chrono::steady_clock::now();
                 formulate(*b.hand_model, *b.hand);
+                hh_step_stats& st = b.hand->stats;
+                st = hh_step_stats{};
+                st.t_assembly = seconds_since(t0);
                 b.hand->tool.reset_counters();
                 b.hand->hand.solve();
+                st.t_deformable = b.hand->hand.t_deformable;
+                st.t_schur = b.hand->hand.t_schur;
+                st.cg_iterations = b.hand->tool.iterations;
+                st.max_residual = b.hand->tool.max_residual;
+                st.t_total = seconds_since(t0);
                 b.v_free = b.hand->hand.s;
                 break;
+            }
             case BodyKind::Soft: {
                 const int n3 = 3 * b.flesh->mesh.n_nodes;
                 b.soft_rhs.resize(n3);

@@ -1,0 +1,172 @@
+"""The other bodies of a scene (soft, rigid, kinematic, static, plane): their description in
+the scene file, the meshes they are made of, and how they enter a native World.
+
+Mesh sources: "procedural:bunny", "procedural:letter:<A>", "box" (with size and cells), or
+an .obj path relative to the scene file. Soft bodies get tets from a stored .npz, from the
+procedural shape's own coarse tets, or from pytetwild; their surface is embedded in the tets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import mesh as meshing
+from . import native_world as W
+from . import shapes
+
+TYPES = {"soft": W.SOFT, "rigid": W.RIGID, "kinematic": W.KINEMATIC, "static": W.STATIC, "plane": W.PLANE}
+
+DEFAULTS = {
+    "name": None,
+    "type": None,
+    "mesh": None,
+    "size": [0.1, 0.1, 0.1],
+    "cells": [4, 4, 4],
+    "tets": None,
+    "tetrahedralize": {"edge_length_fac": 0.2, "coarsen": True, "epsilon": 0.004},
+    "position": [0.0, 0.0, 0.0],
+    "material": {"young_modulus": 5e4, "poisson_ratio": 0.3, "density": 1000.0,
+                 "rayleigh_alpha": 0.0, "rayleigh_beta": 0.01},
+    "density": 1000.0,
+    "friction": 0.5,
+    "fixed": None,
+    "point": [0.0, 0.0, 0.0],
+    "normal": [0.0, 0.0, 1.0],
+    "trajectory": [],
+}
+
+
+class BodyError(ValueError):
+    """A body description that cannot be used; the message names the body, field and fix."""
+
+
+@dataclass
+class PreparedBody:
+    spec: dict
+    kind: int
+    vertices: np.ndarray = field(default=None, repr=False)  # surface, world frame at rest
+    faces: np.ndarray = field(default=None, repr=False)
+    nodes: np.ndarray = field(default=None, repr=False)     # soft: tet nodes
+    tets: np.ndarray = field(default=None, repr=False)
+    tet_index: np.ndarray = field(default=None, repr=False)  # soft: surface embedding
+    weights: np.ndarray = field(default=None, repr=False)
+    index: int = -1  # in the World
+
+    @property
+    def name(self) -> str:
+        return self.spec["name"]
+
+
+def _merge(defaults: dict, given: dict, where: str) -> dict:
+    out = dict(defaults)
+    for key, value in given.items():
+        if key not in defaults:
+            raise BodyError(f"unknown field '{where}{key}'; known fields: {', '.join(defaults)}")
+        out[key] = _merge(defaults[key], value, f"{where}{key}.") if isinstance(defaults[key], dict) and isinstance(value, dict) else value
+    return out
+
+
+def parse(specs: list, base_dir: Path) -> list[dict]:
+    if not isinstance(specs, list):
+        raise BodyError("'bodies' must be a list of body descriptions")
+    out, names = [], set()
+    for i, given in enumerate(specs):
+        if not isinstance(given, dict):
+            raise BodyError(f"bodies[{i}] must be an object")
+        spec = _merge(DEFAULTS, given, f"bodies[{i}].")
+        spec["name"] = spec["name"] or f"body{i}"
+        if spec["name"] in names:
+            raise BodyError(f"two bodies are named '{spec['name']}': give each a unique name")
+        names.add(spec["name"])
+        if spec["type"] not in TYPES:
+            raise BodyError(f"body '{spec['name']}' has type {spec['type']!r}: use one of {', '.join(TYPES)}")
+        if spec["type"] != "plane" and spec["mesh"] is None:
+            raise BodyError(f"body '{spec['name']}' needs a 'mesh' (procedural:bunny, procedural:letter:H, box, "
+                            "or an .obj path)")
+        friction = spec["friction"]
+        if not isinstance(friction, (int, float)) or not np.isfinite(friction) or friction < 0:
+            raise BodyError(f"body '{spec['name']}': friction = {friction!r} must be zero or positive")
+        spec["_base_dir"] = str(base_dir)
+        out.append(spec)
+    return out
+
+
+def _surface(spec: dict) -> tuple[np.ndarray, np.ndarray]:
+    source = spec["mesh"]
+    if source == "procedural:bunny":
+        return shapes.procedural_bunny()
+    if isinstance(source, str) and source.startswith("procedural:letter:"):
+        return shapes.procedural_letter(source.split(":", 2)[2])
+    if source == "box":
+        nodes, tets = meshing.structured_box(spec["size"], spec["cells"], -0.5 * np.asarray(spec["size"], float))
+        faces = meshing.tet_boundary_faces(tets)
+        used = np.unique(faces)
+        remap = np.full(len(nodes), -1)
+        remap[used] = np.arange(len(used))
+        return nodes[used], remap[faces].astype(np.int32)
+    path = Path(spec["_base_dir"]) / str(source)
+    if not path.is_file():
+        raise BodyError(f"body '{spec['name']}': mesh file {path} does not exist (paths are relative to the scene)")
+    return meshing.load_obj(path)
+
+
+def _soft_tets(spec: dict, v: np.ndarray, f: np.ndarray, progress=None) -> tuple[np.ndarray, np.ndarray]:
+    if spec["tets"]:
+        stored = np.load(Path(spec["_base_dir"]) / spec["tets"])
+        return stored["nodes"], stored["tets"]
+    source = spec["mesh"]
+    if source == "procedural:bunny":
+        return shapes.procedural_bunny_coarse_tets()
+    if isinstance(source, str) and source.startswith("procedural:letter:"):
+        return shapes.letter_tets(source.split(":", 2)[2])
+    if source == "box":
+        return meshing.structured_box(spec["size"], spec["cells"], -0.5 * np.asarray(spec["size"], float))
+    opts = spec["tetrahedralize"]
+    return meshing.tetrahedralize(v, f, edge_length_fac=float(opts["edge_length_fac"]), coarsen=bool(opts["coarsen"]),
+                                  epsilon=float(opts["epsilon"]), progress=progress)
+
+
+def prepare(spec: dict, progress=None) -> PreparedBody:
+    kind = TYPES[spec["type"]]
+    body = PreparedBody(spec, kind)
+    if kind == W.PLANE:
+        return body
+    offset = np.asarray(spec["position"], dtype=np.float64)
+    v, f = _surface(spec)
+    body.vertices, body.faces = v + offset, np.asarray(f, dtype=np.int32)
+    if kind == W.SOFT:
+        nodes, tets = _soft_tets(spec, v, f, progress)
+        body.nodes, body.tets = np.asarray(nodes, float) + offset, np.asarray(tets, np.int32)
+        body.tet_index, body.weights = meshing.embed_points(body.nodes, body.tets, body.vertices)
+    return body
+
+
+def fixed_nodes(body: PreparedBody) -> np.ndarray:
+    rule = body.spec["fixed"]
+    if rule is None:
+        return np.zeros(0, dtype=np.int32)
+    if rule == "bottom":
+        z = body.nodes[:, 2]
+        return np.flatnonzero(z <= z.min() + 1e-6).astype(np.int32)
+    ids = np.asarray(rule, dtype=np.int64).reshape(-1)
+    if ids.size and (ids.min() < 0 or ids.max() >= len(body.nodes)):
+        raise BodyError(f"body '{body.name}': fixed node indices must be in 0..{len(body.nodes) - 1}")
+    return ids.astype(np.int32)
+
+
+def add_to_world(world: W.World, body: PreparedBody) -> int:
+    spec, friction = body.spec, float(body.spec["friction"])
+    if body.kind == W.PLANE:
+        body.index = world.add_plane(spec["point"], spec["normal"], friction=friction)
+    elif body.kind == W.SOFT:
+        m = spec["material"]
+        sn, sw = W.embedded_surface(body.tets, body.tet_index, body.weights)
+        body.index = world.add_soft_body(body.nodes, body.tets, sn, sw, body.faces, fixed_nodes=fixed_nodes(body),
+                                         friction=friction, **m)
+    else:
+        body.index = world.add_mesh_body(body.kind, body.vertices, body.faces, density=float(spec["density"]),
+                                         friction=friction)
+    return body.index
