@@ -97,3 +97,47 @@ def test_unknown_scene_field_is_named(scene_dir):
     bad.write_text(json.dumps({"format": "haptic_hand.scene/1", "framez": 3}))
     proc = run_cli("simulate", str(bad), "--out", str(scene_dir / "x.npz"))
     assert proc.returncode == 2 and "framez" in proc.stderr
+
+
+def test_simulate_a_scene_with_bodies(scene_dir):
+    """The scene format's bodies through the command line: a soft box dropped on the ground
+    beside the hand, a kinematic pusher following its script, a static wall."""
+    scene = json.loads((scene_dir / "scene.json").read_text())
+    scene["frames"] = 20
+    scene["bodies"] = [
+        {"name": "ground", "type": "plane", "point": [0, 0, -0.30], "normal": [0, 0, 1], "friction": 0.5},
+        {"name": "cube", "type": "soft", "mesh": "box", "size": [0.04, 0.04, 0.04], "cells": [2, 2, 2],
+         "position": [0.2, 0.0, -0.25], "material": {"young_modulus": 1e5}},
+        {"name": "pusher", "type": "kinematic", "mesh": "box", "size": [0.02, 0.02, 0.02], "cells": [1, 1, 1],
+         "position": [-0.2, 0.0, -0.28], "trajectory": [{"t": 0, "position": [0, 0, 0]},
+                                                          {"t": 0.5, "position": [0.05, 0, 0]}]},
+        {"name": "wall", "type": "static", "mesh": "box", "size": [0.01, 0.2, 0.1], "cells": [1, 1, 1],
+         "position": [0.3, 0.0, -0.25]},
+    ]
+    path = scene_dir / "bodies.json"
+    path.write_text(json.dumps(scene))
+    out = scene_dir / "bodies.npz"
+    proc = run_cli("simulate", str(path), "--out", str(out), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    r = np.load(out)
+    assert list(r["body_names"]) == ["ground", "cube", "pusher", "wall"]
+    cube = r["body_cube_positions"]
+    assert cube.shape[0] == 21
+    # the cube fell under gravity (0.05 m to the ground: it reaches it within 20 frames)
+    assert cube[-1][:, 2].min() < cube[0][:, 2].min() - 0.01
+    assert cube[-1][:, 2].min() > -0.30  # and not through the ground
+    # the pusher followed its script exactly; the wall stayed
+    pusher = r["body_pusher_pose"]
+    assert pusher[-1, 0] - pusher[0, 0] == pytest.approx(0.05, abs=1e-12)
+    assert np.array_equal(r["body_wall_pose"][-1], r["body_wall_pose"][0])
+    assert r["contact_stats"].shape == (20, 6) and r["contact_stats"][:, 0].max() > 0
+    assert r["visual_timings"].shape == (20, 4)
+
+
+def test_a_bad_body_is_named(scene_dir):
+    scene = json.loads((scene_dir / "scene.json").read_text())
+    scene["bodies"] = [{"name": "blob", "type": "jelly", "mesh": "box"}]
+    path = scene_dir / "bad_body.json"
+    path.write_text(json.dumps(scene))
+    proc = run_cli("simulate", str(path), "--out", str(scene_dir / "y.npz"))
+    assert proc.returncode == 2 and "blob" in proc.stderr and "soft" in proc.stderr
