@@ -4,6 +4,7 @@
 #include <vector>
 
 #include "common/types.h"
+#include "haptic_hand.h"
 
 struct BoxMesh {
     std::vector<double> nodes;  // 3 per node
@@ -39,4 +40,15 @@ inline BoxMesh make_box(int nx, int ny, int nz, double h) {
                 }
             }
     return m;
+}
+
+// Parameters of a hand rig on make_box(4, 3, 2, 0.01): a handle around the box's middle.
+inline hh_params box_hand_params() {
+    hh_params p;
+    hh_default_params(&p);
+    p.palm_seed[0] = 0.02;
+    p.palm_seed[1] = 0.015;
+    p.palm_seed[2] = 0.01;
+    p.handle_radius = 0.0125;
+    return p;
 }

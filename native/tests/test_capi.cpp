@@ -9,15 +9,7 @@
 #include "haptic_hand.h"
 
 namespace {
-hh_params params() {
-    hh_params p;
-    hh_default_params(&p);
-    p.palm_seed[0] = 0.02;
-    p.palm_seed[1] = 0.015;
-    p.palm_seed[2] = 0.01;
-    p.handle_radius = 0.0125;
-    return p;
-}
+hh_params params() { return box_hand_params(); }
 // Creates a model from the box with params p; returns the status and keeps the message.
 int create(const BoxMesh& b, const hh_params& p, std::string& message) {
     hh_model* m = nullptr;

@@ -11,12 +11,7 @@ using namespace hh;
 
 namespace {
 hh_params box_params() {
-    hh_params p;
-    hh_default_params(&p);
-    p.palm_seed[0] = 0.02;
-    p.palm_seed[1] = 0.015;
-    p.palm_seed[2] = 0.01;
-    p.handle_radius = 0.0125;
+    hh_params p = box_hand_params();
     p.spring_stiffness = 1e5;
     p.spring_damping = 30;
     return p;

@@ -200,7 +200,7 @@ int hh_world_add_mesh_body(hh_world* world, int kind, const double* vertices, in
             for (const auto& p : x) com += p;
             com /= n_vertices;
         }
-        b->rigid.com = com;
+        b->rigid.x_com = com;
         b->target = b->rigid;
         b->local.resize(n_vertices);
         for (int v = 0; v < n_vertices; ++v) b->local[v] = x[v] - com;
@@ -241,11 +241,11 @@ int hh_world_set_pose(hh_world* world, int body, const double position[3], const
                 "only kinematic and free rigid bodies have a pose to set");
         hh::RigidState& s = b.kind == hh::BodyKind::Kinematic ? b.target : b.rigid;
         hh::RigidState n = s;
-        if (position) n.com = vec3(position);
+        if (position) n.x_com = vec3(position);
         if (quaternion) n.q = hh::Vec4(quaternion[0], quaternion[1], quaternion[2], quaternion[3]);
-        if (velocity) n.v = vec3(velocity);
+        if (velocity) n.v_com = vec3(velocity);
         if (angular_velocity) n.omega = vec3(angular_velocity);
-        require(n.com.allFinite() && n.q.allFinite() && n.q.norm() > 1e-12 && n.v.allFinite() && n.omega.allFinite(),
+        require(n.x_com.allFinite() && n.q.allFinite() && n.q.norm() > 1e-12 && n.v_com.allFinite() && n.omega.allFinite(),
                 "pose and velocity must be finite, the quaternion non-zero");
         n.q.normalize();
         s = n;
@@ -259,9 +259,9 @@ int hh_world_get_pose(const hh_world* world, int body, double position[3], doubl
         const hh::Body& b = body_at(world, body);
         require(b.kind == hh::BodyKind::Kinematic || b.kind == hh::BodyKind::Rigid || b.kind == hh::BodyKind::Static,
                 "only mesh bodies have a pose");
-        put3(b.rigid.com, position);
+        put3(b.rigid.x_com, position);
         if (quaternion) std::memcpy(quaternion, b.rigid.q.data(), 4 * sizeof(double));
-        put3(b.rigid.v, velocity);
+        put3(b.rigid.v_com, velocity);
         put3(b.rigid.omega, angular_velocity);
         return HH_OK;
     });
@@ -400,7 +400,7 @@ int hh_world_linear_momentum(const hh_world* world, double out[3]) {
             } else if (b.kind == hh::BodyKind::Soft) {
                 for (int i = 0; i < b.flesh->mesh.n_nodes; ++i) p += b.flesh->masses[i] * b.state.v.segment<3>(3 * i);
             } else if (b.kind == hh::BodyKind::Rigid) {
-                p += b.mass * b.rigid.v;
+                p += b.mass * b.rigid.v_com;
             }
         }
         put3(p, out);

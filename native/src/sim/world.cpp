@@ -39,7 +39,7 @@ struct PointJacobian {
 // Kinematic and static bodies: the velocity of a world point carried by the body.
 Vec3 carried_velocity(const Body& b, const Vec3& x) {
     if (b.kind != BodyKind::Kinematic) return Vec3::Zero();
-    return b.rigid.v + b.rigid.omega.cross(x - b.rigid.com);
+    return b.rigid.v_com + b.rigid.omega.cross(x - b.rigid.x_com);
 }
 }  // namespace
 
@@ -81,7 +81,7 @@ void World::update_points(Body& b) {
         case BodyKind::Static: {
             const Mat3 r = quat_to_matrix(b.rigid.q);
             b.points.resize(b.local.size());
-            for (size_t i = 0; i < b.local.size(); ++i) b.points[i] = b.rigid.com + r * b.local[i];
+            for (size_t i = 0; i < b.local.size(); ++i) b.points[i] = b.rigid.x_com + r * b.local[i];
             break;
         }
         case BodyKind::Plane: break;
@@ -96,7 +96,7 @@ void World::detect() {
         if (b.kind == BodyKind::Hand) speed = std::max(speed, b.hand->v.cwiseAbs().maxCoeff());
         if (b.kind == BodyKind::Soft) speed = std::max(speed, b.state.v.cwiseAbs().maxCoeff());
         if (b.kind == BodyKind::Rigid || b.kind == BodyKind::Kinematic)
-            speed = std::max(speed, b.rigid.v.norm() + b.rigid.omega.norm() * 0.5);
+            speed = std::max(speed, b.rigid.v_com.norm() + b.rigid.omega.norm() * 0.5);
     }
     const double reach = settings.contact_thickness + std::min(speed * settings.dt, 2 * settings.contact_thickness);
     for (auto& bp : bodies) {
@@ -194,7 +194,7 @@ void World::solve_free() {
                 rs.A.setZero();
                 rs.A.topLeftCorner<3, 3>() = b.mass * Mat3::Identity();
                 rs.A.bottomRightCorner<3, 3>() = inertia;
-                rs.r.head<3>() = b.mass * (b.rigid.v + dt * settings.gravity);
+                rs.r.head<3>() = b.mass * (b.rigid.v_com + dt * settings.gravity);
                 rs.r.tail<3>() = inertia * b.rigid.omega - dt * b.rigid.omega.cross(inertia * b.rigid.omega);
                 rs.solve();
                 b.v_free = rs.s;
@@ -228,7 +228,7 @@ void World::solve_contacts() {
         for (int k = 0; k < side.count; ++k) {
             const int v = side.vertex[k];
             if (b.kind == BodyKind::Rigid) {
-                out.push_back({0, sign * side.weight[k], true, b.surface.x[v] - b.rigid.com});
+                out.push_back({0, sign * side.weight[k], true, b.surface.x[v] - b.rigid.x_com});
             } else {
                 const int base = b.kind == BodyKind::Hand ? 6 : 0;
                 for (int s = 0; s < 4; ++s)
@@ -374,9 +374,9 @@ void World::integrate() {
                 b.state.x += dt * b.state.v;
                 break;
             case BodyKind::Rigid:
-                b.rigid.v = b.v_new.head<3>();
+                b.rigid.v_com = b.v_new.head<3>();
                 b.rigid.omega = b.v_new.tail<3>();
-                b.rigid.com += dt * b.rigid.v;
+                b.rigid.x_com += dt * b.rigid.v_com;
                 b.rigid.q = quat_multiply(quat_from_rotation_vector(dt * b.rigid.omega), b.rigid.q).normalized();
                 break;
             case BodyKind::Kinematic: b.rigid = b.target; break;

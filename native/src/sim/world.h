@@ -18,12 +18,8 @@ namespace hh {
 
 enum class BodyKind { Hand, Soft, Rigid, Kinematic, Static, Plane };
 
-struct RigidState {
-    Vec3 com = Vec3::Zero();
-    Vec4 q = Vec4(0, 0, 0, 1);
-    Vec3 v = Vec3::Zero();
-    Vec3 omega = Vec3::Zero();
-};
+// A rigid body's pose and velocity: the same four quantities as the hand's handle.
+using RigidState = HandleState;
 
 struct Body {
     BodyKind kind = BodyKind::Static;
