@@ -160,7 +160,7 @@ typedef struct hh_world_params {
     double contact_patch;     /* m, > 0: per pair of bodies, one contact (the deepest) per cell
                                  of this size, which bounds the contact count of large areas */
     int max_iterations;       /* projected Gauss-Seidel sweeps, > 0 */
-    double tolerance;         /* relative impulse change that ends the sweeps, > 0 */
+    double tolerance;         /* m/s, > 0: largest constraint velocity error that ends the sweeps */
 } hh_world_params;
 
 typedef struct hh_material {

@@ -58,8 +58,8 @@ void hh_default_world_params(hh_world_params* p) {
     p->gravity[2] = -9.81;
     p->contact_thickness = 1e-3;
     p->contact_patch = 4e-3;
-    p->max_iterations = 1000;
-    p->tolerance = 1e-6;
+    p->max_iterations = 300;
+    p->tolerance = 1e-5;
 }
 
 void hh_default_material(hh_material* m) {
@@ -84,7 +84,7 @@ int hh_world_create(const hh_world_params* p, hh_world** out) {
         require_finite_positive(p->contact_thickness, "contact_thickness", "a positive distance in metres (e.g. 1e-3)");
         require_finite_positive(p->contact_patch, "contact_patch", "a positive distance in metres (e.g. 4e-3)");
         require(p->max_iterations > 0, "max_iterations must be positive");
-        require_finite_positive(p->tolerance, "tolerance", "positive (e.g. 1e-6)");
+        require_finite_positive(p->tolerance, "tolerance", "a positive speed in m/s (e.g. 1e-5)");
         hh::WorldSettings s;
         s.dt = p->dt;
         s.gravity = vec3(p->gravity);

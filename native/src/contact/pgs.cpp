@@ -44,15 +44,30 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
         if (delta != 0) u.noalias() += p.W.col(col) * delta;
         lambda[col] += delta;
     };
+    // How far the current impulses are from satisfying every condition, in m/s: normal
+    // complementarity, sticking contacts at rest, sliding ones sliding against their friction.
+    auto residual = [&]() {
+        double worst = 0;
+        for (int i = 0; i < c; ++i) {
+            const int n = 3 * i;
+            const double un = u[n] + bias[i];
+            worst = std::max(worst, lambda[n] > 0 ? std::abs(un) : std::max(0.0, -un));
+            const Eigen::Vector2d ut(u[n + 1], u[n + 2]), lt(lambda[n + 1], lambda[n + 2]);
+            const double limit = p.friction[i] * lambda[n];
+            if (lt.norm() < limit * (1 - 1e-9) || lt.norm() == 0)
+                worst = std::max(worst, ut.norm());  // sticking: no sliding allowed
+            else
+                worst = std::max(worst, (ut + (ut.norm() / lt.norm()) * lt).norm());  // anti-parallel
+        }
+        return worst;
+    };
     for (int it = 0; it < max_iterations; ++it) {
-        double change = 0, scale = 1e-300;
         for (int i = 0; i < c; ++i) {
             const int n = 3 * i;
             const double wnn = p.W(n, n);
             if (wnn <= 0) continue;  // both sides immovable
             const double ln = std::max(0.0, lambda[n] - (u[n] + bias[i]) / wnn);
-            const double dn = ln - lambda[n];
-            apply(n, dn);
+            apply(n, ln - lambda[n]);
             // friction: the exact solution of this contact's 2x2 subproblem (impulse inside
             // the disk of radius mu lambda_n minimizing the block's kinetic energy), whose
             // optimality conditions are Coulomb's: sticking inside the disk, or on its rim
@@ -62,20 +77,12 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
             const Eigen::Vector2d ut(u[n + 1], u[n + 2]);
             const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
             const Eigen::Vector2d target = disk_constrained_minimum(wtt, wtt * lt - ut, p.friction[i] * lambda[n]);
-            const Eigen::Vector2d dt = target - lt;
-            apply(n + 1, dt[0]);
-            apply(n + 2, dt[1]);
-            change = std::max({change, std::abs(dn), dt.cwiseAbs().maxCoeff()});
-            scale = std::max(scale, std::abs(lambda[n]));
+            apply(n + 1, target[0] - lt[0]);
+            apply(n + 2, target[1] - lt[1]);
         }
         result.iterations = it + 1;
-        if (change <= tolerance * scale) break;
-    }
-    for (int i = 0; i < c; ++i) {
-        const int n = 3 * i;
-        // normal velocity below the target, or a pulling impulse left after the sweep
-        const double normal_violation = std::max(0.0, -(u[n] + bias[i]));
-        result.residual = std::max(result.residual, normal_violation);
+        result.residual = residual();
+        if (result.residual <= tolerance) break;
     }
     return result;
 }

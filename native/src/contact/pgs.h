@@ -22,11 +22,11 @@ struct ContactProblem {
 
 struct PgsResult {
     int iterations = 0;
-    double residual = 0;  // largest violation of the normal constraint or the cone (m/s)
+    double residual = 0;  // m/s: largest violation of the conditions above (see solve_pgs)
 };
 
 // lambda: in, a warm start when it has 3c entries (the previous step's impulses of the same
-// contacts); out, the impulses.
+// contacts); out, the impulses. Sweeps end when every condition holds to `tolerance` m/s.
 PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, double tolerance);
 
 }  // namespace hh

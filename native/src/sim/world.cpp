@@ -98,7 +98,9 @@ void World::detect() {
         if (b.kind == BodyKind::Rigid || b.kind == BodyKind::Kinematic)
             speed = std::max(speed, b.rigid.v_com.norm() + b.rigid.omega.norm() * 0.5);
     }
-    const double reach = settings.contact_thickness + std::min(speed * settings.dt, 2 * settings.contact_thickness);
+    // Resting contacts settle at exactly the thickness: look half a thickness further so they
+    // are found every step instead of flickering in and out at the edge of the reach.
+    const double reach = 1.5 * settings.contact_thickness + std::min(speed * settings.dt, 2 * settings.contact_thickness);
     for (auto& bp : bodies) {
         update_points(*bp);
         if (bp->has_surface) update_surface(bp->surface, bp->points, reach);
@@ -136,8 +138,15 @@ void World::reduce_contacts() {
         auto mix = [&](std::int64_t v) { key = (key ^ static_cast<std::uint64_t>(v)) * 1099511628211ull; };
         mix(c.a.body);
         mix(c.b.body);
-        for (int d = 0; d < 3; ++d) mix(static_cast<std::int64_t>(std::floor(c.point[d] / h)));
         mix((c.normal.x() > 0) | ((c.normal.y() > 0) << 1) | ((c.normal.z() > 0) << 2));
+        // one contact per patch cell and element of the side-a body that carries the contact
+        // point: a fine embedded surface moves only as its elements do
+        const Body& a = *bodies[c.a.body];
+        if (a.kind == BodyKind::Hand || a.kind == BodyKind::Soft) {
+            const Eigen::Vector4i& element = a.surface.nodes[c.a.vertex[0]];
+            for (int k = 0; k < 4; ++k) mix(element[k]);
+        }
+        for (int d = 0; d < 3; ++d) mix(static_cast<std::int64_t>(std::floor(c.point[d] / h)));
         auto it = best.find(key);
         if (it == best.end()) {
             best[key] = static_cast<int>(contacts.size());

@@ -64,8 +64,8 @@ struct WorldSettings {
     Vec3 gravity = Vec3(0, 0, -9.81);
     double contact_thickness = 1e-3;  // m: surfaces are kept this far apart
     double contact_patch = 4e-3;      // m: one contact per cell of this size per pair of bodies
-    int max_iterations = 1000;        // projected Gauss-Seidel sweeps (most steps end far sooner)
-    double tolerance = 1e-6;          // relative change of the impulses that ends the sweeps
+    int max_iterations = 300;         // projected Gauss-Seidel sweeps (resting contacts end far sooner)
+    double tolerance = 1e-5;          // m/s: largest constraint velocity error that ends the sweeps
 };
 
 struct WorldStats {
