@@ -36,6 +36,9 @@ CorotationalElements precompute_elements(const TetMesh& mesh, const Material& ma
     out.rest_inverse.resize(m);
     out.volume.resize(m);
     out.stiffness.resize(m);
+    out.gradients.resize(m);
+    out.lambda = lambda;
+    out.mu = mu;
     for (size_t e = 0; e < m; ++e) {
         const auto& t = mesh.tets[e];
         const Vec3 x0 = node(mesh.rest, t[0]);
@@ -61,6 +64,7 @@ CorotationalElements precompute_elements(const TetMesh& mesh, const Material& ma
         out.volume[e] = vol;
         // Linear elasticity: K_ab = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I)
         const auto g = shape_gradients(bm);
+        out.gradients[e] = g;
         Mat12 k;
         for (int a = 0; a < 4; ++a)
             for (int b = 0; b < 4; ++b) {
@@ -179,14 +183,21 @@ StiffnessPattern build_stiffness_pattern(const TetMesh& mesh) {
 
 void add_warped_stiffness(const CorotationalElements& elements, const std::vector<Mat3>& rotations,
                           const StiffnessPattern& pattern, double scale, double* values) {
-    for (size_t e = 0; e < elements.stiffness.size(); ++e) {
+    // R Ke R^T from the rotated shape-function gradients g'_a = R g_a: since dot products are
+    // rotation invariant, (R K R^T)_ab = V (lambda g'_a g'_b^T + mu g'_b g'_a^T + mu (g_a . g_b) I),
+    // five times fewer operations than rotating each 3x3 block of Ke.
+    const double lambda = elements.lambda, mu = elements.mu;
+    for (size_t e = 0; e < elements.gradients.size(); ++e) {
         const Mat3& r = rotations[e];
-        const Mat12& k = elements.stiffness[e];
+        const auto& g = elements.gradients[e];
+        Eigen::Matrix<double, 3, 4> gr;  // columns g'_a
+        for (int a = 0; a < 4; ++a) gr.col(a) = r * g.row(a).transpose();
+        const double s = scale * elements.volume[e];
         const int* off = &pattern.element_offsets[e * 144];
-        // R Ke R^T is symmetric: compute the blocks with a <= b and mirror the others
         for (int a = 0; a < 4; ++a)
             for (int b = a; b < 4; ++b) {
-                const Mat3 block = scale * (r * k.block<3, 3>(3 * a, 3 * b) * r.transpose());
+                Mat3 block = (s * lambda) * gr.col(a) * gr.col(b).transpose() + (s * mu) * gr.col(b) * gr.col(a).transpose();
+                block.diagonal().array() += s * mu * g.row(a).dot(g.row(b));
                 for (int i = 0; i < 3; ++i)
                     for (int j = 0; j < 3; ++j) {
                         values[off[(3 * a + i) * 12 + 3 * b + j]] += block(i, j);

@@ -25,6 +25,8 @@ struct CorotationalElements {
     std::vector<Mat3> rest_inverse;  // Bm = Dm^-1, Dm = [X1-X0, X2-X0, X3-X0]
     std::vector<double> volume;
     std::vector<Mat12> stiffness;    // Ke, rest frame
+    std::vector<Eigen::Matrix<double, 4, 3>> gradients;  // shape-function gradients g_a (rows)
+    double lambda = 0, mu = 0;       // Lame parameters
 };
 
 // Signed volume det[x1-x0, x2-x0, x3-x0] / 6.
