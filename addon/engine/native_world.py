@@ -38,7 +38,7 @@ class World:
     """hh_world: bodies stepped together with contact. Body indices are returned by add_*."""
 
     def __init__(self, dt: float = 1 / 30, gravity=(0.0, 0.0, -9.81), contact_thickness: float = 1e-3,
-                 contact_patch: float = 4e-3, max_iterations: int = 1000, tolerance: float = 1e-6):
+                 contact_patch: float = 4e-3, max_iterations: int = 300, tolerance: float = 1e-5):
         p = WorldParams()
         library().hh_default_world_params(ctypes.byref(p))
         p.dt = float(dt)

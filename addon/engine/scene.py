@@ -35,7 +35,7 @@ DEFAULTS = {
         "friction": 0.5,
         "self_collision": True,
     },
-    "contact": {"thickness": 1e-3, "patch": 4e-3, "max_iterations": 1000, "tolerance": 1e-6},
+    "contact": {"thickness": 1e-3, "patch": 4e-3, "max_iterations": 300, "tolerance": 1e-5},
     "bodies": [],
     "material": {"young_modulus": 5e4, "poisson_ratio": 0.3, "density": 1000.0,
                  "rayleigh_alpha": 0.0, "rayleigh_beta": 0.01},
