@@ -115,7 +115,7 @@ Mat3 polar_rotation(const Mat3& f, Vec4& q) {
         Eigen::LLT<Mat3> llt(hessian);
         const Vec3 omega = llt.info() == Eigen::Success ? Vec3(llt.solve(torque))
                                                          : Vec3(torque / (std::abs(m.trace()) + 1e-300));
-        if (!(omega.norm() > 1e-13)) break;
+        if (!(omega.norm() > 1e-9)) break;  // quadratic convergence: the error left is ~1e-18
         q = quat_multiply(quat_from_rotation_vector(omega), q);
         q.normalize();
         r = quat_to_matrix(q);
