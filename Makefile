@@ -48,6 +48,7 @@ demo: native venv
 
 bench: native venv
 	$(PY) bench/bench_step.py
+	$(PY) bench/bench_visual.py
 
 clean:
 	rm -rf build $(OUT)
