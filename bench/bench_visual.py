@@ -18,18 +18,15 @@ See bench/README.md ("bench_visual.py") for how to read the output.
 from __future__ import annotations
 
 import argparse
-import datetime
 import hashlib
 import json
-import os
-import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from machine import machine_info, print_machine
 from haptic_hand.engine import mesh, native, native_world, shapes, simulate
 from haptic_hand.engine import scene as scenes
 
@@ -92,66 +89,6 @@ def ms(seconds: float) -> str:
 # ------------------------------------------------------------------------------------------
 # Machine (as bench_step.py)
 # ------------------------------------------------------------------------------------------
-
-
-def machine_info() -> dict:
-    cpu, physical = platform.processor() or platform.machine(), set()
-    try:
-        entry = {}
-        for line in Path("/proc/cpuinfo").read_text().splitlines() + [""]:
-            key, _, value = line.partition(":")
-            key, value = key.strip(), value.strip()
-            if key == "model name":
-                cpu = value
-            elif key in ("physical id", "core id"):
-                entry[key] = value
-            elif not key and entry:
-                physical.add((entry.get("physical id"), entry.get("core id")))
-                entry = {}
-    except OSError:
-        pass
-    try:
-        commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
-                                capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "native", "addon/engine"],
-                               capture_output=True, text=True, check=True).stdout.strip()
-        commit += " (native/ or addon/engine/ has uncommitted changes)" if dirty else ""
-    except (OSError, subprocess.CalledProcessError):
-        commit = "unknown"
-    library = str(native.library()._name)
-    return {
-        "cpu": cpu,
-        "logical_cores": os.cpu_count(),
-        "physical_cores": len(physical) or None,
-        "usable_cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
-        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "platform": platform.platform(),
-        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-        "git_commit": commit,
-        "library": library,
-        "library_sha1": hashlib.sha1(Path(library).read_bytes()).hexdigest()[:12],
-        "library_built": datetime.datetime.fromtimestamp(Path(library).stat().st_mtime).astimezone()
-        .isoformat(timespec="seconds"),
-    }
-
-
-def print_machine(info: dict) -> None:
-    print("== Machine")
-    print(f"CPU:      {info['cpu']}")
-    print(f"cores:    {info['logical_cores']} logical, {info['physical_cores']} physical, "
-          f"{info['usable_cores']} usable by this process (the engine uses one)")
-    if info["load_average"]:
-        print("load:     " + " ".join(f"{x:.2f}" for x in info["load_average"])
-              + " (1/5/15 min; anything else running skews the times)")
-        if info["load_average"][0] > 1.5:
-            print("WARNING:  the machine is busy (1-min load above 1.5): expect slower, noisier times")
-    print(f"Python:   {info['python']}   numpy: {info['numpy']}")
-    print(f"OS:       {info['platform']}")
-    print(f"date:     {info['date']}")
-    print(f"commit:   {info['git_commit']}")
-    print(f"library:  {info['library']} (sha1 {info['library_sha1']}, built {info['library_built']})")
 
 
 # ------------------------------------------------------------------------------------------
@@ -291,21 +228,12 @@ def run_case(scene: scenes.Scene, frames: int) -> dict:
     world, hand, model, others, _ = simulate.build_world(scene)
     setup = time.perf_counter() - t0
     info = model.info()
-    trajectory = scene.trajectory(np.array(info["handle_com"]))
-    device_on = bool(scene.data["device"]["enabled"])
     dt = scene.dt
-    scripted = {b.index: scenes.body_trajectory(b.spec, world.pose(b.index)[0]) for b in others
-                if b.kind == native_world.KINEMATIC}
+    inputs = simulate.ScriptedInputs(scene, world, hand, model, others)
     records = []
     for k in range(frames):
         t = (k + 1) * dt
-        p, q = trajectory.pose(t)
-        v, w = trajectory.velocity(t, dt)
-        world.set_device(hand, p, q, v, w, enabled=device_on)
-        for index, script in scripted.items():
-            bp, bq = script.pose(t)
-            bv, bw = script.velocity(t, dt)
-            world.set_pose(index, bp, bq, bv, bw)
+        inputs.apply(t, dt)
         w0 = time.perf_counter()
         vis = world.step()
         wall = time.perf_counter() - w0

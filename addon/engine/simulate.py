@@ -49,16 +49,34 @@ def build_world(scene: scenes.Scene, progress=None):
     return world, hand, model, others, (tet_index, weights)
 
 
+class ScriptedInputs:
+    """What drives a scene: the device trajectory (through the virtual coupling) and the
+    kinematic bodies' scripts, applied to the world for the step that ends at time t."""
+
+    def __init__(self, scene: scenes.Scene, world, hand: int, model, others):
+        self.world, self.hand = world, hand
+        self.device = scene.trajectory(np.array(model.info()["handle_com"]))
+        self.device_on = bool(scene.data["device"]["enabled"])
+        self.scripts = {b.index: scenes.body_trajectory(b.spec, world.pose(b.index)[0]) for b in others
+                        if b.kind == native_world.KINEMATIC}
+
+    def apply(self, t: float, dt: float) -> None:
+        p, q = self.device.pose(t)
+        v, w = self.device.velocity(t, dt)
+        self.world.set_device(self.hand, p, q, v, w, enabled=self.device_on)
+        for index, script in self.scripts.items():
+            bp, bq = script.pose(t)
+            bv, bw = script.velocity(t, dt)
+            self.world.set_pose(index, bp, bq, bv, bw)
+
+
 def run(scene: scenes.Scene, progress=None) -> dict:
     """Simulates scene.frames visual-loop steps and returns the result arrays."""
     world, hand, model, others, (tet_index, weights) = build_world(
         scene, progress=(lambda f, m: progress(0.2 * f, m)) if progress else None)
-    info = model.info()
-    trajectory = scene.trajectory(np.array(info["handle_com"]))
-    device_on = bool(scene.data["device"]["enabled"])
+    inputs = ScriptedInputs(scene, world, hand, model, others)
+    trajectory = inputs.device
     frames, dt, n = scene.frames, scene.dt, model.n_nodes
-    scripted = {b.index: scenes.body_trajectory(b.spec, world.pose(b.index)[0]) for b in others
-                if b.kind == native_world.KINEMATIC}
 
     positions = np.empty((frames + 1, n, 3))
     handle_pose = np.empty((frames + 1, 7))
@@ -87,13 +105,7 @@ def run(scene: scenes.Scene, progress=None) -> dict:
     record(0, 0.0)
     for k in range(frames):
         t = (k + 1) * dt
-        p, q = trajectory.pose(t)
-        v, w = trajectory.velocity(t, dt)
-        world.set_device(hand, p, q, v, w, enabled=device_on)
-        for index, script in scripted.items():
-            bp, bq = script.pose(t)
-            bv, bw = script.velocity(t, dt)
-            world.set_pose(index, bp, bq, bv, bw)
+        inputs.apply(t, dt)
         vis = world.step()
         stats = world.hand_step_stats(hand)
         timings[k] = [stats[f] for f in TIMING_FIELDS]
