@@ -189,6 +189,8 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hh_step_monolithic": ([vp, vp, ctypes.POINTER(StepStats)], i),
         "hh_compare_solvers": ([vp, vp, pd], i),
         "hh_coupling_wrench": ([vp, vp, pd, pd], i),
+        "hh_coupling_linear_model": ([vp, vp, pd, pd], i),
+        "hh_coupling_response": ([vp, vp, pd, pd], i),
         "hh_energies": ([vp, vp, pd, pd, pd], i),
         "hh_linear_momentum": ([vp, vp, pd], i),
         # worlds (scenes with contact)
@@ -440,6 +442,20 @@ class HandSimulation:
         f, t = np.empty(3), np.empty(3)
         _check(library().hh_coupling_wrench(self.model._handle, self._handle, _ptr(f), _ptr(t)))
         return f, t
+
+    def coupling_linear_model(self) -> tuple[np.ndarray, np.ndarray]:
+        """(wrench0 (6,), response (6, 6)): the springs' wrench on the handle at the end of the
+        next step is wrench0 + response @ v_h for a handle end velocity v_h = (v, omega)."""
+        w0, r = np.empty(6), np.empty((6, 6))
+        _check(library().hh_coupling_linear_model(self.model._handle, self._handle, _ptr(w0), _ptr(r)))
+        return w0, r
+
+    def coupling_response(self, handle_velocity) -> np.ndarray:
+        """The same wrench without linearizing the springs, for a prescribed handle velocity."""
+        v = _f64(handle_velocity, (6,), "handle velocity")
+        out = np.empty(6)
+        _check(library().hh_coupling_response(self.model._handle, self._handle, _ptr(v), _ptr(out)))
+        return out
 
     def energies(self) -> dict:
         k, e, s = ctypes.c_double(), ctypes.c_double(), ctypes.c_double()

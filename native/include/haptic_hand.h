@@ -127,6 +127,20 @@ int hh_step_monolithic(const hh_model* model, hh_data* data, hh_step_stats* out_
  * and returns max|v_schur - v_mono| / max|v_mono| (0 when both are zero). */
 int hh_compare_solvers(const hh_model* model, const hh_data* data, double* out_relative_difference);
 
+/* --- handle-space linearization (Section 3, Garre & Otaduy 2009), no contact yet --- */
+/* Formulates and solves the step from the current state (the state is not changed) and
+ * returns the linear model of the springs' wrench on the handle at the end of the step as a
+ * function of the handle's end-of-step velocity v_h = (v_com, omega):
+ *   W(v_h) = wrench0 + response * v_h,   response = -(A_s - Aht At^-1 Ath) / dt,
+ * A_s the springs' part of Ah: the flesh answers the handle through the same solves as the
+ * Schur complement. response is row-major 6x6; wrench0 is (force, torque). */
+int hh_coupling_linear_model(const hh_model* model, const hh_data* data, double wrench0[6], double response[36]);
+/* The same wrench evaluated without linearizing the springs: the flesh's velocity solved for
+ * the prescribed handle velocity, both advanced by one step (the handle's rotation by the
+ * exponential map), the springs' wrench taken at the new state. For checking the model. */
+int hh_coupling_response(const hh_model* model, const hh_data* data, const double handle_velocity[6],
+                         double wrench[6]);
+
 /* --- observables --- */
 /* Total force and torque (about the handle's centre of mass) the springs apply on the handle. */
 int hh_coupling_wrench(const hh_model* model, const hh_data* data, double force[3], double torque[3]);

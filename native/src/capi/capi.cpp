@@ -1,6 +1,7 @@
 // The C ABI: every entry point runs its body through guard(), which turns any exception into
 // a status code and a thread-local message, so nothing thrown ever reaches Blender.
 #include <cstring>
+#include <memory>
 #include <new>
 #include <string>
 
@@ -256,6 +257,68 @@ int hh_compare_solvers(const hh_model* model, const hh_data* data, double* out_r
         const double scale = mono.cwiseAbs().maxCoeff();
         const double diff = (schur - mono).cwiseAbs().maxCoeff();
         *out_relative_difference = scale > 0 ? diff / scale : diff;
+        return HH_OK;
+    });
+}
+
+namespace {
+// Formulates and solves the step of a copy of the data, so the caller's state is untouched.
+std::unique_ptr<hh::Data> solved_copy(const hh::Model& m, const hh::Data& d) {
+    auto work = std::make_unique<hh::Data>(m);
+    static_cast<hh::FleshState&>(*work) = static_cast<const hh::FleshState&>(d);
+    work->h = d.h;
+    work->device = d.device;
+    hh::formulate(m, *work);
+    work->hand.solve();
+    return work;
+}
+}  // namespace
+
+int hh_coupling_linear_model(const hh_model* model, const hh_data* data, double wrench0[6], double response[36]) {
+    return guard([&] {
+        require(model && data && wrench0 && response, "hh_coupling_linear_model: null pointer");
+        const hh::Model& m = model->m;
+        auto w = solved_copy(m, data->d);
+        const double dt = m.params.dt;
+        // end-of-step wrench with v_h = 0: dt W0 = dt F(x, 0) - Aht v_t(0), v_t(0) = A_t^-1 b_t
+        hh::Vec6 aht_s0 = hh::Vec6::Zero();
+        w->tool.r = w->hand.r.tail(3 * m.mesh.n_nodes);
+        w->tool.solve();
+        for (size_t j = 0; j < m.handle.nodes.size(); ++j)
+            aht_s0 += w->coupling.aht[j] * w->tool.s.segment<3>(3 * m.handle.nodes[j]);
+        const hh::Vec6 w0 = (w->coupling.bh - aht_s0) / dt;
+        const hh::Mat6 r = -(w->coupling.ah - w->hand.aht_inverse_ath) / dt;
+        for (int i = 0; i < 6; ++i) {
+            wrench0[i] = w0[i];
+            for (int j = 0; j < 6; ++j) response[6 * i + j] = r(i, j);
+        }
+        return HH_OK;
+    });
+}
+
+int hh_coupling_response(const hh_model* model, const hh_data* data, const double handle_velocity[6], double wrench[6]) {
+    return guard([&] {
+        require(model && data && handle_velocity && wrench, "hh_coupling_response: null pointer");
+        const hh::Model& m = model->m;
+        auto w = solved_copy(m, data->d);
+        hh::Vec6 vh;
+        for (int i = 0; i < 6; ++i) vh[i] = handle_velocity[i];
+        require(vh.allFinite(), "handle velocity must be finite");
+        // Eq. 12 with the handle velocity prescribed
+        w->tool.r = w->hand.r.tail(3 * m.mesh.n_nodes);
+        for (size_t j = 0; j < m.handle.nodes.size(); ++j)
+            w->tool.r.segment<3>(3 * m.handle.nodes[j]) -= w->coupling.ath[j] * vh;
+        w->tool.solve();
+        hh::VecX s(6 + 3 * m.mesh.n_nodes);
+        s.head<6>() = vh;
+        s.tail(3 * m.mesh.n_nodes) = w->tool.s;
+        hh::integrate(m, *w, s);
+        hh::Vec3 f, t;
+        hh::coupling_wrench(m, *w, f, t);
+        for (int i = 0; i < 3; ++i) {
+            wrench[i] = f[i];
+            wrench[3 + i] = t[i];
+        }
         return HH_OK;
     });
 }

@@ -50,6 +50,7 @@ void HandSystem::solve() {
         aht_temp.col(i) = aht_times(tool.s);
     }
     t0 = clock::now();
+    aht_inverse_ath = aht_temp;
     handle.A = Ah - aht_temp;
     handle.solve();  // v_h
     const Vec6 vh = handle.s;

@@ -32,6 +32,12 @@ private:
     Vec6 aht_times(const VecX& vt) const;  // Aht * vt, touching only coupled nodes
     MatX ath_column_;
     std::vector<VecX> temp_;              // A_t^-1 Ath(i), i = 1..6
+
+public:
+    // After solve(): Aht A_t^-1 Ath, the flesh's part of the Schur complement (Eq. 13).
+    Mat6 aht_inverse_ath;
+    // After solve(): A_t^-1 Ath(i), the flesh's velocity response to a handle velocity.
+    const std::vector<VecX>& flesh_response() const { return temp_; }
 };
 
 // The reference: Eq. 7 assembled as one sparse (6 + 3n)^2 matrix and solved by sparse LU.
