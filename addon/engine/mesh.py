@@ -628,20 +628,28 @@ def interpolate_embedded(nodes_positions, tets, tet_index, weights) -> np.ndarra
 # --------------------------------------------------------------------------------------------
 
 
-def point_inside_surface(V, F, p) -> bool:
-    """True when p is inside the closed surface: its generalized winding number (the solid
-    angle the surface subtends at p over 4 pi) is above one half."""
+def winding_numbers(V, F, points, chunk=256) -> np.ndarray:
+    """Generalized winding number of the closed surface (V, F) at each point: the solid angle
+    the surface subtends there over 4 pi (1 inside, 0 outside)."""
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F)
-    a, b, c = (V[F[:, i]] - np.asarray(p, dtype=np.float64) for i in range(3))
-    la, lb, lc = (np.linalg.norm(u, axis=1) for u in (a, b, c))
-    # Van Oosterom and Strackee: tan(omega / 2) of the triangle's solid angle.
-    numerator = np.einsum("ij,ij->i", a, np.cross(b, c))
-    denominator = (
-        la * lb * lc
-        + np.einsum("ij,ij->i", a, b) * lc
-        + np.einsum("ij,ij->i", b, c) * la
-        + np.einsum("ij,ij->i", c, a) * lb
-    )
-    winding = 2.0 * np.arctan2(numerator, denominator).sum() / (4.0 * math.pi)
-    return bool(winding > 0.5)
+    points = np.atleast_2d(np.asarray(points, dtype=np.float64))
+    total = np.zeros(len(points))
+    for start in range(0, len(F), chunk):
+        a, b, c = (V[F[start : start + chunk, i]][None] - points[:, None] for i in range(3))
+        la, lb, lc = (np.linalg.norm(u, axis=2) for u in (a, b, c))
+        # Van Oosterom and Strackee: tan(omega / 2) of each triangle's solid angle.
+        numerator = np.einsum("pij,pij->pi", a, np.cross(b, c))
+        denominator = (
+            la * lb * lc
+            + np.einsum("pij,pij->pi", a, b) * lc
+            + np.einsum("pij,pij->pi", b, c) * la
+            + np.einsum("pij,pij->pi", c, a) * lb
+        )
+        total += 2.0 * np.arctan2(numerator, denominator).sum(axis=1)
+    return total / (4.0 * math.pi)
+
+
+def point_inside_surface(V, F, p) -> bool:
+    """True when p is inside the closed surface (winding number above one half)."""
+    return bool(winding_numbers(V, F, p)[0] > 0.5)

@@ -31,6 +31,7 @@ from .mesh import (
     surface_volume,
     tet_signed_volumes,
     tetrahedralize,
+    winding_numbers,
 )
 
 # --------------------------------------------------------------------------------------------
@@ -581,23 +582,6 @@ def letter_tets(
 # --------------------------------------------------------------------------------------------
 
 
-def _winding_numbers(V, F, points, chunk=256):
-    """Generalized winding number of the closed surface (V, F) at each point (1 inside)."""
-    total = np.zeros(len(points))
-    for start in range(0, len(F), chunk):
-        a, b, c = (V[F[start : start + chunk, i]][None] - points[:, None] for i in range(3))
-        la, lb, lc = (np.linalg.norm(u, axis=2) for u in (a, b, c))
-        numerator = np.einsum("pij,pij->pi", a, np.cross(b, c))
-        denominator = (
-            la * lb * lc
-            + np.einsum("pij,pij->pi", a, b) * lc
-            + np.einsum("pij,pij->pi", b, c) * la
-            + np.einsum("pij,pij->pi", c, a) * lb
-        )
-        total += 2.0 * np.arctan2(numerator, denominator).sum(axis=1)
-    return total / (4.0 * np.pi)
-
-
 def _nearest_triangles(V, F, points, chunk=32):
     """Distance from each point to the surface (V, F) and the index of the nearest triangle."""
     best = np.full(len(points), np.inf)
@@ -660,7 +644,7 @@ def enclosing_surface(V, F, triangles: int, tolerance: float = 0.00075, max_iter
     for _ in range(max_iterations):
         points = V[candidates]
         gap, nearest = _nearest_triangles(coarse_V, coarse_F, points)
-        outside = (gap > tolerance) & (_winding_numbers(coarse_V, coarse_F, points) < 0.5)
+        outside = (gap > tolerance) & (winding_numbers(coarse_V, coarse_F, points) < 0.5)
         if not outside.any():
             if len(candidates) == len(V):
                 break
