@@ -32,6 +32,7 @@ DEFAULTS = {
                  "rayleigh_alpha": 0.0, "rayleigh_beta": 0.01},
     "density": 1000.0,
     "friction": 0.5,
+    "kinetic_friction": None,  # None: the same as friction (static)
     "fixed": None,
     "point": [0.0, 0.0, 0.0],
     "normal": [0.0, 0.0, 1.0],
@@ -169,4 +170,6 @@ def add_to_world(world: W.World, body: PreparedBody) -> int:
     else:
         body.index = world.add_mesh_body(body.kind, body.vertices, body.faces, density=float(spec["density"]),
                                          friction=friction)
+    if spec["kinetic_friction"] is not None:
+        world.set_friction(body.index, friction, float(spec["kinetic_friction"]))
     return body.index

@@ -203,6 +203,7 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hh_world_add_mesh_body": ([vp, i, pd, i, pi, i, d, d, pi], i),
         "hh_world_add_plane": ([vp, pd, pd, d, pi], i),
         "hh_world_set_pose": ([vp, i, pd, pd, pd, pd], i),
+        "hh_world_set_friction": ([vp, i, d, d], i),
         "hh_world_get_pose": ([vp, i, pd, pd, pd, pd], i),
         "hh_world_set_device": ([vp, i, i, pd, pd, pd, pd], i),
         "hh_world_step": ([vp, ctypes.POINTER(WorldStats)], i),

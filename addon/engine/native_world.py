@@ -104,6 +104,11 @@ class World:
         _check(library().hh_world_add_plane(self._handle, _ptr(p), _ptr(n), float(friction), ctypes.byref(out)))
         return out.value
 
+    def set_friction(self, body: int, static: float, kinetic: float | None = None) -> None:
+        """Static and kinetic Coulomb coefficients (kinetic defaults to static)."""
+        _check(library().hh_world_set_friction(self._handle, body, float(static),
+                                               float(static if kinetic is None else kinetic)))
+
     # --- driving ---
     def set_pose(self, body: int, position=None, quaternion=None, velocity=None, angular_velocity=None) -> None:
         args = [None if a is None else _f64(a, (k,), "pose") for a, k in

@@ -33,6 +33,7 @@ DEFAULTS = {
         "palm_seed": None,
         "handle_radius": 0.03,
         "friction": 0.5,
+        "kinetic_friction": None,
         "self_collision": True,
     },
     "contact": {"thickness": 1e-3, "patch": 4e-3, "max_iterations": 300, "tolerance": 1e-5},

@@ -41,8 +41,11 @@ def build_world(scene: scenes.Scene, progress=None):
                                contact_patch=c["patch"], max_iterations=c["max_iterations"], tolerance=c["tolerance"])
     tet_index, weights = meshing.embed_points(scene.nodes, scene.tets, scene.surface_vertices)
     sn, sw = native_world.embedded_surface(scene.tets, tet_index, weights)
-    hand = world.add_hand(model, sn, sw, scene.surface_faces, friction=scene.data["hand"]["friction"],
-                          self_collision=scene.data["hand"]["self_collision"])
+    hand_spec = scene.data["hand"]
+    hand = world.add_hand(model, sn, sw, scene.surface_faces, friction=hand_spec["friction"],
+                          self_collision=hand_spec["self_collision"])
+    if hand_spec["kinetic_friction"] is not None:
+        world.set_friction(hand, hand_spec["friction"], hand_spec["kinetic_friction"])
     others = [bodies.prepare(spec) for spec in scene.bodies]
     for b in others:
         bodies.add_to_world(world, b)

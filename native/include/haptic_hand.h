@@ -211,6 +211,9 @@ int hh_world_add_mesh_body(hh_world* world, int kind, const double* vertices, in
                            int* out_body);
 int hh_world_add_plane(hh_world* world, const double point[3], const double normal[3], double friction,
                        int* out_body);
+/* Coulomb friction of a body: sticking holds up to static_friction, sliding feels
+ * kinetic_friction (<= static). A pair uses the geometric mean of its bodies' values. */
+int hh_world_set_friction(hh_world* world, int body, double static_friction, double kinetic_friction);
 /* Kinematic: the pose and velocity at the end of the next step. Rigid: the current state. */
 int hh_world_set_pose(hh_world* world, int body, const double position[3], const double quaternion[4],
                       const double velocity[3], const double angular_velocity[3]);

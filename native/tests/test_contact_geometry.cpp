@@ -84,6 +84,7 @@ TEST(pgs_point_mass_on_ground_sticks_or_slides) {
         p.u_free << -9.81 * dt, push, 0;  // falling at g dt, sliding along t1
         p.gap = VecX::Zero(1);
         p.friction = VecX::Constant(1, mu);
+        p.kinetic = VecX::Constant(1, mu);
         VecX lambda;
         solve_pgs(p, lambda, 100, 1e-12);
         CHECK_LT(std::abs(lambda[0] - 9.81 * dt), 1e-12);  // the normal impulse holds the weight
@@ -91,5 +92,25 @@ TEST(pgs_point_mass_on_ground_sticks_or_slides) {
         const double expected = std::min(stick, mu * 9.81 * dt);
         CHECK_LT(std::abs(-lambda[1] - expected), 1e-12);
         CHECK_LT(std::abs(lambda[2]), 1e-15);
+    }
+}
+
+TEST(pgs_static_friction_holds_then_kinetic_friction_slides) {
+    // static 0.5, kinetic 0.3: a push needing 0.4 g dt of friction impulse is held; one
+    // needing 0.6 g dt breaks loose and slides against 0.3 g dt
+    const double dt = 0.01, g = 9.81;
+    for (double need : {0.4, 0.6}) {
+        ContactProblem p;
+        p.dt = dt;
+        p.W = MatX::Identity(3, 3);
+        p.u_free = VecX(3);
+        p.u_free << -g * dt, need * g * dt, 0;
+        p.gap = VecX::Zero(1);
+        p.friction = VecX::Constant(1, 0.5);
+        p.kinetic = VecX::Constant(1, 0.3);
+        VecX lambda;
+        solve_pgs(p, lambda, 100, 1e-12);
+        const double expected = need <= 0.5 ? need * g * dt : 0.3 * g * dt;
+        CHECK_LT(std::abs(-lambda[1] - expected), 1e-12);
     }
 }

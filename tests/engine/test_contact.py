@@ -32,19 +32,23 @@ def add_soft_block(world, size, cells, origin, **material):
     return world.add_soft_body(nodes, tets, sn, sw, faces, **material), nodes
 
 
-def incline(theta_deg: float, mu: float, seconds: float, dt=0.01):
-    """A 4 cm rigid cube resting on a plane tilted by theta about y; returns the cube's
-    displacement along the slope (downhill positive) at every step."""
+def incline(theta_deg: float, mu: float, seconds: float, dt=0.01, kinetic=None, speed=0.0):
+    """A 4 cm rigid cube on a plane tilted by theta about y, at rest or sliding downhill at
+    `speed`; returns the cube's displacement along the slope (downhill positive) per step."""
     theta = math.radians(theta_deg)
     rot = rotation_y(theta)
     normal = rot @ [0, 0, 1]  # (sin, 0, cos): the plane z = -x tan(theta) descends towards +x
     downhill = rot @ [1, 0, 0]
     world = W.World(dt=dt, contact_thickness=1e-3)
-    world.add_plane([0, 0, 0], normal, friction=mu)
+    plane = world.add_plane([0, 0, 0], normal, friction=mu)
     v, f = cube_surface(0.02)
-    centre = (0.02 + 0.0009) * normal  # resting 0.9 mm above: inside the contact thickness
+    centre = (0.02 + 0.001) * normal  # resting at the contact thickness: touching, not overlapping
     cube = world.add_mesh_body(W.RIGID, v @ rot.T + centre, f, density=500.0, friction=mu)
+    if kinetic is not None:
+        for body in (plane, cube):
+            world.set_friction(body, mu, kinetic)
     start = world.pose(cube)[0]
+    world.set_pose(cube, velocity=speed * downhill)
     travel = []
     for _ in range(int(round(seconds / dt))):
         world.step()
@@ -65,6 +69,18 @@ def test_block_slides_with_the_coulomb_acceleration(theta_deg, mu):
     expected = G * (math.sin(math.radians(theta_deg)) - mu * math.cos(math.radians(theta_deg)))
     measured = 2 * np.polyfit(t[10:], travel[10:], 2)[0]
     assert measured == pytest.approx(expected, rel=0.05)
+
+
+def test_static_friction_holds_and_kinetic_friction_slides():
+    """Static 0.5, kinetic 0.3 on a 25 degree slope (tan = 0.47): at rest the block stays; set
+    sliding, it keeps sliding and speeds up at g (sin - 0.3 cos)."""
+    at_rest, _ = incline(25.0, 0.5, 1.0, kinetic=0.3)
+    assert np.abs(at_rest).max() < 1e-3
+    dt = 0.01
+    sliding, _ = incline(25.0, 0.5, 1.0, dt=dt, kinetic=0.3, speed=0.2)
+    t = dt * np.arange(1, len(sliding) + 1)
+    expected = G * (math.sin(math.radians(25.0)) - 0.3 * math.cos(math.radians(25.0)))
+    assert 2 * np.polyfit(t[10:], sliding[10:], 2)[0] == pytest.approx(expected, rel=0.05)
 
 
 def test_soft_block_on_the_ground_carries_its_weight():

@@ -108,6 +108,7 @@ int hh_world_add_hand(hh_world* world, const hh_model* model, const int* surface
         auto b = std::make_unique<hh::Body>();
         b->kind = hh::BodyKind::Hand;
         b->friction = friction;
+        b->kinetic_friction = friction;
         b->self_collision = self_collision != 0;
         b->hand_model = std::make_unique<hh::Model>(model->m);
         b->hand_model->params.dt = world->w.settings.dt;
@@ -139,6 +140,7 @@ int hh_world_add_soft_body(hh_world* world, const double* nodes, int n_nodes, co
         auto b = std::make_unique<hh::Body>();
         b->kind = hh::BodyKind::Soft;
         b->friction = friction;
+        b->kinetic_friction = friction;
         b->flesh = std::make_unique<hh::Flesh>(hh::build_flesh(
             nodes, n_nodes, tets, n_tets,
             hh::Material{material->young_modulus, material->poisson_ratio, material->density}));
@@ -179,6 +181,7 @@ int hh_world_add_mesh_body(hh_world* world, int kind, const double* vertices, in
         b->kind = kind == HH_BODY_RIGID ? hh::BodyKind::Rigid
                                         : (kind == HH_BODY_KINEMATIC ? hh::BodyKind::Kinematic : hh::BodyKind::Static);
         b->friction = friction;
+        b->kinetic_friction = friction;
         std::vector<hh::Vec3> x(n_vertices);
         for (int v = 0; v < n_vertices; ++v) {
             x[v] = vec3(vertices + 3 * v);
@@ -226,9 +229,24 @@ int hh_world_add_plane(hh_world* world, const double point[3], const double norm
         auto b = std::make_unique<hh::Body>();
         b->kind = hh::BodyKind::Plane;
         b->friction = friction;
+        b->kinetic_friction = friction;
         b->plane_point = vec3(point);
         b->plane_normal = n.normalized();
         *out_body = world->w.add(std::move(b));
+        return HH_OK;
+    });
+}
+
+int hh_world_set_friction(hh_world* world, int body, double static_friction, double kinetic_friction) {
+    return guard([&] {
+        hh::Body& b = body_at(world, body);
+        require_friction(static_friction);
+        require_friction(kinetic_friction);
+        require(kinetic_friction <= static_friction,
+                "kinetic friction " + std::to_string(kinetic_friction) + " exceeds static friction " +
+                    std::to_string(static_friction) + ": a sliding contact cannot hold more than a sticking one");
+        b.friction = static_friction;
+        b.kinetic_friction = kinetic_friction;
         return HH_OK;
     });
 }

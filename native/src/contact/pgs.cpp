@@ -44,6 +44,11 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
         if (delta != 0) u.noalias() += p.W.col(col) * delta;
         lambda[col] += delta;
     };
+    // Friction coefficient each contact's disk uses: static first; contacts still sliding once
+    // the static problem is solved break loose and are solved again against kinetic friction.
+    // (Deciding per contact inside the sweep would let the first contact of a resting block
+    // give way before its neighbours had taken their share.)
+    VecX coefficient = p.friction;
     // How far the current impulses are from satisfying every condition, in m/s: normal
     // complementarity, sticking contacts at rest, sliding ones sliding against their friction.
     auto residual = [&]() {
@@ -53,7 +58,7 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
             const double un = u[n] + bias[i];
             worst = std::max(worst, lambda[n] > 0 ? std::abs(un) : std::max(0.0, -un));
             const Eigen::Vector2d ut(u[n + 1], u[n + 2]), lt(lambda[n + 1], lambda[n + 2]);
-            const double limit = p.friction[i] * lambda[n];
+            const double limit = coefficient[i] * lambda[n];
             if (lt.norm() < limit * (1 - 1e-9) || lt.norm() == 0)
                 worst = std::max(worst, ut.norm());  // sticking: no sliding allowed
             else
@@ -61,7 +66,7 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
         }
         return worst;
     };
-    for (int it = 0; it < max_iterations; ++it) {
+    for (int it = 0, pass = 0; it < max_iterations; ++it) {
         for (int i = 0; i < c; ++i) {
             const int n = 3 * i;
             const double wnn = p.W(n, n);
@@ -76,13 +81,27 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
             if (!(wtt.trace() > 0)) continue;
             const Eigen::Vector2d ut(u[n + 1], u[n + 2]);
             const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
-            const Eigen::Vector2d target = disk_constrained_minimum(wtt, wtt * lt - ut, p.friction[i] * lambda[n]);
+            const Eigen::Vector2d target = disk_constrained_minimum(wtt, wtt * lt - ut, coefficient[i] * lambda[n]);
             apply(n + 1, target[0] - lt[0]);
             apply(n + 2, target[1] - lt[1]);
         }
         result.iterations = it + 1;
         result.residual = residual();
-        if (result.residual <= tolerance) break;
+        if (result.residual > tolerance && it + 1 < max_iterations) continue;
+        if (pass++ > 0) break;
+        bool broke_loose = false;
+        for (int i = 0; i < c; ++i) {
+            const Eigen::Vector2d ut(u[3 * i + 1], u[3 * i + 2]);
+            // sliding clearly faster than the solver's tolerance (not a sticking contact
+            // still converging) while at the static limit: it breaks loose
+            const Eigen::Vector2d lt(lambda[3 * i + 1], lambda[3 * i + 2]);
+            if (p.kinetic[i] < coefficient[i] && ut.norm() > 10 * tolerance &&
+                lt.norm() >= coefficient[i] * lambda[3 * i] * (1 - 1e-9)) {
+                coefficient[i] = p.kinetic[i];
+                broke_loose = true;
+            }
+        }
+        if (!broke_loose) break;
     }
     return result;
 }

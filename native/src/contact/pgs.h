@@ -15,7 +15,8 @@ struct ContactProblem {
     MatX W;         // 3c x 3c, rows per contact: normal, tangent1, tangent2
     VecX u_free;    // 3c: J v* (including the velocities of kinematic bodies)
     VecX gap;       // c: signed distance minus the contact thickness
-    VecX friction;  // c: Coulomb coefficient
+    VecX friction;  // c: static Coulomb coefficient: sticking holds up to this
+    VecX kinetic;   // c: kinetic coefficient (<= static): sliding feels this
     double dt = 0;
     double recovery_speed = 0.05;  // m/s: largest speed at which a penetration is pushed out
 };

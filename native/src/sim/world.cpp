@@ -288,11 +288,13 @@ void World::solve_contacts() {
     prob.u_free = VecX::Zero(rows);
     prob.gap.resize(nc);
     prob.friction.resize(nc);
+    prob.kinetic.resize(nc);
     for (int c = 0; c < nc; ++c) {
         const Contact& k = contacts[c];
         prob.gap[c] = k.distance - settings.contact_thickness;
         const double mu_a = bodies[k.a.body]->friction, mu_b = bodies[k.b.body]->friction;
         prob.friction[c] = std::sqrt(mu_a * mu_b);
+        prob.kinetic[c] = std::sqrt(bodies[k.a.body]->kinetic_friction * bodies[k.b.body]->kinetic_friction);
         // kinematic bodies' motion enters as a known relative velocity
         for (int s = 0; s < 2; ++s) {
             const ContactSide& side = s == 0 ? k.a : k.b;

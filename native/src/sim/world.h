@@ -23,7 +23,8 @@ using RigidState = HandleState;
 
 struct Body {
     BodyKind kind = BodyKind::Static;
-    double friction = 0.5;
+    double friction = 0.5;          // static Coulomb coefficient
+    double kinetic_friction = 0.5;  // kinetic coefficient, at most the static one
     bool self_collision = false;
     SelfExclusions self_exclusions;  // self-collision pairs already in contact at rest
     bool has_surface = false;
