@@ -19,15 +19,28 @@ int create(const BoxMesh& b, const hh_params& p, std::string& message) {
     return status;
 }
 bool mentions(const std::string& message, const char* word) { return message.find(word) != std::string::npos; }
+
+// A valid model of the box rig and one data for it, freed at the end of the test.
+struct Rig {
+    BoxMesh box = make_box(4, 3, 2, 0.01);
+    hh_model* m = nullptr;
+    hh_data* d = nullptr;
+    Rig() {
+        const hh_params p = params();
+        CHECK(hh_model_create(box.nodes.data(), box.n_nodes(), box.tets.data(), box.n_tets(), &p, &m) == HH_OK);
+        CHECK(hh_data_create(m, &d) == HH_OK);
+    }
+    ~Rig() {
+        hh_data_free(d);
+        hh_model_free(m);
+    }
+};
 }  // namespace
 
 TEST(valid_model_steps_and_frees) {
-    const BoxMesh b = make_box(4, 3, 2, 0.01);
-    const hh_params p = params();
-    hh_model* m = nullptr;
-    CHECK(hh_model_create(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), &p, &m) == HH_OK);
-    hh_data* d = nullptr;
-    CHECK(hh_data_create(m, &d) == HH_OK);
+    Rig rig;
+    hh_model* m = rig.m;
+    hh_data* d = rig.d;
     const double pos[3] = {0.02, 0.015, 0.012};
     CHECK(hh_set_device(d, 1, pos, nullptr, nullptr, nullptr) == HH_OK);
     hh_step_stats stats;
@@ -36,8 +49,6 @@ TEST(valid_model_steps_and_frees) {
     double diff = 1;
     CHECK(hh_compare_solvers(m, d, &diff) == HH_OK);
     CHECK_LT(diff, 1e-8);
-    hh_data_free(d);
-    hh_model_free(m);
 }
 
 TEST(bad_parameters_are_named) {
@@ -95,15 +106,10 @@ TEST(bad_meshes_are_named) {
 }
 
 TEST(wrong_array_sizes_are_rejected) {
-    const BoxMesh b = make_box(4, 3, 2, 0.01);
-    const hh_params p = params();
-    hh_model* m = nullptr;
-    CHECK(hh_model_create(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), &p, &m) == HH_OK);
-    hh_data* d = nullptr;
-    CHECK(hh_data_create(m, &d) == HH_OK);
+    Rig rig;
+    hh_model* m = rig.m;
+    hh_data* d = rig.d;
     double x[3];
     CHECK(hh_get_state(m, d, x, nullptr, 1, nullptr, nullptr, nullptr, nullptr) == HH_ERR_INVALID_ARGUMENT);
     CHECK(mentions(hh_last_error(), "size"));
-    hh_data_free(d);
-    hh_model_free(m);
 }

@@ -177,20 +177,8 @@ int hh_set_device(hh_data* data, int enabled, const double position[3], const do
                   const double velocity[3], const double angular_velocity[3]) {
     return guard([&] {
         require(data, "hh_set_device: null data");
-        hh::DeviceFrame dev = data->d.device;
-        dev.enabled = enabled != 0;
-        if (position) dev.position = vec3(position);
-        if (quaternion) {
-            dev.quaternion = hh::Vec4(quaternion[0], quaternion[1], quaternion[2], quaternion[3]);
-            require(dev.quaternion.allFinite() && dev.quaternion.norm() > 1e-12,
-                    "device quaternion must be finite and non-zero");
-            dev.quaternion.normalize();
-        }
-        if (velocity) dev.velocity = vec3(velocity);
-        if (angular_velocity) dev.angular_velocity = vec3(angular_velocity);
-        require(dev.position.allFinite() && dev.velocity.allFinite() && dev.angular_velocity.allFinite(),
-                "device pose or velocity contains NaN or infinite values: check the device trajectory");
-        data->d.device = dev;
+        data->d.device = hh::capi::updated_device(data->d.device, enabled, position, quaternion, velocity,
+                                                  angular_velocity);
         return HH_OK;
     });
 }

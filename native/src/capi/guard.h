@@ -63,6 +63,24 @@ inline void require_size(int given, int expected, const char* what) {
                               " does not match the model's " + std::to_string(expected));
 }
 inline Vec3 vec3(const double* p) { return Vec3(p[0], p[1], p[2]); }
+
+// The device frame with the given fields replaced (null: kept), checked and normalized; shared
+// by the hand's and the world's hh_*_set_device.
+inline DeviceFrame updated_device(DeviceFrame dev, int enabled, const double* position, const double* quaternion,
+                                  const double* velocity, const double* angular_velocity) {
+    dev.enabled = enabled != 0;
+    if (position) dev.position = vec3(position);
+    if (quaternion) dev.quaternion = Vec4(quaternion[0], quaternion[1], quaternion[2], quaternion[3]);
+    if (velocity) dev.velocity = vec3(velocity);
+    if (angular_velocity) dev.angular_velocity = vec3(angular_velocity);
+    if (!(dev.position.allFinite() && dev.quaternion.allFinite() && dev.quaternion.norm() > 1e-12 &&
+          dev.velocity.allFinite() && dev.angular_velocity.allFinite()))
+        throw InvalidArgument(
+            "device pose or velocity contains NaN or infinite values, or a zero quaternion: check the device "
+            "trajectory");
+    dev.quaternion.normalize();
+    return dev;
+}
 inline void put3(const Vec3& v, double* out) {
     if (out) std::memcpy(out, v.data(), 3 * sizeof(double));
 }

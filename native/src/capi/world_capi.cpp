@@ -290,17 +290,8 @@ int hh_world_set_device(hh_world* world, int hand_body, int enabled, const doubl
     return guard([&] {
         hh::Body& b = body_at(world, hand_body);
         require(b.kind == hh::BodyKind::Hand, "the device drives the hand: give the hand's body index");
-        hh::DeviceFrame dev = b.hand->device;
-        dev.enabled = enabled != 0;
-        if (position) dev.position = vec3(position);
-        if (quaternion) dev.quaternion = hh::Vec4(quaternion[0], quaternion[1], quaternion[2], quaternion[3]);
-        if (velocity) dev.velocity = vec3(velocity);
-        if (angular_velocity) dev.angular_velocity = vec3(angular_velocity);
-        require(dev.position.allFinite() && dev.quaternion.allFinite() && dev.quaternion.norm() > 1e-12 &&
-                    dev.velocity.allFinite() && dev.angular_velocity.allFinite(),
-                "device pose or velocity contains NaN or infinite values: check the device trajectory");
-        dev.quaternion.normalize();
-        b.hand->device = dev;
+        b.hand->device = hh::capi::updated_device(b.hand->device, enabled, position, quaternion, velocity,
+                                                  angular_velocity);
         return HH_OK;
     });
 }
