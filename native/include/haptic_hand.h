@@ -113,7 +113,9 @@ int hh_set_state(const hh_model* model, hh_data* data, const double* x, const do
                  const double handle_position[3], const double handle_quaternion[4],
                  const double handle_velocity[3], const double handle_angular_velocity[3]);
 /* The tracked device frame at the end of the next step. enabled = 0 detaches the
- * virtual coupling (free flight). */
+ * virtual coupling (free flight); 1 couples the handle to it (Fig. 2 top); 2 prescribes it:
+ * the handle reaches exactly that pose at the end of the step (a haptic session drives the
+ * visual loop's handle to its proxy this way). */
 int hh_set_device(hh_data* data, int enabled, const double position[3], const double quaternion[4],
                   const double velocity[3], const double angular_velocity[3]);
 int hh_set_solver(hh_model* model, int solver, double cg_tolerance, int cg_max_iterations);
@@ -238,6 +240,93 @@ int hh_world_hand_state(const hh_world* world, int hand_body, double handle_posi
 int hh_world_hand_step_stats(const hh_world* world, int hand_body, hh_step_stats* out);
 /* Linear momentum of all dynamic bodies (kg m/s). */
 int hh_world_linear_momentum(const hh_world* world, double out[3]);
+
+/* ===================== haptic rendering (Section 3) =====================
+ * A session runs the visual loop (the world, with the hand's handle driven to the proxy and
+ * the coupling force linearized in handle space after each step) and the haptic loop (the
+ * proxy handle under the linearized coupling force, coupled to the device by a two-way
+ * viscoelastic virtual coupling; the feedback is that coupling's reaction). Offline, both run
+ * in virtual time in the caller's thread (reproducible); live, each has its own thread (or
+ * the device driver's servo loop), and the world may not be touched except through the
+ * session until hh_session_stop. */
+typedef struct hh_session hh_session;
+
+typedef struct hh_session_params {
+    int struct_size;
+    double haptic_rate;                /* Hz, 100..10000 (default 1000) */
+    double coupling_stiffness;         /* N/m: virtual coupling device <-> proxy */
+    double coupling_damping;           /* N s/m */
+    double coupling_angular_stiffness; /* N m/rad */
+    double coupling_angular_damping;   /* N m s/rad */
+    double max_force;                  /* N: feedback clamp */
+    double max_torque;                 /* N m */
+    int linearized;                    /* 1: proxy under the linearized coupling force (the paper);
+                                          0: feedback from the last visual-loop handle only */
+    int log_capacity;                  /* rows of the haptic log ring (one per haptic step) */
+} hh_session_params;
+
+/* One row of the haptic log, HH_LOG_COLUMNS doubles: time, period, step cost (s), device
+ * position (3) and quaternion (4), proxy position (3) and quaternion (4), feedback force (3, N)
+ * and torque (3, N m). */
+#define HH_LOG_COLUMNS 23
+
+typedef struct hh_session_status {
+    int running;             /* 1 while live threads run */
+    int failed;              /* 1 once the session stopped on an error (message below) */
+    double haptic_steps, visual_steps;
+    double log_unread, log_dropped;
+    char message[512];
+} hh_session_status;
+
+/* The newest visual frame's scalars (the surfaces through hh_session_frame_surface). */
+typedef struct hh_session_frame {
+    double time;           /* s, the world's simulated time */
+    double visual_steps;
+    double handle[7], proxy[7], device[7];  /* position, quaternion (x, y, z, s) */
+    double feedback[6];    /* force (N) and torque (N m) sent to the device */
+    double wrench[6];      /* F_c0: the springs' wrench on the handle in the coupling model */
+    int contacts;
+    int held_rows;         /* contact constraint rows held in the coupling model */
+} hh_session_frame;
+
+void hh_default_session_params(hh_session_params* params);
+/* The session borrows the world (it must outlive the session) and drives its hand. */
+int hh_session_create(hh_world* world, int hand_body, const hh_session_params* params, hh_session** out);
+void hh_session_free(hh_session* session);
+/* Devices (one per session, replaced by the next call). Trajectories are timed poses, positions
+ * in metres in the scene, quaternions (x, y, z, s); fail_at (s) makes the device report a
+ * disconnection from that time on (for tests; pass a huge value otherwise). */
+int hh_session_device_simulated(hh_session* session, const double* times, const double* positions,
+                                const double* quaternions, int n, double arm_mass, double arm_stiffness,
+                                double arm_damping, double fail_at);
+int hh_session_device_playback(hh_session* session, const double* times, const double* positions,
+                               const double* quaternions, int n, double fail_at);
+/* The host pushes the pose (HID input, Blender's viewport target). */
+int hh_session_device_external(hh_session* session);
+int hh_session_push_device_pose(hh_session* session, const double position[3], const double quaternion[4]);
+/* OpenHaptics (Touch, Omni): library null means "libHD.so". Device millimetres map to scene
+ * metres times workspace_scale about workspace_origin; max_force in N. */
+int hh_session_device_openhaptics(hh_session* session, const char* library, double workspace_scale,
+                                  const double workspace_origin[3], double max_force);
+int hh_session_run_offline(hh_session* session, int visual_steps);
+int hh_session_start(hh_session* session);
+int hh_session_stop(hh_session* session);
+int hh_session_get_status(hh_session* session, hh_session_status* out);
+/* Takes the newest frame if there is one (out_new = 1) and copies its scalars. */
+int hh_session_fetch_frame(hh_session* session, int* out_new, hh_session_frame* out);
+/* The fetched frame's collision-surface vertices of a body (hand or soft body). */
+int hh_session_frame_surface(hh_session* session, int body, double* out, int n_vertices);
+/* Copies up to capacity unread log rows into out (row-major, HH_LOG_COLUMNS each). */
+int hh_session_read_log(hh_session* session, double* out, int capacity, int* out_rows);
+/* The coupling model of the fetched frame: wrench0 (6) and stiffness (36, row-major,
+ * d wrench / d (dx, dtheta)), and how many contact rows it holds. */
+int hh_session_coupling_model(hh_session* session, double wrench0[6], double stiffness[36], int* held_rows);
+
+/* A kinematic body moved by the world itself along timed poses (absolute, world frame). */
+int hh_world_set_script(hh_world* world, int body, const double* times, const double* positions,
+                        const double* quaternions, int n);
+/* The world's simulated time (s). */
+int hh_world_time(const hh_world* world, double* out);
 
 #if defined(__GNUC__)
 #pragma GCC visibility pop

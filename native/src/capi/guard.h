@@ -1,6 +1,7 @@
 // Shared by the C entry points: the opaque handle types, guard() which turns any exception
 // into a status code and a thread-local message, and small argument helpers.
 #pragma once
+#include <atomic>
 #include <cstring>
 #include <new>
 #include <string>
@@ -18,6 +19,9 @@ struct hh_data {
 struct hh_world {
     explicit hh_world(const hh::WorldSettings& s) : w(s) {}
     hh::World w;
+    // set while a live haptic session steps the world on its own thread: the world's entry
+    // points refuse to touch it then (a data race would corrupt the simulation)
+    std::atomic<bool> in_live_session{false};
 };
 
 namespace hh::capi {
@@ -69,6 +73,7 @@ inline Vec3 vec3(const double* p) { return Vec3(p[0], p[1], p[2]); }
 inline DeviceFrame updated_device(DeviceFrame dev, int enabled, const double* position, const double* quaternion,
                                   const double* velocity, const double* angular_velocity) {
     dev.enabled = enabled != 0;
+    dev.prescribed = enabled == 2;
     if (position) dev.position = vec3(position);
     if (quaternion) dev.quaternion = Vec4(quaternion[0], quaternion[1], quaternion[2], quaternion[3]);
     if (velocity) dev.velocity = vec3(velocity);

@@ -13,8 +13,14 @@ using hh::capi::vec3;
 
 namespace {
 
-hh::Body& body_at(hh_world* world, int body) {
+void require_idle(const hh_world* world) {
     require(world != nullptr, "null world");
+    require(!world->in_live_session.load(std::memory_order_acquire),
+            "a live haptic session is stepping this world: read it through the session, or stop the session first");
+}
+
+hh::Body& body_at(hh_world* world, int body) {
+    require_idle(world);
     require(body >= 0 && body < static_cast<int>(world->w.bodies.size()),
             "body index " + std::to_string(body) + " does not exist in this world");
     return *world->w.bodies[body];
@@ -116,6 +122,7 @@ int hh_world_add_hand(hh_world* world, const hh_model* model, const int* surface
         b->hand = std::make_unique<hh::Data>(*b->hand_model);
         set_surface(b->surface, surface_nodes, surface_weights, n_surface_vertices, faces, n_faces);
         b->has_surface = true;
+        require_idle(world);
         *out_body = world->w.add(std::move(b));
         return HH_OK;
     });
@@ -164,6 +171,7 @@ int hh_world_add_soft_body(hh_world* world, const double* nodes, int n_nodes, co
                 if (b->fixed[col / 3] || b->fixed[pat.innerIndexPtr()[p] / 3]) b->fixed_entries.push_back(p);
         set_surface(b->surface, surface_nodes, surface_weights, n_surface_vertices, faces, n_faces);
         b->has_surface = true;
+        require_idle(world);
         *out_body = world->w.add(std::move(b));
         return HH_OK;
     });
@@ -215,6 +223,7 @@ int hh_world_add_mesh_body(hh_world* world, int kind, const double* vertices, in
             b->surface.weights[v] = hh::Vec4(1, 0, 0, 0);
         }
         b->has_surface = true;
+        require_idle(world);
         *out_body = world->w.add(std::move(b));
         return HH_OK;
     });
@@ -232,6 +241,7 @@ int hh_world_add_plane(hh_world* world, const double point[3], const double norm
         b->kinetic_friction = friction;
         b->plane_point = vec3(point);
         b->plane_normal = n.normalized();
+        require_idle(world);
         *out_body = world->w.add(std::move(b));
         return HH_OK;
     });
@@ -299,6 +309,7 @@ int hh_world_set_device(hh_world* world, int hand_body, int enabled, const doubl
 int hh_world_step(hh_world* world, hh_world_stats* out) {
     return guard([&] {
         require(world, "hh_world_step: null world");
+        require_idle(world);
         world->w.step();
         const hh::WorldStats& s = world->w.stats;
         if (out) {

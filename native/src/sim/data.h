@@ -11,6 +11,9 @@ namespace hh {
 
 struct DeviceFrame {
     bool enabled = false;
+    // The handle follows this pose exactly (kinematically) instead of through the virtual
+    // coupling: the visual loop's handle driven to the haptic loop's proxy (Section 3).
+    bool prescribed = false;
     Vec3 position = Vec3::Zero();
     Vec4 quaternion = Vec4(0, 0, 0, 1);
     Vec3 velocity = Vec3::Zero();

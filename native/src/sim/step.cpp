@@ -93,6 +93,15 @@ void formulate(const Model& model, Data& data) {
     r.head<6>() = bh + cb.bh;
     data.hand.Ath = cb.ath;
     data.hand.Aht = cb.aht;
+    if (dev.prescribed) {
+        // The handle reaches the device pose at the end of the step: its rows of Eq. 7 become
+        // v_h = target, and the flesh still feels it through Ath (Eq. 12). The true Aht stays
+        // in data.coupling for the handle-space linearization.
+        data.hand.Ah = Mat6::Identity();
+        r.segment<3>(0) = (dev.position - data.h.x_com) / dt;
+        r.segment<3>(3) = quat_to_rotation_vector(quat_multiply(dev.quaternion, quat_conjugate(data.h.q))) / dt;
+        for (Mat63& block : data.hand.Aht) block.setZero();
+    }
 }
 
 void integrate(const Model& model, Data& data, const VecX& s) {

@@ -218,6 +218,10 @@ void World::solve_free() {
 
 void World::solve_contacts() {
     const int nc = static_cast<int>(contacts.size());
+    contact_W.resize(0, 0);
+    contact_lambda.resize(0);
+    contact_friction.resize(0);
+    contact_columns.clear();
     if (nc == 0) {
         previous_impulse.clear();
         return;
@@ -353,6 +357,7 @@ void World::solve_contacts() {
     // only sure to converge on a symmetric one. Its symmetric part differs by terms of the
     // order of the springs' damping times the handle's spin; the velocities below use the
     // true columns.
+    contact_W = prob.W;
     prob.W = 0.5 * (prob.W + prob.W.transpose()).eval();
     const PgsResult res = solve_pgs(prob, lambda, settings.max_iterations, settings.tolerance);
     previous_impulse.clear();
@@ -370,6 +375,9 @@ void World::solve_contacts() {
         bodies[k.a.body]->contact_force += impulse / settings.dt;
         bodies[k.b.body]->contact_force -= impulse / settings.dt;
     }
+    contact_lambda = lambda;
+    contact_friction = prob.friction;
+    contact_columns = std::move(columns);
 }
 
 void World::integrate() {
@@ -418,6 +426,15 @@ void World::step() {
     using clock = std::chrono::steady_clock;
     const auto t0 = clock::now();
     stats = WorldStats{};
+    for (auto& bp : bodies)
+        if (bp->kind == BodyKind::Kinematic && !bp->script.empty()) {
+            // the velocity that carries the body exactly from the script's pose at t to t + dt
+            const Pose p0 = bp->script.at(time), p1 = bp->script.at(time + settings.dt);
+            bp->target.x_com = p1.position;
+            bp->target.q = p1.quaternion;
+            bp->target.v_com = (p1.position - p0.position) / settings.dt;
+            bp->target.omega = quat_to_rotation_vector(quat_multiply(p1.quaternion, quat_conjugate(p0.quaternion))) / settings.dt;
+        }
     detect();
     reduce_contacts();
     const auto t1 = clock::now();
@@ -436,6 +453,7 @@ void World::step() {
         stats.max_penetration = std::max(stats.max_penetration, settings.contact_thickness - d);
     }
     for (const Contact& c : contacts) stats.self_contacts += c.a.body == c.b.body;
+    time += settings.dt;
     stats.t_total = seconds_since(t0);
 }
 

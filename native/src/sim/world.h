@@ -6,6 +6,7 @@
 // solve (Delassus operator W = J A^-1 J^T, projected Gauss-Seidel), then all bodies advance.
 #pragma once
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <unordered_map>
 #include <vector>
@@ -13,6 +14,7 @@
 #include "contact/detection.h"
 #include "contact/pgs.h"
 #include "sim/data.h"
+#include "sim/keyframes.h"
 
 namespace hh {
 
@@ -46,6 +48,7 @@ struct Body {
     std::vector<Vec3> local;
     RigidState rigid;
     RigidState target;  // kinematic: the pose and velocity at the end of the next step
+    Keyframes script;   // kinematic: when set, the world moves the body along it (target = script at t + dt)
     double mass = 0;
     Mat3 inertia_body = Mat3::Zero();
     std::unique_ptr<RigidSystem> rigid_system;
@@ -90,6 +93,15 @@ public:
     // impulses of the last step's contacts (world frame, N s), by contact identity, to warm
     // start the next step's solve: a resting contact's impulse changes little between steps
     std::unordered_map<std::uint64_t, Vec3> previous_impulse;
+    // The last contact solve, kept for the handle-space linearization (haptics/coupling_model):
+    // W = J A^-1 J^T before it is symmetrized for Gauss-Seidel, the impulses, the static
+    // friction coefficients, and per dynamic body the columns A_b^-1 J_b^T (empty where the
+    // body is not in the row).
+    MatX contact_W;
+    VecX contact_lambda;
+    VecX contact_friction;
+    std::map<int, std::vector<VecX>> contact_columns;
+    double time = 0;  // s: simulated time, advanced by step()
 
     int add(std::unique_ptr<Body> body);
     void step();

@@ -1,0 +1,286 @@
+// C entry points of haptic sessions and scripted kinematic bodies (see haptic_hand.h).
+#include <cmath>
+#include <cstring>
+#include <memory>
+
+#include "capi/guard.h"
+#include "device/openhaptics.h"
+#include "device/playback.h"
+#include "device/simulated_arm.h"
+#include "haptics/session.h"
+
+struct hh_session {
+    hh_session(hh_world* w, int hand, const hh::SessionParams& p) : world(w), s(w->w, hand, p) {}
+    hh_world* world;
+    hh::Session s;
+};
+
+using hh::capi::guard;
+using hh::capi::require;
+
+namespace {
+hh_session& session_of(hh_session* session) {
+    require(session != nullptr, "null session");
+    return *session;
+}
+void require_stopped(hh_session& s) {
+    require(!s.s.running(), "the session is running live: stop it first");
+}
+hh::Keyframes keyframes(const double* times, const double* positions, const double* quaternions, int n) {
+    require(times && positions && n >= 1, "a device trajectory needs at least one timed pose");
+    return hh::Keyframes(times, positions, quaternions, n);
+}
+void put_pose(const double* in, double* out) { std::memcpy(out, in, 7 * sizeof(double)); }
+}  // namespace
+
+extern "C" {
+
+void hh_default_session_params(hh_session_params* p) {
+    if (!p) return;
+    const hh::SessionParams d;
+    p->struct_size = sizeof(hh_session_params);
+    p->haptic_rate = d.haptic_rate;
+    p->coupling_stiffness = d.coupling.stiffness;
+    p->coupling_damping = d.coupling.damping;
+    p->coupling_angular_stiffness = d.coupling.angular_stiffness;
+    p->coupling_angular_damping = d.coupling.angular_damping;
+    p->max_force = d.max_force;
+    p->max_torque = d.max_torque;
+    p->linearized = d.linearized ? 1 : 0;
+    p->log_capacity = static_cast<int>(d.log_capacity);
+}
+
+int hh_session_create(hh_world* world, int hand_body, const hh_session_params* params, hh_session** out) {
+    return guard([&] {
+        require(world && params && out, "hh_session_create: null pointer");
+        require(params->struct_size == sizeof(hh_session_params),
+                "hh_session_params size mismatch: the Python bindings and the native library are out of date");
+        require(!world->in_live_session.load(), "this world already has a live session");
+        hh::SessionParams p;
+        p.haptic_rate = params->haptic_rate;
+        p.coupling.stiffness = params->coupling_stiffness;
+        p.coupling.damping = params->coupling_damping;
+        p.coupling.angular_stiffness = params->coupling_angular_stiffness;
+        p.coupling.angular_damping = params->coupling_angular_damping;
+        p.max_force = params->max_force;
+        p.max_torque = params->max_torque;
+        p.linearized = params->linearized != 0;
+        require(params->log_capacity >= 1, "the haptic log needs room for at least one row");
+        p.log_capacity = static_cast<std::size_t>(params->log_capacity);
+        *out = new hh_session(world, hand_body, p);
+        return HH_OK;
+    });
+}
+
+void hh_session_free(hh_session* session) {
+    if (!session) return;
+    session->s.stop();
+    session->world->in_live_session.store(false);
+    delete session;
+}
+
+int hh_session_device_simulated(hh_session* session, const double* times, const double* positions,
+                                const double* quaternions, int n, double arm_mass, double arm_stiffness,
+                                double arm_damping, double fail_at) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        require_stopped(s);
+        require(std::isfinite(arm_mass) && arm_mass > 0 && std::isfinite(arm_stiffness) && arm_stiffness >= 0 &&
+                    std::isfinite(arm_damping) && arm_damping >= 0,
+                "the simulated arm needs a mass > 0 and a stiffness and damping >= 0 (finite)");
+        require(!std::isnan(fail_at), "fail_at must be a time, not NaN");
+        hh::ArmParams arm{arm_mass, arm_stiffness, arm_damping, fail_at};
+        s.s.set_device(std::make_unique<hh::SimulatedArm>(keyframes(times, positions, quaternions, n), arm));
+        return HH_OK;
+    });
+}
+
+int hh_session_device_playback(hh_session* session, const double* times, const double* positions,
+                               const double* quaternions, int n, double fail_at) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        require_stopped(s);
+        require(!std::isnan(fail_at), "fail_at must be a time, not NaN");
+        s.s.set_device(std::make_unique<hh::Playback>(keyframes(times, positions, quaternions, n), fail_at));
+        return HH_OK;
+    });
+}
+
+int hh_session_device_external(hh_session* session) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        require_stopped(s);
+        const hh::Frame& f = s.s.frame();
+        hh::Pose start;
+        start.position = hh::Vec3(f.handle[0], f.handle[1], f.handle[2]);
+        start.quaternion = hh::Vec4(f.handle[3], f.handle[4], f.handle[5], f.handle[6]);
+        s.s.set_device(std::make_unique<hh::ExternalDevice>(start));
+        return HH_OK;
+    });
+}
+
+int hh_session_push_device_pose(hh_session* session, const double position[3], const double quaternion[4]) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        require(position && quaternion, "hh_session_push_device_pose: null pointer");
+        require(s.s.external_device() != nullptr, "this session's device is not 'external': it reads its own pose");
+        hh::Pose p;
+        p.position = hh::Vec3(position[0], position[1], position[2]);
+        p.quaternion = hh::Vec4(quaternion[0], quaternion[1], quaternion[2], quaternion[3]);
+        require(p.position.allFinite() && p.quaternion.allFinite() && p.quaternion.norm() > 1e-12,
+                "the device pose has NaN or infinite values or a zero quaternion");
+        p.quaternion.normalize();
+        s.s.external_device()->push(p);
+        return HH_OK;
+    });
+}
+
+int hh_session_device_openhaptics(hh_session* session, const char* library, double workspace_scale,
+                                  const double workspace_origin[3], double max_force) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        require_stopped(s);
+        require(std::isfinite(workspace_scale) && workspace_scale > 0, "the workspace scale must be > 0");
+        require(std::isfinite(max_force) && max_force > 0, "the device's force limit must be > 0");
+        hh::OpenHapticsParams p;
+        if (library) p.library = library;
+        p.workspace_scale = workspace_scale;
+        if (workspace_origin) p.workspace_origin = hh::capi::vec3(workspace_origin);
+        p.max_force = max_force;
+        s.s.set_device(std::make_unique<hh::OpenHapticsDevice>(p));
+        return HH_OK;
+    });
+}
+
+int hh_session_run_offline(hh_session* session, int visual_steps) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        require(visual_steps >= 0, "the number of visual steps must be >= 0");
+        s.s.run_offline(visual_steps);
+        return HH_OK;
+    });
+}
+
+int hh_session_start(hh_session* session) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        if (s.s.running()) return HH_OK;
+        bool expected = false;
+        require(s.world->in_live_session.compare_exchange_strong(expected, true),
+                "this world already has a live session");
+        try {
+            s.s.start();
+        } catch (...) {
+            s.world->in_live_session.store(false);
+            throw;
+        }
+        return HH_OK;
+    });
+}
+
+int hh_session_stop(hh_session* session) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        s.s.stop();
+        s.world->in_live_session.store(false);
+        return HH_OK;
+    });
+}
+
+int hh_session_get_status(hh_session* session, hh_session_status* out) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        require(out != nullptr, "hh_session_get_status: null output");
+        out->failed = s.s.failed() ? 1 : 0;
+        out->running = s.s.running() && !out->failed ? 1 : 0;
+        out->haptic_steps = static_cast<double>(s.s.haptic_steps());
+        out->visual_steps = static_cast<double>(s.s.visual_steps());
+        out->log_unread = static_cast<double>(s.s.log().unread());
+        out->log_dropped = static_cast<double>(s.s.log().dropped());
+        std::snprintf(out->message, sizeof out->message, "%s", s.s.error());
+        return HH_OK;
+    });
+}
+
+int hh_session_fetch_frame(hh_session* session, int* out_new, hh_session_frame* out) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        const bool fresh = s.s.fetch_frame();
+        if (out_new) *out_new = fresh ? 1 : 0;
+        if (out) {
+            const hh::Frame& f = s.s.frame();
+            out->time = f.time;
+            out->visual_steps = static_cast<double>(f.visual_steps);
+            put_pose(f.handle, out->handle);
+            put_pose(f.proxy, out->proxy);
+            put_pose(f.device, out->device);
+            std::memcpy(out->feedback, f.feedback, sizeof f.feedback);
+            std::memcpy(out->wrench, f.wrench, sizeof f.wrench);
+            out->contacts = f.contacts;
+            out->held_rows = f.held_rows;
+        }
+        return HH_OK;
+    });
+}
+
+int hh_session_frame_surface(hh_session* session, int body, double* out, int n_vertices) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        const auto& offsets = s.s.surface_offsets();
+        require(body >= 0 && body < static_cast<int>(offsets.size()) && offsets[body] >= 0,
+                "body " + std::to_string(body) + " has no collision surface in this world");
+        const int next_offset = [&] {
+            for (std::size_t b = body + 1; b < offsets.size(); ++b)
+                if (offsets[b] >= 0) return offsets[b];
+            return static_cast<int>(s.s.frame().surfaces.size() / 3);
+        }();
+        hh::capi::require_size(n_vertices, next_offset - offsets[body], "surface vertices");
+        require(out != nullptr, "hh_session_frame_surface: null output");
+        const double* src = s.s.frame().surfaces.data() + 3 * offsets[body];
+        std::memcpy(out, src, 3 * sizeof(double) * n_vertices);
+        return HH_OK;
+    });
+}
+
+int hh_session_read_log(hh_session* session, double* out, int capacity, int* out_rows) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        require(out && out_rows && capacity >= 0, "hh_session_read_log: null pointer or negative capacity");
+        *out_rows = static_cast<int>(s.s.log().read(out, static_cast<std::size_t>(capacity)));
+        return HH_OK;
+    });
+}
+
+int hh_session_coupling_model(hh_session* session, double wrench0[6], double stiffness[36], int* held_rows) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        const hh::Frame& f = s.s.frame();
+        if (wrench0) std::memcpy(wrench0, f.wrench, sizeof f.wrench);
+        if (stiffness) std::memcpy(stiffness, f.stiffness, sizeof f.stiffness);
+        if (held_rows) *held_rows = f.held_rows;
+        return HH_OK;
+    });
+}
+
+int hh_world_set_script(hh_world* world, int body, const double* times, const double* positions,
+                        const double* quaternions, int n) {
+    return guard([&] {
+        require(world != nullptr, "null world");
+        require(!world->in_live_session.load(), "a live session is stepping this world: stop it first");
+        require(body >= 0 && body < static_cast<int>(world->w.bodies.size()), "no such body");
+        hh::Body& b = *world->w.bodies[body];
+        require(b.kind == hh::BodyKind::Kinematic, "only kinematic bodies follow a script");
+        b.script = keyframes(times, positions, quaternions, n);
+        return HH_OK;
+    });
+}
+
+int hh_world_time(const hh_world* world, double* out) {
+    return guard([&] {
+        require(world && out, "hh_world_time: null pointer");
+        *out = world->w.time;
+        return HH_OK;
+    });
+}
+
+}  // extern "C"

@@ -1,0 +1,102 @@
+#include "haptics/coupling_model.h"
+
+#include <cmath>
+
+#include "rigid/quaternion.h"
+#include "sim/world.h"
+
+namespace hh {
+
+Vec6 CouplingModel::displacement(double t, const Vec3& x, const Vec4& q) const {
+    const double tau = t - time;
+    const Vec3 x_ref = x_h + tau * v_h;
+    const Vec4 q_ref = quat_multiply(quat_from_rotation_vector(tau * omega_h), q_h);
+    Vec6 d;
+    d.head<3>() = x - x_ref;
+    d.tail<3>() = quat_to_rotation_vector(quat_multiply(q, quat_conjugate(q_ref)));
+    return d;
+}
+
+Vec6 CouplingModel::evaluate(double t, const Vec3& x, const Vec4& q) const {
+    return wrench + stiffness * displacement(t, x, q);
+}
+
+CouplingModel linearize_coupling(const World& world, int hand) {
+    if (hand < 0 || hand >= static_cast<int>(world.bodies.size()) || world.bodies[hand]->kind != BodyKind::Hand)
+        throw InvalidArgument("linearize_coupling: not the hand's body index");
+    const Body& b = *world.bodies[hand];
+    const Model& m = *b.hand_model;
+    const Data& d = *b.hand;
+    if (!d.device.prescribed)
+        throw InvalidArgument("the coupling model needs the handle driven to a prescribed pose (the proxy)");
+    const double dt = world.settings.dt;
+    const CouplingBlocks& cb = d.coupling;
+    const std::vector<int>& nodes = m.handle.nodes;
+    const std::vector<VecX>& response = d.hand.flesh_response();  // At^-1 Ath(i)
+    auto aht_times = [&](const VecX& flesh) {
+        Vec6 out = Vec6::Zero();
+        for (std::size_t j = 0; j < nodes.size(); ++j) out += cb.aht[j] * flesh.segment<3>(3 * nodes[j]);
+        return out;
+    };
+    // A_s - Aht At^-1 Ath with the true Aht (the step zeroed it in the system it solved)
+    Mat6 schur = cb.ah;
+    for (int i = 0; i < 6; ++i) schur.col(i) -= aht_times(response[i]);
+
+    CouplingModel out;
+    // held rows: normals that pushed; tangents of contacts that stuck inside the cone
+    const int nc = static_cast<int>(world.contact_lambda.size() / 3);
+    auto cols_it = world.contact_columns.find(hand);
+    if (nc > 0 && cols_it != world.contact_columns.end()) {
+        const VecX& lambda = world.contact_lambda;
+        std::vector<int> held;
+        double scale = 0;
+        for (int c = 0; c < nc; ++c) scale = std::max(scale, lambda[3 * c]);
+        for (int c = 0; c < nc; ++c) {
+            const double ln = lambda[3 * c];
+            if (!(ln > 1e-9 * scale)) continue;
+            held.push_back(3 * c);
+            const double lt = std::hypot(lambda[3 * c + 1], lambda[3 * c + 2]);
+            if (lt < (1 - 1e-6) * world.contact_friction[c] * ln) {
+                held.push_back(3 * c + 1);
+                held.push_back(3 * c + 2);
+            }
+        }
+        const int na = static_cast<int>(held.size());
+        const std::vector<VecX>& cols = cols_it->second;
+        MatX hr = MatX::Zero(na, 6), hl = MatX::Zero(6, na), wa(na, na);
+        bool touches_hand = false;
+        for (int a = 0; a < na; ++a) {
+            for (int e = 0; e < na; ++e) wa(a, e) = world.contact_W(held[a], held[e]);
+            const VecX& col = cols[held[a]];
+            if (col.size() == 0) continue;
+            touches_hand = true;
+            const auto flesh = col.tail(col.size() - 6);  // handle part is zero: it is prescribed
+            for (std::size_t j = 0; j < nodes.size(); ++j) {
+                const Vec3 s = flesh.segment<3>(3 * nodes[j]);
+                hr.row(a) += s.transpose() * cb.ath[j];  // (J At^-1 Ath)_a, At symmetric
+            }
+            hl.col(a) = aht_times(flesh);
+        }
+        if (touches_hand && na > 0) {
+            // Redundant contacts make W_a singular; a compliance of 1e-9 of its largest
+            // diagonal entry picks the least-norm impulses without changing the response.
+            const double reg = 1e-9 * wa.diagonal().cwiseAbs().maxCoeff() + 1e-300;
+            wa.diagonal().array() += reg;
+            schur += hl * wa.ldlt().solve(hr);
+            out.held_rows = na;
+        }
+    }
+    out.stiffness = -schur / (dt * dt);
+    out.x_h = d.h.x_com;
+    out.q_h = d.h.q;
+    out.v_h = d.h.v_com;
+    out.omega_h = d.h.omega;
+    Vec3 f, t;
+    coupling_wrench(m, d, f, t);
+    out.wrench << f, t;
+    out.valid = out.stiffness.allFinite() && out.wrench.allFinite();
+    if (!out.valid) throw NumericalError("the coupling model has non-finite entries");
+    return out;
+}
+
+}  // namespace hh

@@ -1,0 +1,41 @@
+// Handle-space linearization of the coupling force (Section 3; Garre & Otaduy 2009): after a
+// visual-loop step in which the handle was driven to a prescribed pose, the springs' wrench
+// on the handle as a linear function of where the handle is, with the contacts that were
+// active in the step held (normal rows of contacts that pushed, tangent rows of those that
+// stuck). The haptic loop evaluates it at 1 kHz for the proxy handle.
+#pragma once
+#include "common/types.h"
+
+namespace hh {
+
+class World;
+
+struct CouplingModel {
+    bool valid = false;
+    double time = 0;  // s, on the haptic loop's clock: when the handle was at (x_h, q_h)
+    // the handle at the end of the visual step and the velocity it was driven with
+    Vec3 x_h = Vec3::Zero();
+    Vec4 q_h = Vec4(0, 0, 0, 1);
+    Vec3 v_h = Vec3::Zero();
+    Vec3 omega_h = Vec3::Zero();
+    Vec6 wrench = Vec6::Zero();     // F_c0: springs' force and torque on the handle (N, N m)
+    Mat6 stiffness = Mat6::Zero();  // dF_c/d(dx, dtheta) (N/m, N/rad, N m/m, N m/rad)
+    int held_rows = 0;              // contact constraint rows held in the model
+
+    // F*_c at the proxy pose (x, q) at time t: the displacement is taken from the handle's
+    // motion continued at its step velocity, so a proxy moving with the hand feels F_c0.
+    Vec6 evaluate(double t, const Vec3& x, const Vec4& q) const;
+    // (dx, dtheta) of the pose (x, q) from that continued handle motion at time t.
+    Vec6 displacement(double t, const Vec3& x, const Vec4& q) const;
+};
+
+// The model after the world's last step for its hand body `hand`, whose handle must have
+// been prescribed (DeviceFrame::prescribed): with v_h the handle's step velocity, Eq. 12
+// with the held contact rows gives
+//   dF_c = -(A_s - Aht At^-1 Ath + H_l W_a^-1 H_r) dv_h / dt,
+//   H_r = J_a At^-1 Ath,  H_l = Aht At^-1 J_a^T,  W_a = J_a A^-1 J_a^T (the held rows of the
+// step's Delassus operator), and dx_h = dt dv_h. Costs no solve beyond the step's own: At^-1
+// Ath are the Schur complement's columns and At^-1 J^T the contact solve's (docs/maths.md).
+CouplingModel linearize_coupling(const World& world, int hand);
+
+}  // namespace hh

@@ -1,0 +1,44 @@
+// The proxy handle of the haptic loop (Section 3, Fig. 2 middle and bottom): a rigid body with
+// the handle's mass and inertia, pulled by the linearized coupling force F*_c of the hand and
+// by a two-way viscoelastic virtual coupling to the device frame (Colgate et al. 1995). Each
+// haptic step is one implicit (backward Euler) step of its 6 DOF, linear in the new velocity;
+// the feedback sent to the device is the virtual coupling's reaction. Fixed-size maths only:
+// a step never allocates.
+#pragma once
+#include "haptics/coupling_model.h"
+#include "coupling/springs.h"
+#include "rigid/handle.h"
+#include "sim/keyframes.h"
+
+namespace hh {
+
+struct VirtualCoupling {
+    double stiffness = 2000;           // N/m
+    double damping = 20;               // N s/m
+    double angular_stiffness = 20;     // N m/rad
+    double angular_damping = 0.2;      // N m s/rad
+};
+
+struct Feedback {
+    Vec3 force = Vec3::Zero();   // N, on the device (the user's hand)
+    Vec3 torque = Vec3::Zero();  // N m
+};
+
+class ProxyHandle {
+public:
+    double mass = 0;
+    Mat3 inertia_body = Mat3::Identity();  // about the centre of mass, body axes = world at rest
+    HandleState state;
+
+    // One step of dt ending at time t + dt. With the model off (`linearized` false), the proxy
+    // is not simulated: it sits on the model's handle pose, the last one the visual loop
+    // computed (the comparison without handle-space linearization). The hand's weight is in
+    // F_c (gravity acts on the flesh the springs hold), so no gravity acts on the proxy.
+    Feedback step(double dt, double t, const CouplingModel& model, bool linearized, const Pose& device,
+                  const VirtualCoupling& coupling);
+};
+
+// The virtual coupling's wrench on the proxy from the device (force, torque).
+Vec6 coupling_on_proxy(const HandleState& proxy, const Pose& device, const VirtualCoupling& c);
+
+}  // namespace hh

@@ -1,0 +1,321 @@
+#include "haptics/session.h"
+
+#include <sys/prctl.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstring>
+
+#include "sim/world.h"
+
+namespace hh {
+
+namespace {
+double wall_now() {
+    using namespace std::chrono;
+    return duration<double>(steady_clock::now().time_since_epoch()).count();
+}
+
+void put_pose(double* out, const Vec3& p, const Vec4& q) {
+    for (int i = 0; i < 3; ++i) out[i] = p[i];
+    for (int i = 0; i < 4; ++i) out[3 + i] = q[i];
+}
+
+Body& hand_body(World& world, int hand) {
+    if (hand < 0 || hand >= static_cast<int>(world.bodies.size()) || world.bodies[hand]->kind != BodyKind::Hand)
+        throw InvalidArgument("a haptic session needs the hand's body index");
+    return *world.bodies[hand];
+}
+
+CouplingModel resting_model(World& world, int hand) {
+    const HandleState& h = hand_body(world, hand).hand->h;
+    CouplingModel m;  // not valid: no visual step has been linearized yet
+    m.time = 0;
+    m.x_h = h.x_com;
+    m.q_h = h.q;
+    return m;
+}
+
+ProxySample first_sample(World& world, int hand) {
+    ProxySample s;
+    s.proxy = hand_body(world, hand).hand->h;
+    s.device.position = s.proxy.x_com;
+    s.device.quaternion = s.proxy.q;
+    return s;
+}
+
+Frame empty_frame(const World& world) {
+    Frame f;
+    std::size_t vertices = 0;
+    for (const auto& b : world.bodies)
+        if (b->has_surface) vertices += b->surface.n_vertices();
+    f.surfaces.assign(3 * vertices, 0.0);
+    f.poses.assign(7 * world.bodies.size(), 0.0);
+    return f;
+}
+
+void check_params(const SessionParams& p) {
+    auto nonneg = [](double v, const char* what) {
+        if (!(std::isfinite(v) && v >= 0))
+            throw InvalidArgument(std::string(what) + " must be a finite number >= 0 (got " + std::to_string(v) + ")");
+    };
+    if (!(p.haptic_rate >= 100 && p.haptic_rate <= 10000))
+        throw InvalidArgument("haptic rate " + std::to_string(p.haptic_rate) +
+                              " Hz is out of range: choose 100 to 10000 Hz (1000 is the usual)");
+    nonneg(p.coupling.stiffness, "virtual coupling stiffness");
+    nonneg(p.coupling.damping, "virtual coupling damping");
+    nonneg(p.coupling.angular_stiffness, "virtual coupling angular stiffness");
+    nonneg(p.coupling.angular_damping, "virtual coupling angular damping");
+    if (!(p.max_force > 0) || !(p.max_torque > 0))
+        throw InvalidArgument("the force and torque limits must be > 0");
+    if (p.log_capacity < 1 || p.log_capacity > (std::size_t(1) << 26))
+        throw InvalidArgument("the haptic log capacity must be 1 to 67 million rows");
+}
+}  // namespace
+
+Session::Session(World& world, int hand, const SessionParams& params)
+    : world_(world),
+      hand_(hand),
+      p_((check_params(params), params)),
+      models_(resting_model(world, hand)),
+      samples_(first_sample(world, hand)),
+      frames_(empty_frame(world)),
+      log_(params.log_capacity) {
+    Body& b = hand_body(world, hand);
+    proxy_.mass = b.hand_model->handle.mass;
+    proxy_.inertia_body = b.hand_model->handle.inertia_body;
+    proxy_.state = b.hand->h;
+    sample_ = first_sample(world, hand);
+    // Without linearization the visual loop couples the handle to the device itself, with
+    // the session's gains.
+    hh_params& mp = b.hand_model->params;
+    mp.coupling_stiffness = p_.coupling.stiffness;
+    mp.coupling_damping = p_.coupling.damping;
+    mp.coupling_angular_stiffness = p_.coupling.angular_stiffness;
+    mp.coupling_angular_damping = p_.coupling.angular_damping;
+    int offset = 0;
+    for (const auto& body : world.bodies) {
+        surface_offset_.push_back(body->has_surface ? offset : -1);
+        if (body->has_surface) offset += body->surface.n_vertices();
+    }
+    const int n_h = std::max(1, static_cast<int>(std::lround(world.settings.dt * p_.haptic_rate)));
+    dt_haptic_ = world.settings.dt / n_h;
+    t_haptic_ = world.time;
+    publish_frame();
+}
+
+Session::~Session() { stop(); }
+
+void Session::set_device(std::unique_ptr<Device> device) {
+    if (running()) throw InvalidArgument("stop the session before changing its device");
+    device_ = std::move(device);
+    external_ = dynamic_cast<ExternalDevice*>(device_.get());
+}
+
+void Session::fail(const char* message) noexcept {
+    static_assert(sizeof(message_) > 1, "message buffer");
+    bool expected = false;
+    if (!failing_.compare_exchange_strong(expected, true)) return;  // the first failure is the one reported
+    std::snprintf(message_, sizeof message_, "%s", message ? message : "unknown failure");
+    failed_.store(true, std::memory_order_release);
+}
+
+bool Session::haptic_step(double t) noexcept {
+    const double start = wall_now();
+    models_.fetch();
+    const CouplingModel& model = models_.front();
+    Pose dev;
+    if (!device_->read(t, dev)) {
+        fail(device_->error());
+        return false;
+    }
+    Feedback fb = proxy_.step(dt_haptic_, t - dt_haptic_, model, p_.linearized, dev, p_.coupling);
+    const double f_max = std::min(p_.max_force, device_->max_force);
+    const double t_max = std::min(p_.max_torque, device_->max_torque);
+    const double fn = fb.force.norm(), tn = fb.torque.norm();
+    if (!(std::isfinite(fn) && std::isfinite(tn))) {
+        fail("the haptic step produced a non-finite force: lower the virtual coupling stiffness or check the device");
+        return false;
+    }
+    if (fn > f_max) fb.force *= f_max / fn;
+    if (tn > t_max) fb.torque *= t_max / tn;
+    device_->command(fb);
+
+    ProxySample& s = samples_.back();
+    s.time = t;
+    s.proxy = proxy_.state;
+    s.device = dev;
+    s.feedback = fb;
+    samples_.publish();
+
+    LogRow row;
+    row.v[0] = t;
+    row.v[1] = live_ ? (last_tick_wall_ < 0 ? dt_haptic_ : start - last_tick_wall_) : dt_haptic_;
+    put_pose(row.v + 3, dev.position, dev.quaternion);
+    put_pose(row.v + 10, proxy_.state.x_com, proxy_.state.q);
+    for (int i = 0; i < 3; ++i) {
+        row.v[17 + i] = fb.force[i];
+        row.v[20 + i] = fb.torque[i];
+    }
+    last_tick_wall_ = start;
+    row.v[2] = wall_now() - start;
+    log_.push(row);
+    haptic_steps_.fetch_add(1, std::memory_order_release);
+    return true;
+}
+
+void Session::visual_step() {
+    if (samples_.fetch()) sample_ = samples_.front();
+    Body& b = *world_.bodies[hand_];
+    DeviceFrame& d = b.hand->device;
+    d.enabled = true;
+    if (p_.linearized) {
+        // the visual loop's handle is driven to the proxy (Section 3)
+        d.prescribed = true;
+        d.position = sample_.proxy.x_com;
+        d.quaternion = sample_.proxy.q;
+        d.velocity = sample_.proxy.v_com;
+        d.angular_velocity = sample_.proxy.omega;
+    } else {
+        // no linearization: the handle follows the device through the virtual coupling (Fig. 2 top)
+        d.prescribed = false;
+        d.position = sample_.device.position;
+        d.quaternion = sample_.device.quaternion;
+        d.velocity = sample_.device.velocity;
+        d.angular_velocity = sample_.device.angular_velocity;
+    }
+    world_.step();
+    CouplingModel& m = models_.back();
+    if (p_.linearized) {
+        m = linearize_coupling(world_, hand_);
+    } else {
+        m = CouplingModel{};
+        const HandleState& h = b.hand->h;
+        m.x_h = h.x_com;
+        m.q_h = h.q;
+        m.v_h = h.v_com;
+        m.omega_h = h.omega;
+    }
+    m.time = sample_.time;
+    models_.publish();
+    visual_steps_.fetch_add(1, std::memory_order_release);
+    publish_frame();
+}
+
+void Session::publish_frame() {
+    Frame& f = frames_.back();
+    f.time = world_.time;
+    f.visual_steps = visual_steps();
+    for (std::size_t i = 0; i < world_.bodies.size(); ++i) {
+        const Body& b = *world_.bodies[i];
+        if (surface_offset_[i] >= 0) {
+            double* out = f.surfaces.data() + 3 * surface_offset_[i];
+            for (int v = 0; v < b.surface.n_vertices(); ++v)
+                for (int k = 0; k < 3; ++k) out[3 * v + k] = b.surface.x[v][k];
+        }
+        if (b.kind == BodyKind::Rigid || b.kind == BodyKind::Kinematic || b.kind == BodyKind::Static)
+            put_pose(f.poses.data() + 7 * i, b.rigid.x_com, b.rigid.q);
+    }
+    const HandleState& h = world_.bodies[hand_]->hand->h;
+    put_pose(f.handle, h.x_com, h.q);
+    put_pose(f.proxy, sample_.proxy.x_com, sample_.proxy.q);
+    put_pose(f.device, sample_.device.position, sample_.device.quaternion);
+    for (int i = 0; i < 3; ++i) {
+        f.feedback[i] = sample_.feedback.force[i];
+        f.feedback[3 + i] = sample_.feedback.torque[i];
+    }
+    const CouplingModel& m = models_.back();  // what the visual loop just published (it keeps a copy)
+    for (int i = 0; i < 6; ++i) {
+        f.wrench[i] = m.wrench[i];
+        for (int j = 0; j < 6; ++j) f.stiffness[6 * i + j] = m.stiffness(i, j);
+    }
+    f.held_rows = m.held_rows;
+    f.contacts = world_.stats.contacts;
+    frames_.publish();
+}
+
+void Session::run_offline(int visual_steps) {
+    if (!device_) throw InvalidArgument("the session has no device: choose one before running it");
+    if (running()) throw InvalidArgument("the session is running live: stop it before stepping it offline");
+    if (failed()) throw InvalidArgument(std::string("the session has stopped: ") + message_);
+    live_ = false;
+    const int n_h = static_cast<int>(std::lround(world_.settings.dt / dt_haptic_));
+    for (int k = 0; k < visual_steps; ++k) {
+        for (int i = 0; i < n_h; ++i) {
+            t_haptic_ += dt_haptic_;
+            if (!haptic_step(t_haptic_)) throw InvalidArgument(std::string("the session stopped: ") + message_);
+        }
+        visual_step();
+    }
+}
+
+void Session::haptic_thread() noexcept {
+    // a 1 ms period needs wake-ups far finer than Linux's default 50 us timer slack
+    prctl(PR_SET_TIMERSLACK, 1000UL, 0, 0, 0);
+    using clock = std::chrono::steady_clock;
+    const auto period = std::chrono::duration_cast<clock::duration>(std::chrono::duration<double>(dt_haptic_));
+    auto next = clock::now();
+    while (!stop_.load(std::memory_order_acquire) && !failed()) {
+        next += period;
+        std::this_thread::sleep_until(next);
+        t_haptic_ += dt_haptic_;
+        if (!haptic_step(t_haptic_)) break;
+    }
+}
+
+void Session::visual_thread() noexcept {
+    try {
+        const double start = wall_now();
+        const double sim_start = world_.time;
+        while (!stop_.load(std::memory_order_acquire) && !failed()) {
+            visual_step();
+            // keep simulated time from running ahead of the wall clock
+            const double ahead = (world_.time - sim_start) - (wall_now() - start);
+            if (ahead > 0) std::this_thread::sleep_for(std::chrono::duration<double>(ahead));
+        }
+    } catch (const std::exception& e) {
+        fail((std::string("the visual loop stopped: ") + e.what()).c_str());
+    } catch (...) {
+        fail("the visual loop stopped: unknown error");
+    }
+}
+
+namespace {
+void servo_tick(void* user) {
+    auto* s = static_cast<Session*>(user);
+    s->servo_step();
+}
+}  // namespace
+
+void Session::servo_step() noexcept {
+    if (stop_.load(std::memory_order_acquire) || failed()) return;
+    t_haptic_ += dt_haptic_;
+    haptic_step(t_haptic_);
+}
+
+void Session::start() {
+    if (!device_) throw InvalidArgument("the session has no device: choose one before starting it");
+    if (running()) return;
+    if (failed()) throw InvalidArgument(std::string("the session has stopped: ") + message_);
+    live_ = true;
+    stop_.store(false, std::memory_order_release);
+    last_tick_wall_ = -1;
+    if (device_->has_servo_loop()) {
+        dt_haptic_ = 1e-3;  // the driver's servo loop runs at 1 kHz
+        device_->start_servo(&servo_tick, this);
+    } else {
+        haptic_thread_ = std::thread(&Session::haptic_thread, this);
+    }
+    visual_thread_ = std::thread(&Session::visual_thread, this);
+    running_.store(true, std::memory_order_release);
+}
+
+void Session::stop() noexcept {
+    stop_.store(true, std::memory_order_release);
+    if (haptic_thread_.joinable()) haptic_thread_.join();
+    if (device_ && device_->has_servo_loop()) device_->stop_servo();
+    if (visual_thread_.joinable()) visual_thread_.join();
+    running_.store(false, std::memory_order_release);
+}
+
+}  // namespace hh

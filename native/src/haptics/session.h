@@ -1,0 +1,132 @@
+// A haptic session: the visual loop (contact simulation of the world, handle driven to the
+// proxy, coupling model) and the haptic loop (proxy handle, virtual coupling, device), with
+// the two clocks of the ARCHITECTURE:
+//   live:    two threads paced by the wall clock (or the device driver's servo loop for the
+//            haptic side); they exchange only immutable snapshots through triple buffers;
+//   offline: the same steps in virtual time, the haptic steps in lockstep between visual
+//            steps, so a run is reproducible bit for bit.
+// The haptic step never allocates, never waits on a lock and never calls Python.
+#pragma once
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <thread>
+#include <vector>
+
+#include "device/device.h"
+#include "device/external.h"
+#include "haptics/coupling_model.h"
+#include "haptics/haptic_log.h"
+#include "haptics/proxy.h"
+#include "haptics/triple_buffer.h"
+
+namespace hh {
+
+class World;
+
+struct SessionParams {
+    double haptic_rate = 1000;  // Hz, in [100, 10000]
+    VirtualCoupling coupling;   // two-way, device <-> proxy (and device -> handle without linearization)
+    double max_force = 1e9;     // N: feedback clamp (the device's own limit applies too)
+    double max_torque = 1e9;    // N m
+    bool linearized = true;     // false: feedback from the last visual-loop handle only
+    std::size_t log_capacity = 1 << 16;  // rows (65 s at 1 kHz): the host reads them as they come
+};
+
+// What the haptic loop tells the visual loop: the proxy, where the device is.
+struct ProxySample {
+    double time = 0;
+    HandleState proxy;
+    Pose device;
+    Feedback feedback;
+};
+
+// What the visual loop shows: every body's collision-surface vertices and poses, the handle,
+// proxy, device and feedback of the step. Sized once at the start.
+struct Frame {
+    double time = 0;
+    std::uint64_t visual_steps = 0;
+    std::vector<double> surfaces;  // xyz of each body's surface vertices, bodies in order
+    std::vector<double> poses;     // 7 per body: centre and quaternion (rigid, kinematic, static)
+    double handle[7] = {0, 0, 0, 0, 0, 0, 1};
+    double proxy[7] = {0, 0, 0, 0, 0, 0, 1};
+    double device[7] = {0, 0, 0, 0, 0, 0, 1};
+    double feedback[6] = {0, 0, 0, 0, 0, 0};
+    double wrench[6] = {0, 0, 0, 0, 0, 0};  // F_c0 of the coupling model
+    double stiffness[36] = {0};              // its dF_c/d(dx, dtheta), row-major
+    int contacts = 0;
+    int held_rows = 0;
+};
+
+class Session {
+public:
+    Session(World& world, int hand, const SessionParams& params);
+    ~Session();
+    Session(const Session&) = delete;
+    Session& operator=(const Session&) = delete;
+
+    void set_device(std::unique_ptr<Device> device);
+    ExternalDevice* external_device() { return external_; }
+
+    // Offline: visual_steps visual steps, each preceded by its haptic steps, in the caller's
+    // thread. Throws InvalidArgument when the device disconnects (the state so far is kept).
+    void run_offline(int visual_steps);
+    // Live: starts the threads (returns at once); stop() joins them. Never throws from the
+    // threads: a failure ends the session and is reported by error().
+    void start();
+    void stop() noexcept;
+    bool running() const { return running_.load(std::memory_order_acquire); }
+    bool failed() const { return failed_.load(std::memory_order_acquire); }
+    const char* error() const { return failed() ? message_ : ""; }
+
+    // Host side (one consumer thread): newest frame, true when it changed since the last call.
+    bool fetch_frame() { return frames_.fetch(); }
+    const Frame& frame() const { return frames_.front(); }
+    const std::vector<int>& surface_offsets() const { return surface_offset_; }  // in vertices, per body
+    HapticLog& log() { return log_; }
+    std::uint64_t haptic_steps() const { return haptic_steps_.load(std::memory_order_acquire); }
+    std::uint64_t visual_steps() const { return visual_steps_.load(std::memory_order_acquire); }
+    const SessionParams& params() const { return p_; }
+    const ProxyHandle& proxy() const { return proxy_; }  // offline only (live: the haptic thread owns it)
+
+    // one haptic step ending at time t
+    bool haptic_step(double t) noexcept;
+    // the device driver's servo loop calls this (through a trampoline) at its own rate
+    void servo_step() noexcept;
+
+private:
+    void visual_step();
+    void publish_frame();
+    void fail(const char* message) noexcept;
+    void haptic_thread() noexcept;
+    void visual_thread() noexcept;
+
+    World& world_;
+    int hand_;
+    SessionParams p_;
+    double dt_haptic_;
+    std::unique_ptr<Device> device_;
+    ExternalDevice* external_ = nullptr;
+
+    // haptic side
+    ProxyHandle proxy_;
+    double t_haptic_ = 0;        // s: the haptic clock (virtual offline, nominal live)
+    double last_tick_wall_ = -1;
+    bool live_ = false;
+    TripleBuffer<CouplingModel> models_;   // visual -> haptic
+    TripleBuffer<ProxySample> samples_;    // haptic -> visual
+    TripleBuffer<Frame> frames_;           // visual -> host
+    HapticLog log_;
+
+    // visual side
+    ProxySample sample_;  // the latest proxy sample it saw
+    std::vector<int> surface_offset_;
+
+    std::atomic<bool> running_{false}, stop_{false}, failed_{false}, failing_{false};
+    std::atomic<std::uint64_t> haptic_steps_{0}, visual_steps_{0};
+    char message_[512] = {0};
+    std::thread haptic_thread_, visual_thread_;
+    double wall_start_ = 0;
+};
+
+}  // namespace hh
