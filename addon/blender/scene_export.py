@@ -1,0 +1,304 @@
+"""Blender scene -> the engine's scene (haptic_hand.engine.scene.Scene).
+
+Everything the engine gets is in metres, world space, as the objects stand at the first
+frame of the range; meshes are triangulated by Blender's loop triangulation, which keeps the
+vertex order, so results map back onto the same vertices. Modifiers and shape keys are not
+applied: the engine sees each object's base mesh.
+
+The export is also written as a standalone scene folder (scene.json, one .obj per mesh, one
+.npz per tet mesh, docs/scene_format.md) so the command line can replay it:
+`python -m haptic_hand simulate <folder>/scene.json --out result.npz`.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..engine import mesh as meshing
+from ..engine import native, native_world
+from ..engine import scene as scenes
+from . import meshdata
+
+
+class ExportError(ValueError):
+    """The Blender scene cannot be simulated; the message names the problem and the fix."""
+
+
+@dataclass
+class BodyLink:
+    name: str          # engine body name (the object's name)
+    obj: object        # bpy.types.Object
+    role: str          # SOFT, RIGID, MOVING, STATIC, PLANE
+    rest_matrix: np.ndarray = None
+
+
+@dataclass
+class Export:
+    scene: scenes.Scene
+    hand: object
+    hand_rest_matrix: np.ndarray
+    bodies: list = field(default_factory=list)
+    scale: float = 1.0
+    frame_start: int = 1
+    frame_end: int = 1
+    fps: float = 30.0
+    folder: Path = None
+    handle_rest_com: np.ndarray = None   # m, filled by handle_com()
+    target_rest: tuple = None            # (position m, quaternion) of the target at frame_start
+
+    def cleanup(self) -> None:
+        if self.folder is not None:
+            shutil.rmtree(self.folder, ignore_errors=True)
+            self.folder = None
+
+
+def fps(scene) -> float:
+    return scene.render.fps / scene.render.fps_base
+
+
+def _objects_with_roles(scene):
+    out = []
+    for obj in sorted(scene.objects, key=lambda o: o.name):
+        role = obj.haptic_hand.role
+        if role in ("NONE", "HAND") or obj.haptic_hand.is_tet_mesh or obj == scene.haptic_hand.hand:
+            continue
+        out.append((obj, role))
+    return out
+
+
+def check_hand(scene):
+    """The hand, its tet object and the seed, or ExportError naming what is missing."""
+    s = scene.haptic_hand
+    hand = s.hand
+    if hand is None:
+        raise ExportError("No hand mesh is chosen: pick the hand's mesh in Haptic Hand > Rig > Hand")
+    if hand.type != "MESH":
+        raise ExportError(f"The hand '{hand.name}' is not a mesh object: pick a mesh in Haptic Hand > Rig > Hand")
+    tet_obj = hand.haptic_hand.tet_object
+    if not meshdata.has_tets(tet_obj):
+        raise ExportError(f"The hand '{hand.name}' has no tet mesh: press Tetrahedralize in Haptic Hand > Rig")
+    if s.seed is None:
+        raise ExportError("No palm seed: press Place Seed in Haptic Hand > Rig (it snaps an empty into the palm)")
+    return hand, tet_obj, s.seed
+
+
+def hand_tets_world(scene):
+    """(nodes m, tets) of the hand's tet mesh, world space."""
+    _, tet_obj, _ = check_hand(scene)
+    nodes, tets = meshdata.read_tets(tet_obj)
+    return meshdata.transform(meshdata.matrix(tet_obj), nodes) * meshdata.unit_scale(scene), tets
+
+
+def seed_world(scene) -> np.ndarray:
+    s = scene.haptic_hand
+    return np.array(s.seed.matrix_world.translation, dtype=np.float64) * meshdata.unit_scale(scene)
+
+
+def check_seed(scene, nodes, tets) -> np.ndarray:
+    """The seed (m) if it lies inside the hand's tets and the handle catches a usable number
+    of nodes; else ExportError with the fix."""
+    s = scene.haptic_hand
+    seed = seed_world(scene)
+    tet_index, weights = meshing.embed_points(nodes, tets, seed[None])
+    if weights.min() < -1e-9:
+        # distance outside the nearest tet, for the message
+        corners = nodes[tets[tet_index[0]]]
+        gap = np.linalg.norm(seed - corners.mean(axis=0)) - np.linalg.norm(corners - corners.mean(0), axis=1).max()
+        raise ExportError(
+            f"The palm seed '{s.seed.name}' is outside the hand's tet mesh (about {max(gap, 0) * 1000:.0f} mm out): "
+            "move it inside the palm, or press Place Seed to snap it in")
+    count = native.count_captured(nodes, seed, s.handle_radius)
+    if count < 4:
+        raise ExportError(f"The handle sphere (radius {s.handle_radius * 1000:.1f} mm) captures {count} tet nodes; "
+                          "a rigid handle needs at least 4: increase Handle radius or move the seed")
+    if count >= len(nodes):
+        raise ExportError(f"The handle sphere (radius {s.handle_radius * 1000:.1f} mm) captures all {count} tet "
+                          "nodes, leaving no flesh: decrease Handle radius")
+    return seed
+
+
+def _write_obj(folder: Path, name: str, v: np.ndarray, f: np.ndarray) -> str:
+    fname = f"{_safe(name)}.obj"
+    meshing.save_obj(folder / fname, v, f)
+    return fname
+
+
+def _write_tets(folder: Path, name: str, nodes: np.ndarray, tets: np.ndarray) -> str:
+    fname = f"{_safe(name)}_tets.npz"
+    np.savez(folder / fname, nodes=nodes, tets=tets)
+    return fname
+
+
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
+
+
+def _relative_motion(m_t: np.ndarray, m_0: np.ndarray) -> np.ndarray:
+    """The rigid motion taking the frame at m_0 to m_t (scale removed), as a 4x4 matrix."""
+    def unscaled(m):
+        r = m[:3, :3] / np.linalg.norm(m[:3, :3], axis=0)
+        out = np.eye(4)
+        out[:3, :3], out[:3, 3] = r, m[:3, 3]
+        return out
+    return unscaled(m_t) @ np.linalg.inv(unscaled(m_0))
+
+
+def _kinematic_centre(v: np.ndarray, f: np.ndarray, kind: int = native_world.KINEMATIC) -> np.ndarray:
+    """Where the engine puts a mesh body's centre (its pose origin), asked from the engine."""
+    world = native_world.World()
+    index = world.add_mesh_body(kind, v, f)
+    return np.array(world.pose(index)[0])
+
+
+def export(context, frame_start: int | None = None, frame_end: int | None = None) -> Export:
+    """The engine scene of the Blender scene over [frame_start, frame_end] (default: the bake
+    range). Leaves the Blender scene as it was (the current frame is restored)."""
+    bscene = context.scene
+    s = bscene.haptic_hand
+    f0 = s.bake_frame_start if frame_start is None else int(frame_start)
+    f1 = s.bake_frame_end if frame_end is None else int(frame_end)
+    if f1 <= f0:
+        raise ExportError(f"The frame range {f0}-{f1} is empty: set End after Start in Haptic Hand > Bake")
+    rate = fps(bscene)
+    if 1.0 / rate > 0.1:
+        raise ExportError(f"The frame rate {rate:g} fps gives steps longer than 0.1 s: raise the scene's frame rate")
+    scale = meshdata.unit_scale(bscene)
+    hand, tet_obj, seed_obj = check_hand(bscene)
+    if hand.data.shape_keys is not None and not hand.haptic_hand.baked:
+        raise ExportError(f"The hand '{hand.name}' has shape keys: the engine uses the base mesh; remove them "
+                          "(Object Data > Shape Keys) or apply them first")
+    folder = Path(tempfile.mkdtemp(prefix="haptic_hand_scene_"))
+    current = bscene.frame_current
+    try:
+        bscene.frame_set(f0)
+        out = _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, folder)
+    except Exception:
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
+    finally:
+        bscene.frame_set(current)
+    return out
+
+
+def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, folder) -> Export:
+    nodes, tets = meshdata.read_tets(tet_obj)
+    nodes = meshdata.transform(meshdata.matrix(tet_obj), nodes) * scale
+    surface = meshdata.world_vertices(hand, bscene)
+    faces = meshdata.triangles(hand.data)
+    try:
+        meshing.check_closed_surface(surface, faces)
+    except meshing.MeshError as e:
+        raise ExportError(f"The hand '{hand.name}': {e}") from None
+    seed = check_seed(bscene, nodes, tets)
+
+    data = {
+        "format": scenes.FORMAT,
+        "hand": {"mesh": _write_obj(folder, "hand", surface, faces),
+                 "tets": _write_tets(folder, "hand", nodes, tets),
+                 "palm_seed": seed.tolist(), "handle_radius": s.handle_radius, "friction": s.friction,
+                 "self_collision": s.self_collision},
+        "material": {"young_modulus": s.young_modulus, "poisson_ratio": s.poisson_ratio, "density": s.density,
+                     "rayleigh_alpha": 0.0, "rayleigh_beta": s.rayleigh_beta},
+        "springs": {"stiffness": s.spring_stiffness, "damping": s.spring_damping},
+        "coupling": {"stiffness": s.coupling_stiffness, "damping": s.coupling_damping,
+                     "angular_stiffness": s.angular_stiffness, "angular_damping": s.angular_damping},
+        "contact": {"thickness": s.contact_thickness},
+        "dt": 1.0 / rate,
+        "frames": f1 - f0,
+        "gravity": list(bscene.gravity) if bscene.use_gravity else [0.0, 0.0, 0.0],
+        "bodies": [],
+    }
+    links, moving = [], []
+    for obj, role in _objects_with_roles(bscene):
+        o = obj.haptic_hand
+        link = BodyLink(obj.name, obj, role, meshdata.matrix(obj))
+        if role == "PLANE":
+            m = link.rest_matrix
+            normal = m[:3, 2] / np.linalg.norm(m[:3, 2])
+            data["bodies"].append({"name": obj.name, "type": "plane", "point": (m[:3, 3] * scale).tolist(),
+                                   "normal": normal.tolist(), "friction": o.friction})
+            links.append(link)
+            continue
+        if obj.type != "MESH":
+            raise ExportError(f"'{obj.name}' is marked as {role.lower()} but is not a mesh: mark a mesh object, "
+                              "or set its role to None")
+        v, f = meshdata.world_vertices(obj, bscene), meshdata.triangles(obj.data)
+        if len(f) == 0:
+            raise ExportError(f"'{obj.name}' has no faces: give it a closed mesh or set its role to None")
+        spec = {"name": obj.name, "mesh": _write_obj(folder, obj.name, v, f), "friction": o.friction}
+        if role == "SOFT":
+            if obj.data.shape_keys is not None and not o.baked:
+                raise ExportError(f"The soft body '{obj.name}' has shape keys: remove or apply them first")
+            if not meshdata.has_tets(o.tet_object):
+                raise ExportError(f"The soft body '{obj.name}' has no tet mesh: select it and press Tetrahedralize")
+            bn, bt = meshdata.read_tets(o.tet_object)
+            bn = meshdata.transform(meshdata.matrix(o.tet_object), bn) * scale
+            spec.update(type="soft", tets=_write_tets(folder, obj.name, bn, bt),
+                        material={"young_modulus": o.young_modulus, "poisson_ratio": o.poisson_ratio,
+                                  "density": o.density, "rayleigh_alpha": 0.0, "rayleigh_beta": o.rayleigh_beta},
+                        fixed="bottom" if o.fix_bottom else None)
+        elif role == "RIGID":
+            spec.update(type="rigid", density=o.density)
+        elif role == "STATIC":
+            spec.update(type="static")
+        elif role == "MOVING":
+            spec.update(type="kinematic")
+            moving.append((spec, link, _kinematic_centre(v, f)))
+        data["bodies"].append(spec)
+        links.append(link)
+
+    # Sample the animated target and moving colliders at every frame of the range.
+    target = s.target
+    frames = list(range(f0, f1 + 1))
+    times = [(f - f0) / rate for f in frames]
+    target_m, moving_m = [], [[] for _ in moving]
+    for f in frames:
+        if target is not None or moving:
+            bscene.frame_set(f)
+        if target is not None:
+            target_m.append(meshdata.matrix(target))
+        for i, (_, link, _) in enumerate(moving):
+            moving_m[i].append(meshdata.matrix(link.obj))
+    bscene.frame_set(f0)
+    trajectory, target_rest = [], None
+    if target is not None:
+        m0 = target_m[0]
+        target_rest = (m0[:3, 3] * scale, meshdata.quaternion_xyzs(m0))
+        for t, m in zip(times, target_m):
+            rel = _relative_motion(m, m0)
+            trajectory.append({"t": t, "position": ((m[:3, 3] - m0[:3, 3]) * scale).tolist(),
+                               "quaternion": meshdata.quaternion_xyzs(rel).tolist()})
+    else:
+        trajectory.append({"t": 0.0, "position": [0.0, 0.0, 0.0], "quaternion": [0.0, 0.0, 0.0, 1.0]})
+    data["device"] = {"enabled": True, "frame": "handle_rest", "trajectory": trajectory}
+    for (spec, link, c0), mats in zip(moving, moving_m):
+        points = []
+        for t, m in zip(times, mats):
+            rel = _relative_motion(m, mats[0])
+            c = meshdata.transform(rel, (c0 / scale)[None])[0] * scale
+            points.append({"t": t, "position": (c - c0).tolist(), "quaternion": meshdata.quaternion_xyzs(rel).tolist()})
+        spec["trajectory"] = points
+
+    (folder / "scene.json").write_text(json.dumps(data, indent=1))
+    try:
+        engine_scene = scenes.from_dict(data, folder)
+    except scenes.SceneError as e:
+        raise ExportError(str(e)) from None
+    engine_scene.surface_vertices, engine_scene.surface_faces = surface, faces
+    engine_scene.nodes, engine_scene.tets = nodes, tets
+    return Export(engine_scene, hand, meshdata.matrix(hand), links, scale, f0, f1, rate, folder,
+                  target_rest=target_rest)
+
+
+def handle_com(export: Export) -> np.ndarray:
+    """The handle's rest centre of mass (m), as the engine computes it."""
+    if export.handle_rest_com is None:
+        model = scenes.build_model(export.scene)
+        export.handle_rest_com = np.array(model.info()["handle_com"])
+    return export.handle_rest_com

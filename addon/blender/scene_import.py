@@ -1,0 +1,210 @@
+"""The engine's JSON scene (docs/scene_format.md) -> Blender objects, with the add-on's settings
+filled in: the hand and its stored tets, the palm seed, a target empty keyed along the device
+trajectory, and the bodies (soft ones with their tets, moving ones keyed along their scripts).
+
+The sample scenes of blender_scenes/ are built by this; File > Import > Haptic Hand Scene uses
+it too. The Blender scene is in metres (unit scale 1) at the frame rate 1 / dt.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from ..engine import bodies as bodies_module
+from ..engine import scene as scenes
+from . import meshdata, ops_rig, scene_export
+
+
+class ImportError_(ValueError):
+    """A scene that cannot be brought into Blender; the message names the problem and fix."""
+
+
+def _link(context, obj):
+    context.scene.collection.objects.link(obj)
+    return obj
+
+
+def _fcurves_of(obj):
+    """The fcurves of obj's action (a new action if it has none)."""
+    from . import ops_bake
+
+    ad = obj.animation_data
+    if ad is None or ad.action is None:
+        return ops_bake._new_action(obj, f"{obj.name} motion")[1]
+    if hasattr(ad.action, "slots"):
+        from bpy_extras import anim_utils
+
+        return anim_utils.action_ensure_channelbag_for_slot(ad.action, ad.action_slot).fcurves
+    return ad.action.fcurves
+
+
+def _keyed_motion(obj, start_location, points, rate: float, frame_start: int) -> None:
+    """Key obj's location (start + offset) and quaternion at the trajectory's times."""
+    from . import ops_bake
+
+    obj.rotation_mode = "QUATERNION"
+    frames = [frame_start + float(p.get("t", 0.0)) * rate for p in points]
+    pos = np.array([p.get("position", [0, 0, 0]) for p in points], dtype=float) + start_location
+    quat = np.array([p.get("quaternion", [0, 0, 0, 1]) for p in points], dtype=float)
+    quat /= np.linalg.norm(quat, axis=1)[:, None]
+    fcurves = _fcurves_of(obj)
+    for i in range(3):
+        ops_bake._fcurve(fcurves, "location", i, frames, pos[:, i])
+    wxyz = quat[:, [3, 0, 1, 2]]
+    for i in range(4):
+        ops_bake._fcurve(fcurves, "rotation_quaternion", i, frames, wxyz[:, i])
+
+
+def build(context, path, frame_start: int = 1) -> dict:
+    """Add the scene at path to the current Blender scene; returns the objects by engine name
+    ('hand', 'seed', 'target', and each body's name)."""
+    path = Path(path)
+    scene = scenes.load(path)
+    data = scene.data
+    if data["device"]["frame"] != "handle_rest":
+        raise ImportError_("Only device.frame 'handle_rest' scenes can be imported: the target empty's motion "
+                           "is relative to where it starts")
+    bscene = context.scene
+    s = bscene.haptic_hand
+    rate = 1.0 / scene.dt
+    bscene.unit_settings.system = "METRIC"
+    bscene.unit_settings.scale_length = 1.0
+    bscene.render.fps = int(round(rate))
+    bscene.render.fps_base = round(rate) / rate
+    bscene.frame_start, bscene.frame_end = frame_start, frame_start + scene.frames
+    s.bake_frame_start, s.bake_frame_end = frame_start, frame_start + scene.frames
+    bscene.use_gravity = True
+    bscene.gravity = data["gravity"]
+    hand, m, sp, c = data["hand"], data["material"], data["springs"], data["coupling"]
+    s.young_modulus, s.poisson_ratio, s.density = m["young_modulus"], m["poisson_ratio"], m["density"]
+    s.rayleigh_beta = m["rayleigh_beta"]
+    s.spring_stiffness, s.spring_damping = sp["stiffness"], sp["damping"]
+    s.coupling_stiffness, s.coupling_damping = c["stiffness"], c["damping"]
+    s.angular_stiffness, s.angular_damping = c["angular_stiffness"], c["angular_damping"]
+    s.contact_thickness, s.friction, s.self_collision = data["contact"]["thickness"], hand["friction"], \
+        hand["self_collision"]
+    t = hand["tetrahedralize"]
+    s.edge_length_fac, s.coarsen, s.epsilon = t["edge_length_fac"], t["coarsen"], t["epsilon"]
+    s.time_step = scene.dt
+
+    scenes.load_hand_geometry(scene)
+    objects = {}
+    hand_obj = _link(context, bpy.data.objects.new("Hand", meshdata.new_mesh("Hand", scene.surface_vertices,
+                                                                            scene.surface_faces)))
+    hand_obj.haptic_hand.role = "HAND"
+    ops_rig.make_tet_object(context, hand_obj, scene.nodes, scene.tets)
+    s.hand = hand_obj
+    seed = _link(context, bpy.data.objects.new(ops_rig.SEED_NAME, None))
+    seed.empty_display_type = "SPHERE"
+    seed.parent = hand_obj
+    seed.location = scene.palm_seed()
+    s.seed = seed
+    s.handle_radius = hand["handle_radius"]
+    objects.update(hand=hand_obj, seed=seed)
+
+    target = _link(context, bpy.data.objects.new("Device target", None))
+    target.empty_display_type = "ARROWS"
+    target.empty_display_size = 0.03
+    _keyed_motion(target, scene.palm_seed(), data["device"]["trajectory"], rate, frame_start)
+    s.target = target
+    s.device = "SIMULATED"
+    objects["target"] = target
+
+    for spec in scene.bodies:
+        objects[spec["name"]] = _add_body(context, spec, rate, frame_start)
+    context.view_layer.update()
+    ops_rig.update_captured(bscene)
+    return objects
+
+
+def _add_body(context, spec: dict, rate: float, frame_start: int):
+    name, kind = spec["name"], spec["type"]
+    if kind == "plane":
+        size = 0.6
+        me = meshdata.new_mesh(name, np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]) * size / 2,
+                               [[0, 1, 2, 3]])
+        obj = _link(context, bpy.data.objects.new(name, me))
+        normal = np.asarray(spec["normal"], float)
+        normal /= np.linalg.norm(normal)
+        import mathutils
+
+        obj.rotation_mode = "QUATERNION"
+        obj.rotation_quaternion = mathutils.Vector((0, 0, 1)).rotation_difference(mathutils.Vector(normal))
+        obj.location = spec["point"]
+        obj.haptic_hand.role = "PLANE"
+        obj.haptic_hand.friction = spec["friction"]
+        return obj
+    body = bodies_module.prepare(spec)
+    position = np.asarray(spec["position"], dtype=float)
+    if kind == "kinematic":
+        # origin at the engine's centre of the body, so Blender turns it about the same point
+        position = scene_export._kinematic_centre(body.vertices, body.faces)
+    obj = _link(context, bpy.data.objects.new(name, meshdata.new_mesh(name, body.vertices - position, body.faces)))
+    obj.location = position
+    o = obj.haptic_hand
+    o.friction = spec["friction"]
+    if kind == "soft":
+        o.role = "SOFT"
+        mat = spec["material"]
+        o.young_modulus, o.poisson_ratio, o.density = mat["young_modulus"], mat["poisson_ratio"], mat["density"]
+        o.rayleigh_beta = mat["rayleigh_beta"]
+        o.fix_bottom = spec["fixed"] == "bottom"
+        ops_rig.make_tet_object(context, obj, body.nodes - position, body.tets)
+    elif kind == "kinematic":
+        o.role = "MOVING"
+        _keyed_motion(obj, position, spec["trajectory"] or [{"t": 0.0}], rate, frame_start)
+    elif kind == "rigid":
+        o.role, o.density = "RIGID", spec["density"]
+    else:
+        o.role = "STATIC"
+    return obj
+
+
+class HAPTIC_HAND_OT_import_scene(bpy.types.Operator):
+    """Import a Haptic Hand scene (.json): the hand rig, the bodies and the device trajectory"""
+
+    bl_idname = "haptic_hand.import_scene"
+    bl_label = "Import Haptic Hand Scene"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: bpy.props.StringProperty(subtype="FILE_PATH")
+    filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"})
+
+    def invoke(self, context, event):
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        from ..engine import mesh as meshing
+
+        if context.scene.haptic_hand.hand is not None:
+            self.report({"ERROR"}, "This scene already has a hand: import into a new scene (Scene > New)")
+            return {"CANCELLED"}
+        try:
+            build(context, self.filepath)
+        except (scenes.SceneError, meshing.MeshError, bodies_module.BodyError, ImportError_, OSError) as e:
+            self.report({"ERROR"}, f"Cannot import {self.filepath}: {e}")
+            return {"CANCELLED"}
+        return {"FINISHED"}
+
+
+def _menu(self, context):
+    self.layout.operator(HAPTIC_HAND_OT_import_scene.bl_idname, text="Haptic Hand Scene (.json)")
+
+
+classes = (HAPTIC_HAND_OT_import_scene,)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.TOPBAR_MT_file_import.append(_menu)
+
+
+def unregister():
+    bpy.types.TOPBAR_MT_file_import.remove(_menu)
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
