@@ -72,7 +72,7 @@ def _objects_with_roles(scene):
     return out
 
 
-def check_hand(scene):
+def check_hand(scene, need_seed: bool = True):
     """The hand, its tet object and the seed, or ExportError naming what is missing."""
     s = scene.haptic_hand
     hand = s.hand
@@ -83,14 +83,14 @@ def check_hand(scene):
     tet_obj = hand.haptic_hand.tet_object
     if not meshdata.has_tets(tet_obj):
         raise ExportError(f"The hand '{hand.name}' has no tet mesh: press Tetrahedralize in Haptic Hand > Rig")
-    if s.seed is None:
+    if need_seed and s.seed is None:
         raise ExportError("No palm seed: press Place Seed in Haptic Hand > Rig (it snaps an empty into the palm)")
     return hand, tet_obj, s.seed
 
 
 def hand_tets_world(scene):
     """(nodes m, tets) of the hand's tet mesh, world space."""
-    _, tet_obj, _ = check_hand(scene)
+    _, tet_obj, _ = check_hand(scene, need_seed=False)
     nodes, tets = meshdata.read_tets(tet_obj)
     return meshdata.transform(meshdata.matrix(tet_obj), nodes) * meshdata.unit_scale(scene), tets
 

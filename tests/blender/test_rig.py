@@ -1,0 +1,138 @@
+"""Authoring the rig: tetrahedralize from the operator, the captured-node count, bad input."""
+
+import bpy
+import numpy as np
+import pytest
+
+from haptic_hand.blender import meshdata, scene_export
+from haptic_hand.engine import mesh as meshing
+from haptic_hand.engine import native
+
+from conftest import SAMPLES
+
+
+def add_mesh(context, name, vertices, faces, location=(0.0, 0.0, 0.0)):
+    obj = bpy.data.objects.new(name, meshdata.new_mesh(name, vertices, faces))
+    context.scene.collection.objects.link(obj)
+    obj.location = location
+    context.view_layer.objects.active = obj
+    obj.select_set(True)
+    context.view_layer.update()
+    return obj
+
+
+def test_tetrahedralize_procedural_hand_encloses_render_mesh(addon):
+    context = addon
+    s = context.scene.haptic_hand
+    v, f = meshing.procedural_hand()
+    # an object away from the origin: tets must come back in its own coordinates
+    hand = add_mesh(context, "Hand", v, f, location=(0.3, -0.2, 0.1))
+    s.edge_length_fac, s.coarsen, s.epsilon = 0.2, True, 0.004
+    assert bpy.ops.haptic_hand.use_as_hand() == {"FINISHED"}
+    assert bpy.ops.haptic_hand.tetrahedralize() == {"FINISHED"}
+
+    tet_obj = hand.haptic_hand.tet_object
+    assert tet_obj is not None and tet_obj.parent == hand and tet_obj.haptic_hand.is_tet_mesh
+    nodes, tets = scene_export.hand_tets_world(context.scene)
+    render = meshdata.world_vertices(hand, context.scene)
+    assert meshing.tet_signed_volumes(nodes, tets).min() > 0.0, "every tet positively oriented"
+    assert len(np.unique(tets)) == len(nodes), "every node belongs to a tet"
+
+    # The tet boundary encloses the render surface up to fTetWild's envelope (epsilon times
+    # the bounding-box diagonal): points 2 envelopes inside the surface are inside the tets,
+    # points 2 envelopes outside are outside.
+    envelope = s.epsilon * np.linalg.norm(render.max(0) - render.min(0))
+    normals = np.empty(len(render) * 3, dtype=np.float32)
+    hand.data.vertex_normals.foreach_get("vector", normals)
+    normals = normals.reshape(-1, 3).astype(float)
+    boundary = meshing.tet_boundary_faces(tets)
+    inner = meshing.winding_numbers(nodes, boundary, render - 2 * envelope * normals)
+    outer = meshing.winding_numbers(nodes, boundary, render + 2 * envelope * normals)
+    assert (inner > 0.5).mean() > 0.995, f"{(inner <= 0.5).sum()} points just inside the skin are outside the tets"
+    assert (outer < 0.5).mean() > 0.995, f"{(outer >= 0.5).sum()} points just outside the skin are inside the tets"
+    # the tets fill the same volume as the render surface, to the envelope's share
+    volume = meshing.tet_signed_volumes(nodes, tets).sum()
+    area = 0.5 * np.linalg.norm(np.cross(render[f[:, 1]] - render[f[:, 0]], render[f[:, 2]] - render[f[:, 0]]),
+                                axis=1).sum()
+    assert abs(volume - meshing.surface_volume(render, f)) < area * envelope
+
+    # the render mesh is embedded in the tets: the weights give back every vertex
+    tet_index, weights = meshing.embed_points(nodes, tets, render)
+    assert np.abs(meshing.interpolate_embedded(nodes, tets, tet_index, weights) - render).max() < 1e-9
+
+
+def test_captured_count_follows_radius(addon):
+    from haptic_hand.blender import scene_import
+
+    context = addon
+    scene_import.build(context, SAMPLES / "hand_wave.json")
+    s = context.scene.haptic_hand
+    stored = np.load(SAMPLES / "procedural_hand_tets.npz")["nodes"]
+    seed = meshing.procedural_hand_palm_seed()
+    counts = []
+    for radius in (0.015, 0.025, 0.035, 0.045):
+        s.handle_radius = radius  # the property's update callback recounts
+        # independent count: nodes within the radius, by distance (Blender keeps float32)
+        expected = int((np.linalg.norm(stored.astype(np.float32) - seed, axis=1) <= radius).sum())
+        assert s.captured_nodes == expected
+        assert s.seed.empty_display_size == pytest.approx(radius)  # the drawn sphere follows
+        counts.append(s.captured_nodes)
+    assert all(a < b for a, b in zip(counts, counts[1:])), counts
+    # and the handle the engine builds captures exactly those nodes
+    s.handle_radius = 0.035
+    export = scene_export.export(context)
+    try:
+        model = native.HandModel(export.scene.nodes, export.scene.tets, **export.scene.engine_params())
+        assert model.info()["n_handle_nodes"] == counts[2]
+    finally:
+        export.cleanup()
+
+
+def _state(context):
+    """What an operator that fails must leave unchanged."""
+    return (sorted(o.name for o in bpy.data.objects), sorted(m.name for m in bpy.data.meshes),
+            sorted(a.name for a in bpy.data.actions), context.scene.frame_current,
+            {o.name: tuple(o.matrix_world.translation) for o in bpy.data.objects},
+            {o.name: (o.data.shape_keys is not None) for o in bpy.data.objects if o.type == "MESH"})
+
+
+def test_non_manifold_mesh_is_refused_and_scene_untouched(addon):
+    context = addon
+    # two closed tetrahedra sharing one edge: no hole, but that edge has four faces
+    v = np.array([[0, 0, 0], [0.05, 0, 0], [0.02, 0.05, 0], [0.02, 0.02, 0.05],
+                  [0.02, -0.05, 0], [0.02, -0.02, -0.05]], dtype=float)
+    f = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2],
+                  [0, 1, 4], [0, 5, 1], [1, 5, 4], [0, 4, 5]])
+    add_mesh(context, "Bowtie", v, f)
+    before = _state(context)
+    with pytest.raises(RuntimeError) as info:
+        bpy.ops.haptic_hand.tetrahedralize()
+    message = str(info.value)
+    assert "non-manifold" in message and "Bowtie" in message
+    assert "Select All by Trait" in message  # says how to fix it in Blender
+    assert _state(context) == before
+
+
+def test_seed_outside_hand_is_refused_and_scene_untouched(addon, built_scenes, tmp_path):
+    from conftest import open_copy
+
+    context = open_copy(built_scenes("hand_wave"), tmp_path)
+    s = context.scene.haptic_hand
+    s.bake_frame_end = s.bake_frame_start + 3
+    s.seed.matrix_world.translation = (0.5, 0.5, 0.5)  # far outside the hand
+    context.view_layer.update()
+    before = _state(context)
+    with pytest.raises(RuntimeError) as info:
+        bpy.ops.haptic_hand.bake()
+    assert "palm seed" in str(info.value) and "outside the hand" in str(info.value)
+    assert "Place Seed" in str(info.value)
+    assert _state(context) == before and not s.baked
+    assert not (tmp_path / "hand_wave_haptic").exists()
+
+    # Place Seed snaps a seed from outside back into the hand's tets
+    context.scene.cursor.location = (0.5, 0.5, 0.5)
+    assert bpy.ops.haptic_hand.place_seed() == {"FINISHED"}
+    nodes, tets = scene_export.hand_tets_world(context.scene)
+    seed = np.array(s.seed.matrix_world.translation)
+    assert meshing.embed_points(nodes, tets, seed[None])[1].min() >= -1e-9
+    assert s.captured_nodes == native.count_captured(nodes, seed, s.handle_radius)
