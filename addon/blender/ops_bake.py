@@ -103,7 +103,14 @@ def prepare(context) -> BakeJob:
     export = scene_export.export(context)
     if s.device == "PLAYBACK":
         try:
-            _use_recording(export, bpy.path.abspath(s.device_file))
+            path = bpy.path.abspath(s.device_file)
+            if "haptics" in export.scene.data and export.scene.data["haptics"]["enabled"]:
+                if not path or not Path(path).is_file():
+                    raise BakeError(f"The recording '{path}' does not exist: choose a recording in Haptic Hand > "
+                                    "Device")
+                export.scene.data["haptics"]["device"] = f"playback:{path}"
+            else:
+                _use_recording(export, path)
         except Exception:
             export.cleanup()
             raise

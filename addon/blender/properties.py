@@ -140,6 +140,11 @@ class HapticSceneSettings(bpy.types.PropertyGroup):
     device_file: StringProperty(name="Recording", subtype="FILE_PATH",
                                 description="Haptic log (.npz) to play back")
     hid_device: EnumProperty(name="HID device", items=_hid_items)
+    haptic_loop: BoolProperty(name="Haptic loop in bakes", default=True,
+                              description="Bakes run the haptic loop (proxy handle, simulated arm) in lockstep "
+                                          "and log every haptic step; off: the device drives the handle directly")
+    haptic_rate: FloatProperty(name="Haptic rate", default=1000.0, min=100.0, max=10000.0,
+                               description="Haptic-loop rate (Hz)")
     target: PointerProperty(name="Target", type=bpy.types.Object, poll=_is_empty,
                             description="Empty that stands for the device: its motion since the first "
                                         "frame moves the handle")

@@ -277,6 +277,8 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
     else:
         trajectory.append({"t": 0.0, "position": [0.0, 0.0, 0.0], "quaternion": [0.0, 0.0, 0.0, 1.0]})
     data["device"] = {"enabled": True, "frame": "handle_rest", "trajectory": trajectory}
+    if "haptics" in scenes.DEFAULTS:  # engines with a haptic loop
+        data["haptics"] = {"enabled": bool(s.haptic_loop), "rate": float(s.haptic_rate), "device": "simulated"}
     for (spec, link, c0), mats in zip(moving, moving_m):
         points = []
         for t, m in zip(times, mats):
