@@ -8,7 +8,7 @@ LIB := $(BUILD)/libhaptic_hand.so
 NATIVE_SOURCES := $(shell find native -name '*.cpp' -o -name '*.h' -o -name CMakeLists.txt)
 OUT := out
 
-.PHONY: all deps venv native test test-native test-python test-sanitize demo bench clean
+.PHONY: all deps venv native test test-native test-python test-sanitize demo bench clean addon
 all: native
 
 deps: $(BUILD)/.deps
@@ -45,6 +45,12 @@ test: test-native test-python
 
 demo: native venv
 	$(PY) -m haptic_hand demo --out $(OUT)/demo
+	$(PY) blender_scenes/demo.py --out $(OUT)/demo
+
+# The Blender extension zip (out/haptic_hand-<version>.zip, about 210 MB with its wheels;
+# `$(PY) scripts/build_addon.py --no-wheels` makes a small one without them).
+addon: native venv
+	$(PY) scripts/build_addon.py --out $(OUT)
 
 bench: native venv
 	$(PY) bench/bench_step.py

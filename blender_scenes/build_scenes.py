@@ -1,0 +1,43 @@
+"""Build the sample .blend scenes from the engine's sample scenes (procedural hand with its
+stored tets, procedural bunny and letters, boxes): hand + soft bunny on the ground, hand +
+soft letters, fingers squeezed between two moving pads.
+
+    .venv/bin/python blender_scenes/build_scenes.py [bunny letters fingers] [--out DIR]
+
+Writes DIR/<name>.blend (default DIR: blender_scenes/). The bunny's coarse tets are made by
+pytetwild when the scene is built (not deterministic) and stored in the .blend, so every bake
+of one .blend gives the same result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import common  # noqa: E402
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("names", nargs="*", help=f"scenes to build: {', '.join(common.SCENES)} (default: all)")
+    parser.add_argument("--out", default=str(pathlib.Path(__file__).resolve().parent))
+    args = parser.parse_args(argv)
+    unknown = [n for n in args.names if n not in common.SCENES]
+    if unknown:
+        parser.error(f"unknown scene(s) {', '.join(unknown)}: choose from {', '.join(common.SCENES)}")
+    haptic_hand = common.import_addon()
+    haptic_hand.register()
+    try:
+        for name in args.names or common.SCENES:
+            path = pathlib.Path(args.out) / f"{name}.blend"
+            common.build(name, path)
+            print(f"{name}: {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    finally:
+        haptic_hand.unregister()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
