@@ -28,6 +28,10 @@ extern "C" {
 
 #define HH_SOLVER_CHOLESKY 0 /* sparse Cholesky of At, factored once per step, 8 solves */
 #define HH_SOLVER_CG 1       /* Jacobi-preconditioned conjugate gradient, warm started */
+/* The factor of an earlier step's At, rotated by each node's rotation since, preconditions CG
+ * (warm started, relative residual min(cg_tolerance, 1e-10)); renewed when that lowers the
+ * mean cost per step. For large meshes (docs/maths.md, "Schur-complement solve"). */
+#define HH_SOLVER_REUSED_CHOLESKY 2
 
 #define HH_API_VERSION 1
 
@@ -56,7 +60,7 @@ typedef struct hh_params {
     /* integration */
     double gravity[3];        /* m/s^2 */
     double dt;                /* s, in (0, 0.1] */
-    int solver;               /* HH_SOLVER_CHOLESKY or HH_SOLVER_CG */
+    int solver;               /* HH_SOLVER_CHOLESKY, HH_SOLVER_CG or HH_SOLVER_REUSED_CHOLESKY */
     double cg_tolerance;      /* relative residual for CG, in (0, 1) */
     int cg_max_iterations;    /* > 0 */
 } hh_params;

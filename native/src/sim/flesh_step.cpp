@@ -31,6 +31,7 @@ void formulate_flesh(const Flesh& flesh, FleshState& state, double dt, const Vec
                                dt * (state.f_elastic.segment<3>(3 * i) + flesh.masses[i] * gravity);
     }
     tool.matrix_changed();
+    tool.set_element_rotations(flesh.mesh.tets, state.rotations.r);  // for a reused factor's warp
 }
 
 }  // namespace hh

@@ -59,8 +59,8 @@ void validate_params(const hh_params& p) {
     require(p.dt <= 0.1, describe("dt", p.dt,
                                   "at most 0.1 s: the linearized implicit step loses accuracy beyond "
                                   "that; the visual loop needs 1/30 s or less"));
-    require(p.solver == HH_SOLVER_CHOLESKY || p.solver == HH_SOLVER_CG,
-            describe("solver", p.solver, "HH_SOLVER_CHOLESKY (0) or HH_SOLVER_CG (1)"));
+    require(p.solver == HH_SOLVER_CHOLESKY || p.solver == HH_SOLVER_CG || p.solver == HH_SOLVER_REUSED_CHOLESKY,
+            describe("solver", p.solver, "HH_SOLVER_CHOLESKY (0), HH_SOLVER_CG (1) or HH_SOLVER_REUSED_CHOLESKY (2)"));
     require(std::isfinite(p.cg_tolerance) && p.cg_tolerance > 0 && p.cg_tolerance < 1,
             describe("cg_tolerance", p.cg_tolerance, "in (0, 1), e.g. 1e-8"));
     require(p.cg_max_iterations > 0, describe("cg_max_iterations", p.cg_max_iterations, "positive"));

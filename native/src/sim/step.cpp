@@ -28,7 +28,9 @@ void reset(const Model& model, Data& data) {
 
 void configure_solver(const Model& model, Data& data) {
     const hh_params& p = model.params;
-    data.tool.configure(p.solver == HH_SOLVER_CG ? DeformableSolver::ConjugateGradient : DeformableSolver::Cholesky,
+    data.tool.configure(p.solver == HH_SOLVER_CG                  ? DeformableSolver::ConjugateGradient
+                        : p.solver == HH_SOLVER_REUSED_CHOLESKY ? DeformableSolver::ReusedCholesky
+                                                                : DeformableSolver::Cholesky,
                         p.cg_tolerance, p.cg_max_iterations);
 }
 

@@ -58,6 +58,8 @@ void BlockLDLT::analyze(const SpMat& a) {
                 flag_[i] = k;
             }
     }
+    factor_flops_ = 0;
+    for (int k = 0; k < n_; ++k) factor_flops_ += 54.0 * lnz_[k] * (lnz_[k] + 1) / 2 + 54.0 * lnz_[k];
     lp_.assign(n_ + 1, 0);
     for (int k = 0; k < n_; ++k) lp_[k + 1] = lp_[k] + lnz_[k];
     li_.assign(lp_[n_], 0);
@@ -111,22 +113,167 @@ void BlockLDLT::factorize(const SpMat& a) {
     }
 }
 
+namespace {
+
+// L D L^T x = b on the permuted right-hand sides, K at a time, stored node-major so that a
+// node's 3 x K values are contiguous: every 3x3 block of L is loaded once for all K.
+struct Factor {
+    int n;
+    const int *lp, *lnz, *li;
+    const double *lx, *d_inverse;  // 3x3 blocks, column-major, 9 doubles each
+};
+
+// Four doubles as one value (GCC/Clang vector extension): explicit SIMD the compiler maps to
+// one AVX register or two SSE registers; aligned(8) allows unaligned loads and stores.
+typedef double V4 __attribute__((vector_size(32), aligned(8)));
+
+template <int K>
+__attribute__((always_inline)) inline void solve_permuted(const Factor& f, double* x) {
+    static_assert(K % 4 == 0, "right-hand sides in groups of four");
+    constexpr int N = K / 4;  // vectors per row of a node's 3 x K block
+    V4* xv = reinterpret_cast<V4*>(x);
+    for (int i = 0; i < f.n; ++i) {  // L z = b
+        V4 xi[3 * N];
+        for (int e = 0; e < 3 * N; ++e) xi[e] = xv[3 * N * i + e];
+        for (int p = f.lp[i], end = f.lp[i] + f.lnz[i]; p < end; ++p) {
+            const double* l = f.lx + 9 * p;
+            V4* xr = xv + 3 * N * f.li[p];
+            for (int r = 0; r < 3; ++r)
+                for (int j = 0; j < N; ++j) xr[r * N + j] -= l[r] * xi[j] + l[3 + r] * xi[N + j] + l[6 + r] * xi[2 * N + j];
+        }
+    }
+    for (int i = 0; i < f.n; ++i) {  // z <- D^-1 z
+        V4* xi = xv + 3 * N * i;
+        const double* d = f.d_inverse + 9 * i;
+        V4 t[3 * N];
+        for (int r = 0; r < 3; ++r)
+            for (int j = 0; j < N; ++j) t[r * N + j] = d[r] * xi[j] + d[3 + r] * xi[N + j] + d[6 + r] * xi[2 * N + j];
+        for (int e = 0; e < 3 * N; ++e) xi[e] = t[e];
+    }
+    for (int i = f.n - 1; i >= 0; --i) {  // L^T x = z
+        V4 t[3 * N];
+        V4* xi = xv + 3 * N * i;
+        for (int e = 0; e < 3 * N; ++e) t[e] = xi[e];
+        for (int p = f.lp[i], end = f.lp[i] + f.lnz[i]; p < end; ++p) {
+            const double* l = f.lx + 9 * p;
+            const V4* xr = xv + 3 * N * f.li[p];
+            for (int c = 0; c < 3; ++c)
+                for (int j = 0; j < N; ++j)
+                    t[c * N + j] -= l[3 * c] * xr[j] + l[3 * c + 1] * xr[N + j] + l[3 * c + 2] * xr[2 * N + j];
+        }
+        for (int e = 0; e < 3 * N; ++e) xi[e] = t[e];
+    }
+}
+
+// One right-hand side: scalar code (a 3-vector per node does not fill a SIMD register).
+template <>
+inline void solve_permuted<1>(const Factor& f, double* x) {
+    for (int i = 0; i < f.n; ++i) {
+        const double x0 = x[3 * i], x1 = x[3 * i + 1], x2 = x[3 * i + 2];
+        for (int p = f.lp[i], end = f.lp[i] + f.lnz[i]; p < end; ++p) {
+            const double* l = f.lx + 9 * p;
+            double* xr = x + 3 * f.li[p];
+            for (int r = 0; r < 3; ++r) xr[r] -= l[r] * x0 + l[3 + r] * x1 + l[6 + r] * x2;
+        }
+    }
+    for (int i = 0; i < f.n; ++i) {
+        const double* d = f.d_inverse + 9 * i;
+        const double x0 = x[3 * i], x1 = x[3 * i + 1], x2 = x[3 * i + 2];
+        for (int r = 0; r < 3; ++r) x[3 * i + r] = d[r] * x0 + d[3 + r] * x1 + d[6 + r] * x2;
+    }
+    for (int i = f.n - 1; i >= 0; --i) {
+        double t0 = x[3 * i], t1 = x[3 * i + 1], t2 = x[3 * i + 2];
+        for (int p = f.lp[i], end = f.lp[i] + f.lnz[i]; p < end; ++p) {
+            const double* l = f.lx + 9 * p;
+            const double* xr = x + 3 * f.li[p];
+            t0 -= l[0] * xr[0] + l[1] * xr[1] + l[2] * xr[2];
+            t1 -= l[3] * xr[0] + l[4] * xr[1] + l[5] * xr[2];
+            t2 -= l[6] * xr[0] + l[7] * xr[1] + l[8] * xr[2];
+        }
+        x[3 * i] = t0;
+        x[3 * i + 1] = t1;
+        x[3 * i + 2] = t2;
+    }
+}
+
+// The same loops compiled for AVX2 + FMA, chosen at run time when the CPU has them: the
+// library itself is built for the baseline x86-64 instruction set.
+#if defined(__GNUC__) && defined(__x86_64__)
+#define HH_HAVE_AVX2_KERNELS 1
+template <int K>
+__attribute__((target("avx2,fma"))) void solve_permuted_avx2(const Factor& f, double* x) {
+    solve_permuted<K>(f, x);
+}
+bool cpu_has_avx2() {
+    static const bool has = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    return has;
+}
+#endif
+
+template <int K>
+void solve_dispatch(const Factor& f, double* x) {
+#ifdef HH_HAVE_AVX2_KERNELS
+    if (cpu_has_avx2()) return solve_permuted_avx2<K>(f, x);
+#endif
+    solve_permuted<K>(f, x);
+}
+
+}  // namespace
+
+void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp) const {
+    if (w != 1 && w != 4 && w != 8) throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8");
+    work_.resize(static_cast<size_t>(3) * n_ * w);
+    double* x = work_.data();
+    for (int node = 0; node < n_; ++node) {  // x = P W^T b
+        const int old = order_[node];
+        const double* bn = b + 3 * w * old;
+        double* xn = x + 3 * w * node;
+        if (!warp) {
+            std::copy(bn, bn + 3 * w, xn);
+            continue;
+        }
+        const double* m = (*warp)[old].data();  // column-major: W^T(r, c) = m[3 r + c]
+        for (int r = 0; r < 3; ++r)
+            for (int j = 0; j < w; ++j) xn[r * w + j] = m[3 * r] * bn[j] + m[3 * r + 1] * bn[w + j] + m[3 * r + 2] * bn[2 * w + j];
+    }
+    const Factor f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data()};
+    if (w == 1) solve_dispatch<1>(f, x);
+    else if (w == 4) solve_dispatch<4>(f, x);
+    else solve_dispatch<8>(f, x);
+    for (int node = 0; node < n_; ++node) {  // b = W P^T x
+        const int old = order_[node];
+        const double* xn = x + 3 * w * node;
+        double* bn = b + 3 * w * old;
+        if (!warp) {
+            std::copy(xn, xn + 3 * w, bn);
+            continue;
+        }
+        const double* m = (*warp)[old].data();  // W(r, c) = m[r + 3 c]
+        for (int r = 0; r < 3; ++r)
+            for (int j = 0; j < w; ++j) bn[r * w + j] = m[r] * xn[j] + m[r + 3] * xn[w + j] + m[r + 6] * xn[2 * w + j];
+    }
+}
+
 VecX BlockLDLT::solve(const VecX& b) const {
-    VecX x(3 * n_);
-    for (int k = 0; k < n_; ++k) x.segment<3>(3 * k) = b.segment<3>(3 * order_[k]);
-    for (int i = 0; i < n_; ++i) {  // L z = b
-        const Vec3 xi = x.segment<3>(3 * i);
-        for (int p = lp_[i]; p < lp_[i] + lnz_[i]; ++p) x.segment<3>(3 * li_[p]).noalias() -= lx_[p] * xi;
+    MatX x = b;
+    solve(x, nullptr);
+    return x.col(0);
+}
+
+void BlockLDLT::solve(MatX& b) const { solve(b, nullptr); }
+
+void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp) const {
+    if (b.rows() != 3 * n_) throw std::logic_error("BlockLDLT::solve: right-hand side of the wrong size");
+    for (Eigen::Index first = 0; first < b.cols(); first += 8) {
+        const int k = static_cast<int>(std::min<Eigen::Index>(8, b.cols() - first));
+        const int w = k == 1 ? 1 : (k <= 4 ? 4 : 8);  // 2-3 and 5-7 right-hand sides are padded
+        packed_.assign(static_cast<size_t>(3) * n_ * w, 0.0);
+        for (int j = 0; j < k; ++j)
+            for (int e = 0; e < 3 * n_; ++e) packed_[w * e + j] = b(e, first + j);
+        solve_node_major(packed_.data(), w, warp);
+        for (int j = 0; j < k; ++j)
+            for (int e = 0; e < 3 * n_; ++e) b(e, first + j) = packed_[w * e + j];
     }
-    for (int i = 0; i < n_; ++i) x.segment<3>(3 * i) = d_inverse_[i] * x.segment<3>(3 * i).eval();
-    for (int i = n_ - 1; i >= 0; --i) {  // L^T x = z
-        Vec3 xi = x.segment<3>(3 * i);
-        for (int p = lp_[i]; p < lp_[i] + lnz_[i]; ++p) xi.noalias() -= lx_[p].transpose() * x.segment<3>(3 * li_[p]);
-        x.segment<3>(3 * i) = xi;
-    }
-    VecX out(3 * n_);
-    for (int k = 0; k < n_; ++k) out.segment<3>(3 * order_[k]) = x.segment<3>(3 * k);
-    return out;
 }
 
 }  // namespace hh

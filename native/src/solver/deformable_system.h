@@ -1,7 +1,15 @@
 // The deformable body's linear system: At is sparse symmetric positive definite (Eq. 7).
-// Two solvers: sparse block LDL^T, "cholesky" (factored on the first solve after At
-// changes, then reused by all the solves of the step) and Jacobi-preconditioned conjugate gradient, warm started
-// from the previous solution of the same right-hand-side slot.
+// Three solvers:
+// - Cholesky: sparse block LDL^T, factored on the first solve after At changes, then reused
+//   by all the solves of the step (exact to round-off).
+// - ConjugateGradient: Jacobi-preconditioned CG, warm started from the previous solution of
+//   the same right-hand-side slot.
+// - ReusedCholesky: the block LDL^T factor of an earlier step's At, "warped" by each node's
+//   rotation since then, preconditions CG warm started per slot, to a relative residual of
+//   min(cg_tolerance, 1e-10). The factor is renewed when a step's solves start to cost more
+//   than the average step since the last factorization (so the mean cost per step is close to
+//   its minimum), or at once when a solve needs reuse_iteration_limit iterations.
+//   Meant for large meshes, where a factorization costs many times a solve.
 #pragma once
 #include <memory>
 #include <vector>
@@ -10,22 +18,35 @@
 
 namespace hh {
 
-enum class DeformableSolver { Cholesky, ConjugateGradient };
+enum class DeformableSolver { Cholesky, ConjugateGradient, ReusedCholesky };
 
 class DeformableSystem : public LinearSystem {
 public:
     DeformableSystem();
     ~DeformableSystem() override;
     SpMat A;  // both triangles stored
-    void matrix_changed() { factor_valid_ = false; }
+    // Marks the start of a new step: At has new values.
+    void matrix_changed();
+    // Keeps the reused factor when nothing changes (it is called before every step).
     void configure(DeformableSolver solver, double cg_tolerance, int cg_max_iterations);
-    // Warm-start slot for CG: the Schur solve uses 8 slots (b_t, 6 columns, final).
+    DeformableSolver solver() const;
+    // Warm-start slot for CG: the Schur solve uses slots 0-6 (b_t and the 6 columns of Ath).
     void select_slot(int slot);
     void solve() override;
+    // X = A^-1 B, column j of B in warm-start slot first_slot + j: one factorization and
+    // batched passes over it serve all the columns.
+    void solve_many(const MatX& b, MatX& x, int first_slot);
+    // Element rotations of the step (the co-rotation), for ReusedCholesky's warp: each node's
+    // rotation (the rotation of the sum of its elements' rotations) relative to its rotation
+    // when the factor was made. Ignored by the other solvers.
+    void set_element_rotations(const std::vector<Eigen::Vector4i>& tets, const std::vector<Mat3>& rotations);
 
     int iterations = 0;         // CG iterations summed since reset_counters()
     double max_residual = 0;    // largest CG relative residual since reset_counters()
-    void reset_counters() { iterations = 0; max_residual = 0; }
+    int factorizations = 0;     // numeric factorizations since reset_counters()
+    void reset_counters() { iterations = 0; max_residual = 0; factorizations = 0; }
+    // Iterations of one ReusedCholesky solve after which the factor is renewed on the spot.
+    int reuse_iteration_limit = 25;
 
 private:
     struct Impl;

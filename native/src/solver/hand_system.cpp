@@ -18,38 +18,34 @@ Vec6 HandSystem::aht_times(const VecX& vt) const {
 }
 
 // Section 6 pseudocode. (The paper's listing writes "Handle.r = bt - Aht Tool.s"; Eq. 13
-// has b_h there, which is what is implemented.)
+// has b_h there, which is what is implemented.) The seven solves with At that do not depend on
+// each other (b_t and the 6 columns of Ath) go to the tool as one batch; the pseudocode's last
+// solve, A_t^-1 (b_t - Ath v_h), is the same combination of the solved columns,
+// A_t^-1 b_t - (A_t^-1 Ath) v_h, so it costs no eighth solve.
 void HandSystem::solve() {
     using clock = std::chrono::steady_clock;
     const Eigen::Index n3 = tool.A.rows();
     const Vec6 bh = r.head<6>();
-    const VecX bt = r.tail(n3);
     t_deformable = 0;
     t_schur = 0;
 
-    // Right-hand side of Eq. 13
+    // Right-hand sides: b_t (Eq. 13) and the columns of Ath (Schur complement)
+    rhs_.setZero(n3, 7);
+    rhs_.col(0) = r.tail(n3);
+    for (size_t j = 0; j < coupled_nodes.size(); ++j)
+        rhs_.block<3, 6>(3 * coupled_nodes[j], 1) = Ath[j];
     auto t0 = clock::now();
-    tool.r = bt;
-    tool.select_slot(0);
-    tool.solve();
+    tool.solve_many(rhs_, solved_, 0);
     t_deformable += seconds_since(t0);
-    handle.r = bh - aht_times(tool.s);
 
-    // Schur complement of Eq. 13, one column of Ath at a time
+    t0 = clock::now();
+    handle.r = bh - aht_times(solved_.col(0));
     temp_.resize(6);
     Mat6 aht_temp;
     for (int i = 0; i < 6; ++i) {
-        tool.r.setZero();
-        for (size_t j = 0; j < coupled_nodes.size(); ++j)
-            tool.r.segment<3>(3 * coupled_nodes[j]) = Ath[j].col(i);
-        t0 = clock::now();
-        tool.select_slot(1 + i);
-        tool.solve();
-        t_deformable += seconds_since(t0);
-        temp_[i] = tool.s;
-        aht_temp.col(i) = aht_times(tool.s);
+        temp_[i] = solved_.col(1 + i);
+        aht_temp.col(i) = aht_times(temp_[i]);
     }
-    t0 = clock::now();
     aht_inverse_ath = aht_temp;
     handle.A = Ah - aht_temp;
     handle.solve();  // v_h
@@ -57,17 +53,10 @@ void HandSystem::solve() {
     t_schur += seconds_since(t0);
 
     // Eq. 12: the tool velocity
-    tool.r = bt;
-    for (size_t j = 0; j < coupled_nodes.size(); ++j)
-        tool.r.segment<3>(3 * coupled_nodes[j]) -= Ath[j] * vh;
-    t0 = clock::now();
-    tool.select_slot(7);
-    tool.solve();
-    t_deformable += seconds_since(t0);
-
     s.resize(6 + n3);
     s.head<6>() = vh;
-    s.tail(n3) = tool.s;
+    s.tail(n3) = solved_.col(0) - solved_.rightCols<6>() * vh;
+    tool.s = s.tail(n3);
 }
 
 VecX HandSystem::apply_inverse(const VecX& rhs) {

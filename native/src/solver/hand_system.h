@@ -1,6 +1,7 @@
 // The complete hand (Section 6): deformable tool + rigid handle + coupling blocks, behind
 // the same LinearSystem interface. solve() is the Schur-complement solution of Eq. 7
-// (Eqs. 12-13): 8 solves with At, one 6x6 solve with the Schur complement of At.
+// (Eqs. 12-13): the paper's 8 solves with At (7 of them batched, the 8th a combination of
+// those), one 6x6 solve with the Schur complement of At.
 // r = (b_h, b_t) and s = (v_h, v_t), handle first as in Eq. 7.
 #pragma once
 #include <vector>
@@ -30,7 +31,7 @@ public:
 
 private:
     Vec6 aht_times(const VecX& vt) const;  // Aht * vt, touching only coupled nodes
-    MatX ath_column_;
+    MatX rhs_, solved_;                   // the 7 batched right-hand sides and solutions
     std::vector<VecX> temp_;              // A_t^-1 Ath(i), i = 1..6
 
 public:
