@@ -73,13 +73,13 @@ def setup_render(scene, objects: dict, resolution) -> None:
             points.append(np.array([obj.matrix_world @ v.co for v in obj.data.vertices]))
     points = np.concatenate(points)
     lo, hi = points.min(0), points.max(0)
-    centre = mathutils.Vector((lo + hi) / 2)
     size = float(np.linalg.norm(hi - lo))
+    centre = mathutils.Vector((lo + hi) / 2) - mathutils.Vector((0.0, 0.0, 0.08 * size))
     cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
     scene.collection.objects.link(cam)
     cam.data.lens = 50
-    direction = mathutils.Vector((-1.0, -1.3, 0.55)).normalized()
-    cam.location = centre + direction * size * 1.55
+    direction = mathutils.Vector((-1.0, -1.3, 0.4)).normalized()
+    cam.location = centre + direction * size * 1.9
     cam.rotation_euler = (centre - cam.location).to_track_quat("-Z", "Y").to_euler()
     cam.data.clip_start, cam.data.clip_end = 0.005, 50.0
     scene.camera = cam

@@ -21,9 +21,12 @@ import common  # noqa: E402
 
 
 def contact_frame(log: dict, frame_start: int) -> int:
-    """The frame of the largest spring force on the handle: the hardest press."""
-    force = np.linalg.norm(log["coupling_wrench"][:, :3], axis=1)
-    return frame_start + int(np.argmax(force))
+    """The frame with the most contacts between the hand and the other bodies (self-contacts
+    between fingers left out): the fullest press."""
+    fields = [str(f) for f in log["contact_fields"]]
+    stats = log["contact_stats"]
+    others = stats[:, fields.index("contacts")] - stats[:, fields.index("self_contacts")]
+    return frame_start + 1 + int(np.argmax(others))  # stats row k is the step that ends at frame k + 1
 
 
 def force_plot(log: dict, path: pathlib.Path, frame: int, frame_start: int) -> pathlib.Path:
@@ -43,7 +46,7 @@ def force_plot(log: dict, path: pathlib.Path, frame: int, frame_start: int) -> p
     ax.set_xlabel("time (s)")
     ax.set_ylabel("force (N)")
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper right", fontsize=8)
+    ax.legend(loc="upper center", fontsize=8)
     ax.set_title("Hand pressing the soft bunny: force over time")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

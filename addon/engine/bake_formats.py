@@ -19,7 +19,8 @@ import numpy as np
 PC2_SIGNATURE = b"POINTCACHE2\0"
 PC2_HEADER = np.dtype([("signature", "S12"), ("version", "<i4"), ("points", "<i4"), ("start", "<f4"),
                        ("rate", "<f4"), ("samples", "<i4")])
-LOG_KEYS = ("time", "device_pose", "handle_pose", "coupling_wrench")  # result keys kept when there is no "haptic"
+# per-frame result arrays every log keeps (docs/scene_format.md); the haptic rows come on top
+LOG_KEYS = ("time", "device_pose", "handle_pose", "coupling_wrench", "contact_stats", "contact_fields")
 
 
 class BakeFormatError(ValueError):
