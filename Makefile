@@ -8,7 +8,7 @@ LIB := $(BUILD)/libhaptic_hand.so
 NATIVE_SOURCES := $(shell find native -name '*.cpp' -o -name '*.h' -o -name CMakeLists.txt)
 OUT := out
 
-.PHONY: all deps venv native test test-native test-python test-sanitize demo bench clean addon
+.PHONY: all deps venv native test test-native test-python test-sanitize test-tsan demo bench clean addon
 all: native
 
 deps: $(BUILD)/.deps
@@ -37,6 +37,12 @@ test-sanitize: | $(BUILD)/.deps
 	cmake -S native -B build/asan -DCMAKE_BUILD_TYPE=Debug -DHH_SANITIZE=address,undefined > /dev/null
 	cmake --build build/asan -j2
 	cd build/asan && ctest --output-on-failure
+
+# The threaded parts (haptic loop, live sessions, the OpenHaptics stand-in) under ThreadSanitizer.
+test-tsan: | $(BUILD)/.deps
+	cmake -S native -B build/tsan -DCMAKE_BUILD_TYPE=Debug -DHH_SANITIZE=thread > /dev/null
+	cmake --build build/tsan -j2 --target test_haptics hd_standin
+	cd build/tsan && TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1" ctest --output-on-failure -R haptics
 
 test-python: native venv
 	$(PY) -m pytest -q tests

@@ -16,7 +16,7 @@ import numpy as np
 HH_OK = 0
 HH_ERR_INVALID_ARGUMENT = -1
 HH_ERR_NUMERICAL = -2
-SOLVERS = {"cholesky": 0, "cg": 1}
+SOLVERS = {"cholesky": 0, "cg": 1, "reused_cholesky": 2}
 API_VERSION = 1
 
 _HERE = Path(__file__).resolve().parent
@@ -215,6 +215,10 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hh_world_hand_state": ([vp, i, pd, pd, pd, pd], i),
         "hh_world_linear_momentum": ([vp, pd], i),
         "hh_world_hand_step_stats": ([vp, i, ctypes.POINTER(StepStats)], i),
+        "hh_world_set_script": ([vp, i, pd, pd, pd, i], i),
+        "hh_world_time": ([vp, pd], i),
+        "hh_world_last_stats": ([vp, ctypes.POINTER(WorldStats)], i),
+        "hh_world_coupling_model": ([vp, i, pd, pd, pi], i),
     }
     for name, (args, res) in sig.items():
         fn = getattr(lib, name)

@@ -121,8 +121,33 @@ class World:
                 ((position, 3), (quaternion, 4), (velocity, 3), (angular_velocity, 3))]
         _check(library().hh_world_set_device(self._handle, hand, int(enabled), *(_ptr(a) for a in args)))
 
+    def set_script(self, body: int, times, positions, quaternions=None) -> None:
+        """A kinematic body moved by the world along timed poses (absolute, world frame)."""
+        t = _f64(times, None, "times").reshape(-1)
+        p = _f64(positions, (len(t), 3), "positions")
+        q = None if quaternions is None else _f64(quaternions, (len(t), 4), "quaternions")
+        _check(library().hh_world_set_script(self._handle, body, _ptr(t), _ptr(p), _ptr(q), len(t)))
+
+    def time(self) -> float:
+        out = ctypes.c_double()
+        _check(library().hh_world_time(self._handle, ctypes.byref(out)))
+        return out.value
+
     def step(self) -> dict:
         _check(library().hh_world_step(self._handle, ctypes.byref(self.last_stats)))
+        return self.last_stats.as_dict()
+
+    def coupling_model(self, hand: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """After a step with the handle prescribed: F_c0 (6,), the stiffness (6, 6) of the
+        springs' wrench with respect to the handle's displacement (dx, dtheta), and how many
+        contact rows the model holds."""
+        w, k, held = np.empty(6), np.empty((6, 6)), ctypes.c_int()
+        _check(library().hh_world_coupling_model(self._handle, hand, _ptr(w), _ptr(k), ctypes.byref(held)))
+        return w, k, held.value
+
+    def stats(self) -> dict:
+        """The statistics of the last step (also one a haptic session made)."""
+        _check(library().hh_world_last_stats(self._handle, ctypes.byref(self.last_stats)))
         return self.last_stats.as_dict()
 
     # --- reading ---

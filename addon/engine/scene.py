@@ -48,7 +48,21 @@ DEFAULTS = {
     "solver": {"name": "cholesky", "cg_tolerance": 1e-8, "cg_max_iterations": 5000},
     "device": {"enabled": True, "frame": "handle_rest", "trajectory": [
         {"t": 0.0, "position": [0.0, 0.0, 0.0], "quaternion": [0.0, 0.0, 0.0, 1.0]}]},
+    # haptic rendering (docs/haptics.md): off, the device trajectory drives the handle through
+    # the virtual coupling directly; on, a haptic loop runs a proxy handle between visual steps
+    "haptics": {
+        "enabled": False,
+        "rate": 1000.0,          # Hz
+        "linearized": True,      # False: feedback from the last visual-loop handle only
+        "device": "simulated",   # simulated | playback:<file> | openhaptics | hid | external
+        "arm": {"mass": 1.0, "stiffness": 300.0, "damping": 20.0},  # the simulated user's arm
+        "max_force": 1e9, "max_torque": 1e9,
+        "fail_at": None,         # s: the device reports a disconnection then (tests)
+        "openhaptics": {"library": None, "workspace_scale": 1.0},
+    },
 }
+
+MAX_COUPLING_STIFFNESS = 3e4  # N/m: the stiffest virtual coupling the haptic loop is tested at
 
 
 def _merge(defaults: dict, given: dict, where: str) -> dict:
@@ -221,6 +235,22 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     for key in ("thickness", "patch", "tolerance"):
         _positive(merged["contact"][key], f"contact.{key}")
     _positive(merged["contact"]["max_iterations"], "contact.max_iterations", integer=True)
+    h = merged["haptics"]
+    _positive(h["rate"], "haptics.rate")
+    if not 100 <= h["rate"] <= 10000:
+        raise SceneError(f"haptics.rate = {h['rate']} Hz is out of range: choose 100 to 10000 (1000 is usual)")
+    for key in ("mass",):
+        _positive(h["arm"][key], f"haptics.arm.{key}")
+    _positive(h["max_force"], "haptics.max_force")
+    _positive(h["max_torque"], "haptics.max_torque")
+    k = merged["coupling"]["stiffness"]
+    if h["enabled"] and not (isinstance(k, (int, float)) and 0 < k <= MAX_COUPLING_STIFFNESS):
+        raise SceneError(f"coupling.stiffness = {k!r} N/m: with haptics on it must be in (0, "
+                         f"{MAX_COUPLING_STIFFNESS:g}] N/m, the range the haptic loop is tested stable in")
+    name = str(h["device"])
+    if name.split(":", 1)[0] not in ("simulated", "playback", "openhaptics", "hid", "external"):
+        raise SceneError(f"haptics.device '{name}' is unknown: use simulated, playback:<file>, openhaptics, "
+                         "hid or external")
     try:
         parsed = bodies_module.parse(merged["bodies"], Path(base_dir))
     except bodies_module.BodyError as e:

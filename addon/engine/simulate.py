@@ -15,6 +15,7 @@ from . import bodies
 from . import mesh as meshing
 from . import native_world
 from . import scene as scenes
+from . import session as session_module
 
 RESULT_FORMAT = "haptic_hand.result/2"
 TIMING_FIELDS = ("t_assembly", "t_deformable", "t_schur", "t_total")  # the hand's implicit step
@@ -49,28 +50,25 @@ def build_world(scene: scenes.Scene, progress=None):
     others = [bodies.prepare(spec) for spec in scene.bodies]
     for b in others:
         bodies.add_to_world(world, b)
+        if b.kind == native_world.KINEMATIC:  # the world moves it along its script itself
+            script = scenes.body_trajectory(b.spec, world.pose(b.index)[0])
+            world.set_script(b.index, script.times, script.positions, script.quaternions)
     return world, hand, model, others, (tet_index, weights)
 
 
 class ScriptedInputs:
-    """What drives a scene: the device trajectory (through the virtual coupling) and the
-    kinematic bodies' scripts, applied to the world for the step that ends at time t."""
+    """What drives a scene without haptics: the device trajectory, through the virtual coupling,
+    applied for the step that ends at time t (kinematic bodies follow their scripts natively)."""
 
     def __init__(self, scene: scenes.Scene, world, hand: int, model, others):
         self.world, self.hand = world, hand
         self.device = scene.trajectory(np.array(model.info()["handle_com"]))
         self.device_on = bool(scene.data["device"]["enabled"])
-        self.scripts = {b.index: scenes.body_trajectory(b.spec, world.pose(b.index)[0]) for b in others
-                        if b.kind == native_world.KINEMATIC}
 
     def apply(self, t: float, dt: float) -> None:
         p, q = self.device.pose(t)
         v, w = self.device.velocity(t, dt)
         self.world.set_device(self.hand, p, q, v, w, enabled=self.device_on)
-        for index, script in self.scripts.items():
-            bp, bq = script.pose(t)
-            bv, bw = script.velocity(t, dt)
-            self.world.set_pose(index, bp, bq, bv, bw)
 
 
 def run(scene: scenes.Scene, progress=None) -> dict:
@@ -80,6 +78,12 @@ def run(scene: scenes.Scene, progress=None) -> dict:
     inputs = ScriptedInputs(scene, world, hand, model, others)
     trajectory = inputs.device
     frames, dt, n = scene.frames, scene.dt, model.n_nodes
+    haptics = None
+    if scene.data["haptics"]["enabled"]:
+        # the haptic loop in lockstep, in virtual time: its log holds every haptic step
+        steps_per_frame = max(1, round(dt * scene.data["haptics"]["rate"]))
+        haptics = session_module.create(world, hand, scene, log_capacity=frames * steps_per_frame + 1)
+        session_module.attach_device(haptics, scene, np.array(model.info()["handle_com"]))
 
     positions = np.empty((frames + 1, n, 3))
     handle_pose = np.empty((frames + 1, 7))
@@ -95,8 +99,12 @@ def run(scene: scenes.Scene, progress=None) -> dict:
         positions[k] = world.nodes(hand)[0]
         p, q, f, tq = world.hand_state(hand)
         handle_pose[k] = np.concatenate([p, q])
-        dp, dq = trajectory.pose(t)
-        device_pose[k] = np.concatenate([dp, dq])
+        if haptics is not None:
+            haptics.fetch_frame()
+            device_pose[k] = np.array(haptics.frame_info.device)
+        else:
+            dp, dq = trajectory.pose(t)
+            device_pose[k] = np.concatenate([dp, dq])
         wrench[k] = np.concatenate([f, tq])
         for b in others:
             if b.kind == native_world.SOFT:
@@ -108,8 +116,12 @@ def run(scene: scenes.Scene, progress=None) -> dict:
     record(0, 0.0)
     for k in range(frames):
         t = (k + 1) * dt
-        inputs.apply(t, dt)
-        vis = world.step()
+        if haptics is not None:
+            haptics.run_offline(1)
+            vis = world.stats()
+        else:
+            inputs.apply(t, dt)
+            vis = world.step()
         stats = world.hand_step_stats(hand)
         timings[k] = [stats[f] for f in TIMING_FIELDS]
         cg_iterations[k] = stats["cg_iterations"]
@@ -119,7 +131,11 @@ def run(scene: scenes.Scene, progress=None) -> dict:
         if progress and (k % 5 == 0 or k == frames - 1):
             progress(0.2 + 0.8 * (k + 1) / frames, f"frame {k + 1}/{frames}")
 
-    result = {
+    result = {}
+    if haptics is not None:
+        result["haptic"] = session_module.log_arrays(haptics.read_log())
+        haptics.close()
+    result.update({
         "format": np.array(RESULT_FORMAT),
         "scene": np.array(json.dumps({k: v for k, v in scene.data.items()}, default=str)),
         "time": np.arange(frames + 1) * dt,
@@ -144,7 +160,7 @@ def run(scene: scenes.Scene, progress=None) -> dict:
         "body_names": np.array([b.name for b in others]),
         "body_types": np.array([b.spec["type"] for b in others]),
         "machine": np.array(f"{platform.machine()} {platform.processor() or ''} {platform.system()}".strip()),
-    }
+    })
     for b in others:
         key = f"body_{b.name}"
         if b.kind == native_world.PLANE:
@@ -170,7 +186,13 @@ def write(result: dict, path: Path | str) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".partial.npz")
-    np.savez_compressed(tmp, **result)
+    flat = {}
+    for key, value in result.items():
+        if isinstance(value, dict):  # the haptic log: haptic_t, haptic_force, ...
+            flat.update({f"{key}_{k}": v for k, v in value.items()})
+        else:
+            flat[key] = value
+    np.savez_compressed(tmp, **flat)
     tmp.replace(path)
     return path
 

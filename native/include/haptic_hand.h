@@ -229,6 +229,8 @@ int hh_world_set_device(hh_world* world, int hand_body, int enabled, const doubl
                         const double quaternion[4], const double velocity[3],
                         const double angular_velocity[3]);
 int hh_world_step(hh_world* world, hh_world_stats* out_stats);
+/* The statistics of the world's last step (also after steps a session made). */
+int hh_world_last_stats(const hh_world* world, hh_world_stats* out_stats);
 int hh_world_body_kind(const hh_world* world, int body, int* out_kind, int* out_n_nodes,
                        int* out_n_surface_vertices);
 /* hand and soft bodies: node positions and velocities (either pointer may be null). */
@@ -329,6 +331,12 @@ int hh_session_coupling_model(hh_session* session, double wrench0[6], double sti
 /* A kinematic body moved by the world itself along timed poses (absolute, world frame). */
 int hh_world_set_script(hh_world* world, int body, const double* times, const double* positions,
                         const double* quaternions, int n);
+/* The handle-space coupling model after the world's last step, whose handle must have been
+ * prescribed (hh_world_set_device with enabled = 2): the springs' wrench wrench0 (6) at the
+ * handle's end-of-step pose and its stiffness (36, row-major) with respect to a displacement
+ * (dx, dtheta) of that pose, the step's active contacts held (held_rows of them). */
+int hh_world_coupling_model(const hh_world* world, int hand_body, double wrench0[6], double stiffness[36],
+                            int* held_rows);
 /* The world's simulated time (s). */
 int hh_world_time(const hh_world* world, double* out);
 

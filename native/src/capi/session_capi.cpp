@@ -275,6 +275,22 @@ int hh_world_set_script(hh_world* world, int body, const double* times, const do
     });
 }
 
+int hh_world_coupling_model(const hh_world* world, int hand_body, double wrench0[6], double stiffness[36],
+                            int* held_rows) {
+    return guard([&] {
+        require(world != nullptr, "null world");
+        require(!world->in_live_session.load(), "a live session is stepping this world: ask the session instead");
+        const hh::CouplingModel m = hh::linearize_coupling(world->w, hand_body);
+        for (int i = 0; i < 6; ++i) {
+            if (wrench0) wrench0[i] = m.wrench[i];
+            for (int j = 0; j < 6; ++j)
+                if (stiffness) stiffness[6 * i + j] = m.stiffness(i, j);
+        }
+        if (held_rows) *held_rows = m.held_rows;
+        return HH_OK;
+    });
+}
+
 int hh_world_time(const hh_world* world, double* out) {
     return guard([&] {
         require(world && out, "hh_world_time: null pointer");

@@ -311,6 +311,13 @@ int hh_world_step(hh_world* world, hh_world_stats* out) {
         require(world, "hh_world_step: null world");
         require_idle(world);
         world->w.step();
+        return hh_world_last_stats(world, out);
+    });
+}
+
+int hh_world_last_stats(const hh_world* world, hh_world_stats* out) {
+    return guard([&] {
+        require_idle(world);
         const hh::WorldStats& s = world->w.stats;
         if (out) {
             out->contacts = s.contacts;

@@ -1,0 +1,227 @@
+"""ctypes bindings of haptic sessions (native/include/haptic_hand.h, haptic rendering part):
+the visual loop and the 1 kHz haptic loop around a World, with their device backends."""
+
+from __future__ import annotations
+
+import ctypes
+import math
+
+import numpy as np
+
+from .native import _check, _f64, _ptr, library
+from .native_world import World
+
+LOG_COLUMNS = 23
+# the haptic log's columns (native/src/haptics/haptic_log.h), as slices of a row
+LOG_FIELDS = {
+    "t": slice(0, 1), "period": slice(1, 2), "cost": slice(2, 3),
+    "device_position": slice(3, 6), "device_quaternion": slice(6, 10),
+    "proxy_position": slice(10, 13), "proxy_quaternion": slice(13, 17),
+    "force": slice(17, 20), "torque": slice(20, 23),
+}
+
+
+class SessionParams(ctypes.Structure):
+    _fields_ = [
+        ("struct_size", ctypes.c_int),
+        ("haptic_rate", ctypes.c_double),
+        ("coupling_stiffness", ctypes.c_double),
+        ("coupling_damping", ctypes.c_double),
+        ("coupling_angular_stiffness", ctypes.c_double),
+        ("coupling_angular_damping", ctypes.c_double),
+        ("max_force", ctypes.c_double),
+        ("max_torque", ctypes.c_double),
+        ("linearized", ctypes.c_int),
+        ("log_capacity", ctypes.c_int),
+    ]
+
+
+class SessionStatus(ctypes.Structure):
+    _fields_ = [
+        ("running", ctypes.c_int),
+        ("failed", ctypes.c_int),
+        ("haptic_steps", ctypes.c_double),
+        ("visual_steps", ctypes.c_double),
+        ("log_unread", ctypes.c_double),
+        ("log_dropped", ctypes.c_double),
+        ("message", ctypes.c_char * 512),
+    ]
+
+
+class SessionFrame(ctypes.Structure):
+    _fields_ = [
+        ("time", ctypes.c_double),
+        ("visual_steps", ctypes.c_double),
+        ("handle", ctypes.c_double * 7),
+        ("proxy", ctypes.c_double * 7),
+        ("device", ctypes.c_double * 7),
+        ("feedback", ctypes.c_double * 6),
+        ("wrench", ctypes.c_double * 6),
+        ("contacts", ctypes.c_int),
+        ("held_rows", ctypes.c_int),
+    ]
+
+
+_declared = False
+
+
+def _lib() -> ctypes.CDLL:
+    global _declared
+    lib = library()
+    if _declared:
+        return lib
+    d, i = ctypes.c_double, ctypes.c_int
+    pd, pi, vp = ctypes.POINTER(d), ctypes.POINTER(i), ctypes.c_void_p
+    sig = {
+        "hh_default_session_params": ([ctypes.POINTER(SessionParams)], None),
+        "hh_session_create": ([vp, i, ctypes.POINTER(SessionParams), ctypes.POINTER(vp)], i),
+        "hh_session_free": ([vp], None),
+        "hh_session_device_simulated": ([vp, pd, pd, pd, i, d, d, d, d], i),
+        "hh_session_device_playback": ([vp, pd, pd, pd, i, d], i),
+        "hh_session_device_external": ([vp], i),
+        "hh_session_push_device_pose": ([vp, pd, pd], i),
+        "hh_session_device_openhaptics": ([vp, ctypes.c_char_p, d, pd, d], i),
+        "hh_session_run_offline": ([vp, i], i),
+        "hh_session_start": ([vp], i),
+        "hh_session_stop": ([vp], i),
+        "hh_session_get_status": ([vp, ctypes.POINTER(SessionStatus)], i),
+        "hh_session_fetch_frame": ([vp, pi, ctypes.POINTER(SessionFrame)], i),
+        "hh_session_frame_surface": ([vp, i, pd, i], i),
+        "hh_session_read_log": ([vp, pd, i, pi], i),
+        "hh_session_coupling_model": ([vp, pd, pd, pi], i),
+    }
+    for name, (args, res) in sig.items():
+        fn = getattr(lib, name)
+        fn.argtypes = args
+        fn.restype = res
+    _declared = True
+    return lib
+
+
+def _trajectory(times, positions, quaternions):
+    t = _f64(times, None, "times").reshape(-1)
+    p = _f64(positions, (len(t), 3), "positions")
+    q = _f64(quaternions if quaternions is not None else np.tile([0, 0, 0, 1.0], (len(t), 1)), (len(t), 4),
+             "quaternions")
+    return t, p, q
+
+
+def log_arrays(rows: np.ndarray) -> dict:
+    """The haptic log rows (k, 23) as named arrays (one row per haptic step)."""
+    rows = np.asarray(rows).reshape(-1, LOG_COLUMNS)
+    out = {}
+    for name, sl in LOG_FIELDS.items():
+        a = rows[:, sl]
+        out[name] = a[:, 0].copy() if a.shape[1] == 1 else a.copy()
+    return out
+
+
+class NativeSession:
+    """hh_session: owns the loops around a World (kept alive by this object)."""
+
+    def __init__(self, world: World, hand: int, haptic_rate: float = 1000.0, coupling: dict | None = None,
+                 max_force: float = 1e9, max_torque: float = 1e9, linearized: bool = True,
+                 log_capacity: int = 1 << 16):
+        lib = _lib()
+        p = SessionParams()
+        lib.hh_default_session_params(ctypes.byref(p))
+        p.haptic_rate = float(haptic_rate)
+        c = coupling or {}
+        p.coupling_stiffness = float(c.get("stiffness", p.coupling_stiffness))
+        p.coupling_damping = float(c.get("damping", p.coupling_damping))
+        p.coupling_angular_stiffness = float(c.get("angular_stiffness", p.coupling_angular_stiffness))
+        p.coupling_angular_damping = float(c.get("angular_damping", p.coupling_angular_damping))
+        p.max_force = float(max_force)
+        p.max_torque = float(max_torque)
+        p.linearized = 1 if linearized else 0
+        p.log_capacity = int(log_capacity)
+        handle = ctypes.c_void_p()
+        _check(lib.hh_session_create(world._handle, int(hand), ctypes.byref(p), ctypes.byref(handle)))
+        self._handle = handle
+        self.world = world  # the session borrows the world: keep it alive
+        self.hand = hand
+        self.params = p
+        self.frame_info = SessionFrame()
+
+    def close(self) -> None:
+        if getattr(self, "_handle", None):
+            _lib().hh_session_free(self._handle)
+            self._handle = None
+
+    def __del__(self):
+        self.close()
+
+    # --- devices ---
+    def device_simulated(self, times, positions, quaternions=None, arm_mass=1.0, arm_stiffness=300.0,
+                         arm_damping=20.0, fail_at=math.inf) -> None:
+        t, p, q = _trajectory(times, positions, quaternions)
+        _check(_lib().hh_session_device_simulated(self._handle, _ptr(t), _ptr(p), _ptr(q), len(t), float(arm_mass),
+                                                  float(arm_stiffness), float(arm_damping), float(fail_at)))
+
+    def device_playback(self, times, positions, quaternions=None, fail_at=math.inf) -> None:
+        t, p, q = _trajectory(times, positions, quaternions)
+        _check(_lib().hh_session_device_playback(self._handle, _ptr(t), _ptr(p), _ptr(q), len(t), float(fail_at)))
+
+    def device_external(self) -> None:
+        _check(_lib().hh_session_device_external(self._handle))
+
+    def push_device_pose(self, position, quaternion=(0, 0, 0, 1)) -> None:
+        _check(_lib().hh_session_push_device_pose(self._handle, _ptr(_f64(position, (3,), "position")),
+                                                  _ptr(_f64(quaternion, (4,), "quaternion"))))
+
+    def device_openhaptics(self, library_path: str | None = None, workspace_scale: float = 1.0,
+                           workspace_origin=(0.0, 0.0, 0.0), max_force: float = 3.3) -> None:
+        name = None if library_path is None else str(library_path).encode()
+        _check(_lib().hh_session_device_openhaptics(self._handle, name, float(workspace_scale),
+                                                    _ptr(_f64(workspace_origin, (3,), "workspace origin")),
+                                                    float(max_force)))
+
+    # --- running ---
+    def run_offline(self, visual_steps: int = 1) -> None:
+        _check(_lib().hh_session_run_offline(self._handle, int(visual_steps)))
+
+    def start(self) -> None:
+        _check(_lib().hh_session_start(self._handle))
+
+    def stop(self) -> None:
+        _check(_lib().hh_session_stop(self._handle))
+
+    def status(self) -> dict:
+        s = SessionStatus()
+        _check(_lib().hh_session_get_status(self._handle, ctypes.byref(s)))
+        return {"running": bool(s.running), "failed": bool(s.failed), "haptic_steps": int(s.haptic_steps),
+                "visual_steps": int(s.visual_steps), "log_unread": int(s.log_unread),
+                "log_dropped": int(s.log_dropped), "message": s.message.decode("utf-8", "replace")}
+
+    def fetch_frame(self) -> bool:
+        """Takes the newest frame (True when it is new); its scalars are in frame_info."""
+        new = ctypes.c_int()
+        _check(_lib().hh_session_fetch_frame(self._handle, ctypes.byref(new), ctypes.byref(self.frame_info)))
+        return bool(new.value)
+
+    def frame_surface(self, body: int, n_vertices: int) -> np.ndarray:
+        out = np.empty((n_vertices, 3))
+        _check(_lib().hh_session_frame_surface(self._handle, int(body), _ptr(out), int(n_vertices)))
+        return out
+
+    def read_log(self, max_rows: int | None = None) -> np.ndarray:
+        """Unread haptic log rows, (k, 23), oldest first."""
+        chunks = []
+        while True:
+            cap = 4096 if max_rows is None else max(0, max_rows - sum(len(c) for c in chunks))
+            if cap == 0:
+                break
+            buf = np.empty((cap, LOG_COLUMNS))
+            n = ctypes.c_int()
+            _check(_lib().hh_session_read_log(self._handle, _ptr(buf), cap, ctypes.byref(n)))
+            chunks.append(buf[: n.value])
+            if n.value < cap:
+                break
+        return np.concatenate(chunks) if chunks else np.empty((0, LOG_COLUMNS))
+
+    def coupling_model(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """F_c0 (6,), stiffness (6, 6) and held contact rows of the fetched frame's model."""
+        w, k, held = np.empty(6), np.empty((6, 6)), ctypes.c_int()
+        _check(_lib().hh_session_coupling_model(self._handle, _ptr(w), _ptr(k), ctypes.byref(held)))
+        return w, k, held.value
+

@@ -1,0 +1,246 @@
+// The haptic loop's machinery: lock-free hand-over between threads (run under ThreadSanitizer
+// in CI), live sessions with their threads, a device that disconnects, and the OpenHaptics
+// backend against a stand-in HD library that the tests build (HD_STANDIN_PATH).
+#include <dlfcn.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <string>
+#include <thread>
+
+#include "box_mesh.h"
+#include "check.h"
+#include "device/openhaptics.h"
+#include "haptic_hand.h"
+#include "haptics/haptic_log.h"
+#include "haptics/triple_buffer.h"
+
+namespace {
+void sleep_s(double s) { std::this_thread::sleep_for(std::chrono::duration<double>(s)); }
+
+// A world with the box hand (its top face as collision surface) and a session on it.
+struct LiveRig {
+    BoxMesh box = make_box(4, 3, 2, 0.01);
+    hh_model* model = nullptr;
+    hh_world* world = nullptr;
+    hh_session* session = nullptr;
+    int hand = -1;
+    double com[3] = {0, 0, 0};
+    explicit LiveRig(bool gravity = true) {
+        const hh_params p = box_hand_params();
+        CHECK(hh_model_create(box.nodes.data(), box.n_nodes(), box.tets.data(), box.n_tets(), &p, &model) == HH_OK);
+        hh_world_params wp;
+        hh_default_world_params(&wp);
+        if (!gravity) wp.gravity[2] = 0;
+        CHECK(hh_world_create(&wp, &world) == HH_OK);
+        // one triangle over three nodes of the top face is enough for a collision surface
+        const int top = box.n_nodes() - 1;
+        const int nodes[12] = {top, 0, 0, 0, top - 1, 0, 0, 0, top - 5, 0, 0, 0};
+        const double weights[12] = {1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};
+        const int faces[3] = {0, 1, 2};
+        CHECK(hh_world_add_hand(world, model, nodes, weights, 3, faces, 1, 0.5, 0, &hand) == HH_OK);
+        hh_model_info info;
+        CHECK(hh_model_info_get(model, &info) == HH_OK);
+        for (int i = 0; i < 3; ++i) com[i] = info.handle_com[i];
+        hh_session_params sp;
+        hh_default_session_params(&sp);
+        CHECK(hh_session_create(world, hand, &sp, &session) == HH_OK);
+    }
+    void simulated(double fail_at) {
+        const double t[2] = {0, 10};
+        const double x[6] = {com[0], com[1], com[2], com[0] + 0.01, com[1], com[2]};
+        CHECK(hh_session_device_simulated(session, t, x, nullptr, 2, 1.0, 300, 20, fail_at) == HH_OK);
+    }
+    ~LiveRig() {
+        hh_session_free(session);
+        hh_world_free(world);
+        hh_model_free(model);
+    }
+};
+}  // namespace
+
+TEST(triple_buffer_hands_over_the_newest_value_without_tearing) {
+    struct Pair {
+        long a = 0, b = 0;  // written together: a torn read would see a != b
+    };
+    hh::TripleBuffer<Pair> buffer;
+    const long n = 200000;
+    std::thread producer([&] {
+        for (long i = 1; i <= n; ++i) {
+            buffer.back().a = i;
+            buffer.back().b = i;
+            buffer.publish();
+        }
+    });
+    long last = 0, torn = 0, backwards = 0;
+    while (last < n) {
+        if (!buffer.fetch()) continue;
+        const Pair& p = buffer.front();
+        torn += p.a != p.b;
+        backwards += p.a < last;
+        last = p.a;
+    }
+    producer.join();
+    CHECK(torn == 0);
+    CHECK(backwards == 0);
+    CHECK(last == n);
+}
+
+TEST(haptic_log_delivers_every_row_in_order_or_counts_it_dropped) {
+    hh::HapticLog log(1024);
+    const int n = 100000;
+    std::thread producer([&] {
+        hh::LogRow row{};
+        for (int i = 0; i < n; ++i) {
+            row.v[0] = i;
+            row.v[22] = -i;
+            log.push(row);
+        }
+    });
+    std::vector<double> out(64 * hh::kLogColumns);
+    long received = 0, disorder = 0;
+    double previous = -1;
+    while (received + static_cast<long>(log.dropped()) < n || log.unread() > 0) {
+        const std::size_t k = log.read(out.data(), 64);
+        for (std::size_t r = 0; r < k; ++r) {
+            const double* row = out.data() + r * hh::kLogColumns;
+            disorder += !(row[0] > previous) || row[22] != -row[0];
+            previous = row[0];
+        }
+        received += static_cast<long>(k);
+        if (received + static_cast<long>(log.dropped()) >= n && log.unread() == 0) break;
+    }
+    producer.join();
+    received += static_cast<long>(log.read(out.data(), 64));
+    CHECK(disorder == 0);
+    CHECK(received + static_cast<long>(log.dropped()) == n);
+}
+
+TEST(live_session_runs_both_loops_and_stops_cleanly) {
+    LiveRig rig;
+    rig.simulated(1e300);
+    CHECK(hh_session_start(rig.session) == HH_OK);
+    // the world is the session's while it runs
+    hh_world_stats ws;
+    CHECK(hh_world_step(rig.world, &ws) == HH_ERR_INVALID_ARGUMENT);
+    int frames = 0;
+    hh_session_frame f;
+    std::vector<double> surface(9);
+    const auto t0 = std::chrono::steady_clock::now();
+    while (std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(400)) {
+        int fresh = 0;
+        CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK);
+        if (fresh) {
+            ++frames;
+            CHECK(hh_session_frame_surface(rig.session, rig.hand, surface.data(), 3) == HH_OK);
+        }
+        sleep_s(0.005);
+    }
+    hh_session_status st;
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
+    CHECK(st.running == 1 && st.failed == 0);
+    CHECK(hh_session_stop(rig.session) == HH_OK);
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
+    CHECK(st.running == 0);
+    // 0.4 s at 1 kHz; generous bounds: sanitizers slow everything down
+    CHECK(st.haptic_steps > 100 && st.haptic_steps < 600);
+    CHECK(frames >= 2);
+    std::vector<double> rows(1000 * HH_LOG_COLUMNS);
+    int n = 0;
+    CHECK(hh_session_read_log(rig.session, rows.data(), 1000, &n) == HH_OK);
+    CHECK(n == static_cast<int>(st.haptic_steps));
+    CHECK(hh_world_step(rig.world, &ws) == HH_OK);  // the world is the caller's again
+}
+
+TEST(external_device_takes_poses_from_another_thread) {
+    LiveRig rig(false);
+    CHECK(hh_session_device_external(rig.session) == HH_OK);
+    CHECK(hh_session_start(rig.session) == HH_OK);
+    const double q[4] = {0, 0, 0, 1};
+    for (int i = 0; i < 100; ++i) {
+        const double p[3] = {rig.com[0] + 1e-4 * i, rig.com[1], rig.com[2]};
+        CHECK(hh_session_push_device_pose(rig.session, p, q) == HH_OK);
+        sleep_s(0.002);
+    }
+    sleep_s(0.1);
+    CHECK(hh_session_stop(rig.session) == HH_OK);
+    std::vector<double> rows(2000 * HH_LOG_COLUMNS);
+    int n = 0;
+    CHECK(hh_session_read_log(rig.session, rows.data(), 2000, &n) == HH_OK);
+    CHECK(n > 0);
+    // the last device position logged is the last one pushed
+    CHECK_LT(std::abs(rows[(n - 1) * HH_LOG_COLUMNS + 3] - (rig.com[0] + 1e-4 * 99)), 1e-12);
+}
+
+TEST(device_that_disconnects_stops_the_session_with_a_message) {
+    LiveRig rig;
+    rig.simulated(0.05);
+    CHECK(hh_session_start(rig.session) == HH_OK);
+    sleep_s(0.3);
+    hh_session_status st;
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
+    CHECK(st.failed == 1 && st.running == 0);
+    CHECK(std::string(st.message).find("disconnect") != std::string::npos);
+    CHECK(hh_session_stop(rig.session) == HH_OK);
+    // the log so far is kept: every haptic step before the failure, at 1 ms each
+    std::vector<double> rows(1000 * HH_LOG_COLUMNS);
+    int n = 0;
+    CHECK(hh_session_read_log(rig.session, rows.data(), 1000, &n) == HH_OK);
+    CHECK(n >= 45 && n <= 50);
+    // offline the same failure is an error status
+    LiveRig offline;
+    offline.simulated(0.05);
+    CHECK(hh_session_run_offline(offline.session, 10) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("disconnect") != std::string::npos);
+}
+
+TEST(openhaptics_without_its_library_says_how_to_install_it) {
+    LiveRig rig;
+    const double origin[3] = {0, 0, 0};
+    CHECK(hh_session_device_openhaptics(rig.session, "/nonexistent/libHD.so", 1.0, origin, 3.3) ==
+          HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("OpenHaptics is not installed") != std::string::npos);
+}
+
+TEST(openhaptics_backend_drives_the_session_from_the_servo_loop) {
+    void* standin = dlopen(HD_STANDIN_PATH, RTLD_NOW | RTLD_GLOBAL);
+    CHECK(standin != nullptr);
+    if (!standin) return;
+    auto set_position = reinterpret_cast<void (*)(const double*)>(dlsym(standin, "standin_set_position"));
+    auto get_force = reinterpret_cast<void (*)(double*)>(dlsym(standin, "standin_get_force"));
+    auto ticks = reinterpret_cast<long (*)()>(dlsym(standin, "standin_ticks"));
+    auto set_failing = reinterpret_cast<void (*)(int)>(dlsym(standin, "standin_set_failing"));
+    LiveRig rig(true);
+    // the device's origin at the handle; the stylus held 10 mm to the device's right (+x)
+    CHECK(hh_session_device_openhaptics(rig.session, HD_STANDIN_PATH, 1.0, rig.com, 3.3) == HH_OK);
+    const double mm[3] = {10, 0, 0};
+    set_position(mm);
+    const long ticks0 = ticks();
+    CHECK(hh_session_start(rig.session) == HH_OK);
+    sleep_s(0.5);
+    hh_session_frame f;
+    int fresh = 0;
+    CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK);
+    double force[3];
+    get_force(force);
+    hh_session_status st;
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
+    CHECK(st.running == 1);
+    CHECK(ticks() - ticks0 > 100);          // the servo loop called the haptic step
+    CHECK_LT(std::abs(f.device[0] - (rig.com[0] + 0.010)), 1e-9);  // mm -> m, device x -> scene x
+    // held still, the stylus carries the hand's weight: scene -z is the device's -y
+    hh_model_info info;
+    CHECK(hh_model_info_get(rig.model, &info) == HH_OK);
+    const double weight = 9.81 * info.total_mass;
+    CHECK_LT(std::abs(force[1] + weight), 0.05 * weight);
+    CHECK_LT(std::abs(force[0]) + std::abs(force[2]), 0.05 * weight);
+    // a device that stops answering ends the session with a message
+    set_failing(1);
+    sleep_s(0.1);
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
+    CHECK(st.failed == 1);
+    CHECK(std::string(st.message).find("OpenHaptics device stopped answering") != std::string::npos);
+    CHECK(hh_session_stop(rig.session) == HH_OK);
+    set_failing(0);
+}
