@@ -41,10 +41,11 @@ def test_schur_equals_monolithic(rig_name, solver, tol, request):
     assert sim.compare_solvers() < 1e-8
 
 
-def test_schur_step_equals_monolithic_step(procedural_rig):
+@pytest.mark.parametrize("solver", ["cholesky", "reused_cholesky"])
+def test_schur_step_equals_monolithic_step(procedural_rig, solver):
     """Whole steps, not only one solve: ten Schur steps and ten monolithic steps from the same
-    state end in the same state."""
-    model, a = make_sim(procedural_rig)
+    state end in the same state (reused_cholesky: steps on an earlier step's factor, CG to 1e-10)."""
+    model, a = make_sim(procedural_rig, solver=solver)
     b = native.HandSimulation(model)
     for sim in (a, b):
         perturb(sim, model, np.random.default_rng(5))
