@@ -75,12 +75,12 @@ def test_rigid_body_bake_keys_its_transform(addon, built_scenes, tmp_path):
     context = open_copy(built_scenes("hand_wave"), tmp_path)
     s = context.scene.haptic_hand
     cubes = []
-    for location in ((0.0, 0.25, 1.0), (0.0, 0.35, -0.1 + 0.01 + 5e-4)):
+    for location in ((0.0, 0.25, 1.0), (0.0, 0.35, -0.3 + 0.01 + 5e-4)):
         bpy.ops.mesh.primitive_cube_add(size=0.02, location=location)
         cubes.append(context.active_object)
         cubes[-1].haptic_hand.role = "RIGID"
     cubes[0].rotation_euler = (0.2, 0.1, 0.0)  # a turned body: the rotation is keyed too
-    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(0.0, 0.3, -0.1))
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(0.0, 0.3, -0.3))  # below the hand (down to -0.2)
     context.active_object.haptic_hand.role = "PLANE"
     context.view_layer.update()
     s.bake_frame_start, s.bake_frame_end = 1, 16
@@ -105,7 +105,7 @@ def test_rigid_body_bake_keys_its_transform(addon, built_scenes, tmp_path):
     falling, resting = (np.array(heights[c.name]) for c in cubes)
     t = 15 / 30
     assert 0.5 * 9.81 * t**2 * 0.8 < falling[0] - falling[-1] < 0.5 * 9.81 * t**2 * 1.25
-    assert np.all(np.abs(resting - (-0.1)) < 2e-3), "it rests on the plane"
+    assert np.all(np.abs(resting - (-0.3)) < 2e-3), "it rests on the plane"
     # free bake puts the cubes back where they were
     assert bpy.ops.haptic_hand.free_bake() == {"FINISHED"}
     assert not [a for a in bpy.data.actions if a.name.startswith(ops_bake.ACTION_PREFIX)]
