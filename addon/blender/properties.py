@@ -38,16 +38,16 @@ BAKE_FORMATS = [
 
 
 def _hid_items(self, context):
-    """HID devices present now (hidapi), for the device menu. Never raises."""
-    items = [("NONE", "No HID device found", "Plug in a 6-DoF HID device (SpaceMouse)")]
+    """6-DoF HID devices present now (the engine's hidapi discovery), for the device menu.
+    Never raises."""
+    items = [("NONE", "No HID device found", "Plug in a 3Dconnexion SpaceMouse")]
     try:
-        import hid  # hidapi wheel
+        from ..engine import devices
+
         found = []
-        for d in hid.enumerate():
-            key = f"{d.get('vendor_id', 0):04x}:{d.get('product_id', 0):04x}"
-            label = d.get("product_string") or key
-            if key not in [f[0] for f in found]:
-                found.append((key, label, f"{d.get('manufacturer_string') or ''} {key}".strip()))
+        for d in devices.hid_devices():
+            path = d["path"].decode(errors="replace") if isinstance(d["path"], bytes) else str(d["path"])
+            found.append((path, d["product"], f"{d['product']} at {path} (input only, no force feedback)"))
         if found:
             items = found
     except Exception:
