@@ -9,8 +9,8 @@ namespace hh {
 
 Vec6 CouplingModel::displacement(double t, const Vec3& x, const Vec4& q) const {
     const double tau = t - time;
-    const Vec3 x_ref = x_h + tau * v_h;
-    const Vec4 q_ref = quat_multiply(quat_from_rotation_vector(tau * omega_h), q_h);
+    const Vec3 x_ref = x_h + tau * v_h + 0.5 * tau * tau * a_h;
+    const Vec4 q_ref = quat_multiply(quat_from_rotation_vector(tau * omega_h + 0.5 * tau * tau * alpha_h), q_h);
     Vec6 d;
     d.head<3>() = x - x_ref;
     d.tail<3>() = quat_to_rotation_vector(quat_multiply(q, quat_conjugate(q_ref)));

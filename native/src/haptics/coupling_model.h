@@ -18,12 +18,16 @@ struct CouplingModel {
     Vec4 q_h = Vec4(0, 0, 0, 1);
     Vec3 v_h = Vec3::Zero();
     Vec3 omega_h = Vec3::Zero();
+    // the reference motion's acceleration (the session sets it in free space, see session.cpp)
+    Vec3 a_h = Vec3::Zero();
+    Vec3 alpha_h = Vec3::Zero();
     Vec6 wrench = Vec6::Zero();     // F_c0: springs' force and torque on the handle (N, N m)
     Mat6 stiffness = Mat6::Zero();  // dF_c/d(dx, dtheta) (N/m, N/rad, N m/m, N m/rad)
     int held_rows = 0;              // contact constraint rows held in the model
 
     // F*_c at the proxy pose (x, q) at time t: the displacement is taken from the handle's
-    // motion continued at its step velocity, so a proxy moving with the hand feels F_c0.
+    // motion continued with velocity v_h (and acceleration a_h), so a proxy moving on with the
+    // hand feels F_c0.
     Vec6 evaluate(double t, const Vec3& x, const Vec4& q) const;
     // (dx, dtheta) of the pose (x, q) from that continued handle motion at time t.
     Vec6 displacement(double t, const Vec3& x, const Vec4& q) const;

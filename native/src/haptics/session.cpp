@@ -188,6 +188,23 @@ void Session::visual_step() {
     CouplingModel& m = models_.back();
     if (p_.linearized) {
         m = linearize_coupling(world_, hand_);
+        // The reference the model measures the proxy's displacement from: the handle's motion
+        // continued from this step. The step's velocity is its average over the step; with the
+        // previous step's it gives the acceleration, and the velocity at the step's end. In free
+        // space the reference keeps accelerating (else the model's stiffness, mostly the flesh's
+        // mass over dt^2, would add to the inertia the user feels); in contact it does not (a
+        // wall stops a hand, it does not keep decelerating it).
+        const double dt = world_.settings.dt;
+        const Vec3 v_step = m.v_h, w_step = m.omega_h;
+        if (have_previous_step_ && m.held_rows == 0) {
+            m.a_h = (v_step - previous_v_) / dt;
+            m.alpha_h = (w_step - previous_omega_) / dt;
+            m.v_h = v_step + 0.5 * dt * m.a_h;
+            m.omega_h = w_step + 0.5 * dt * m.alpha_h;
+        }
+        previous_v_ = v_step;
+        previous_omega_ = w_step;
+        have_previous_step_ = true;
     } else {
         m = CouplingModel{};
         const HandleState& h = b.hand->h;

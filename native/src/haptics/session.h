@@ -120,6 +120,8 @@ private:
 
     // visual side
     ProxySample sample_;  // the latest proxy sample it saw
+    bool have_previous_step_ = false;
+    Vec3 previous_v_ = Vec3::Zero(), previous_omega_ = Vec3::Zero();  // the last step's handle velocity
     std::vector<int> surface_offset_;
 
     std::atomic<bool> running_{false}, stop_{false}, failed_{false}, failing_{false};
