@@ -128,7 +128,9 @@ TEST(live_session_runs_both_loops_and_stops_cleanly) {
     hh_session_frame f;
     std::vector<double> surface(9);
     const auto t0 = std::chrono::steady_clock::now();
-    while (std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(400)) {
+    // at least 0.4 s, and until two frames came (sanitizer builds step the world slowly)
+    while (std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(400) ||
+           (frames < 2 && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(30))) {
         int fresh = 0;
         CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK);
         if (fresh) {
@@ -141,10 +143,11 @@ TEST(live_session_runs_both_loops_and_stops_cleanly) {
     CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
     CHECK(st.running == 1 && st.failed == 0);
     CHECK(hh_session_stop(rig.session) == HH_OK);
+    const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
     CHECK(st.running == 0);
-    // 0.4 s at 1 kHz; generous bounds: sanitizers slow everything down
-    CHECK(st.haptic_steps > 100 && st.haptic_steps < 600);
+    // about 1 kHz; generous bounds: sanitizers slow everything down
+    CHECK(st.haptic_steps > 50 * elapsed && st.haptic_steps < 1100 * elapsed + 10);
     CHECK(frames >= 2);
     std::vector<double> rows(1000 * HH_LOG_COLUMNS);
     int n = 0;
@@ -212,23 +215,28 @@ TEST(openhaptics_backend_drives_the_session_from_the_servo_loop) {
     auto ticks = reinterpret_cast<long (*)()>(dlsym(standin, "standin_ticks"));
     auto set_failing = reinterpret_cast<void (*)(int)>(dlsym(standin, "standin_set_failing"));
     LiveRig rig(true);
-    // the device's origin at the handle; the stylus held 10 mm to the device's right (+x)
+    // the device's origin at the handle; the stylus held 1 mm to the device's right (+x)
     CHECK(hh_session_device_openhaptics(rig.session, HD_STANDIN_PATH, 1.0, rig.com, 3.3) == HH_OK);
-    const double mm[3] = {10, 0, 0};
+    const double mm[3] = {1, 0, 0};
     set_position(mm);
     const long ticks0 = ticks();
     CHECK(hh_session_start(rig.session) == HH_OK);
-    sleep_s(0.5);
-    hh_session_frame f;
+    // 0.5 s, and until the visual loop has simulated 0.5 s (sanitizer builds are slow)
+    hh_session_frame f{};
     int fresh = 0;
-    CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK);
+    const auto t0 = std::chrono::steady_clock::now();
+    do {
+        sleep_s(0.05);
+        CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK);
+    } while ((std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(500) || f.time < 0.5) &&
+             std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60));
     double force[3];
     get_force(force);
     hh_session_status st;
     CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
     CHECK(st.running == 1);
     CHECK(ticks() - ticks0 > 100);          // the servo loop called the haptic step
-    CHECK_LT(std::abs(f.device[0] - (rig.com[0] + 0.010)), 1e-9);  // mm -> m, device x -> scene x
+    CHECK_LT(std::abs(f.device[0] - (rig.com[0] + 0.001)), 1e-9);  // mm -> m, device x -> scene x
     // held still, the stylus carries the hand's weight: scene -z is the device's -y
     hh_model_info info;
     CHECK(hh_model_info_get(rig.model, &info) == HH_OK);

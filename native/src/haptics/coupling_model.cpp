@@ -1,5 +1,6 @@
 #include "haptics/coupling_model.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "rigid/quaternion.h"
@@ -8,7 +9,7 @@
 namespace hh {
 
 Vec6 CouplingModel::displacement(double t, const Vec3& x, const Vec4& q) const {
-    const double tau = t - time;
+    const double tau = std::min(std::max(t - time, 0.0), horizon);
     const Vec3 x_ref = x_h + tau * v_h + 0.5 * tau * tau * a_h;
     const Vec4 q_ref = quat_multiply(quat_from_rotation_vector(tau * omega_h + 0.5 * tau * tau * alpha_h), q_h);
     Vec6 d;

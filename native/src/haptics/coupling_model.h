@@ -24,6 +24,9 @@ struct CouplingModel {
     Vec6 wrench = Vec6::Zero();     // F_c0: springs' force and torque on the handle (N, N m)
     Mat6 stiffness = Mat6::Zero();  // dF_c/d(dx, dtheta) (N/m, N/rad, N m/m, N m/rad)
     int held_rows = 0;              // contact constraint rows held in the model
+    // s: the reference motion is continued at most this long after `time`; a visual loop that
+    // falls behind (a heavy scene, a debugger) must not make it run away
+    double horizon = 0.1;
 
     // F*_c at the proxy pose (x, q) at time t: the displacement is taken from the handle's
     // motion continued with velocity v_h (and acceleration a_h), so a proxy moving on with the

@@ -214,6 +214,7 @@ void Session::visual_step() {
         m.omega_h = h.omega;
     }
     m.time = sample_.time;
+    m.horizon = 2 * world_.settings.dt;
     models_.publish();
     visual_steps_.fetch_add(1, std::memory_order_release);
     publish_frame();
