@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .scene import quat_multiply
+
 SPACEMOUSE_VENDORS = (0x046D, 0x256F)  # Logitech (older 3Dconnexion devices), 3Dconnexion
 SPACEMOUSE_FULL_SCALE = 350.0           # a full deflection reports about +-350 on each axis
 OPENHAPTICS_LIBRARY = "libHD.so"
@@ -153,11 +155,6 @@ def _quat_from_rotation_vector(theta: np.ndarray) -> np.ndarray:
     return np.concatenate([k * theta, [math.cos(0.5 * angle)]])
 
 
-def _quat_multiply(a, b):
-    av, aw, bv, bw = a[:3], a[3], b[:3], b[3]
-    return np.concatenate([aw * bv + bw * av + np.cross(av, bv), [aw * bw - av @ bv]])
-
-
 class SpaceMouseIntegrator:
     """A rate-controlled pose: the axes are velocities (full deflection = max_speed m/s and
     max_rate rad/s), integrated over the time between updates."""
@@ -171,7 +168,7 @@ class SpaceMouseIntegrator:
         v = self.max_speed * (SPACEMOUSE_TO_SCENE @ state.translation)
         w = self.max_rate * (SPACEMOUSE_TO_SCENE @ state.rotation)
         self.position = self.position + dt * v
-        q = _quat_multiply(_quat_from_rotation_vector(dt * w), self.quaternion)
+        q = quat_multiply(_quat_from_rotation_vector(dt * w), self.quaternion)
         self.quaternion = q / np.linalg.norm(q)
         return self.position.copy(), self.quaternion.copy()
 
