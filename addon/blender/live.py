@@ -22,7 +22,6 @@ from ..engine import scene as scenes
 from . import draw, meshdata, scene_export
 
 DEVICES = {"SIMULATED": "simulated", "OPENHAPTICS": "openhaptics", "HID": "hid", "TARGET": "external"}
-HAPTIC_RATE = 1000.0
 
 _state = None  # the running session's LiveState (one at a time)
 
@@ -94,7 +93,7 @@ def _start(context, export, device, factory) -> LiveState:
             raise LiveError(f"'{obj.name}' is driven by a bake (shape keys or a Mesh Cache): press Free Bake "
                             "before a live session")
     try:
-        session = factory(export.scene, device=device, haptic_rate=HAPTIC_RATE)
+        session = factory(export.scene, device=device, haptic_rate=float(s.haptic_rate))
     except (scenes.SceneError, meshing.MeshError, native.NativeError, ValueError, OSError) as e:
         raise LiveError(f"The live session could not start: {e}") from None
     state = LiveState(session, export)

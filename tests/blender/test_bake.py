@@ -3,9 +3,10 @@ touches, the log, cancel and re-bake, free bake."""
 
 import time
 
-import bpy
-import numpy as np
 import pytest
+
+bpy = pytest.importorskip("bpy")
+import numpy as np
 from scipy.spatial import cKDTree
 
 import haptic_hand
@@ -14,7 +15,7 @@ from haptic_hand.engine import bake_formats, simulate
 from haptic_hand.engine import mesh as meshing
 from haptic_hand.engine import scene as scenes
 
-from conftest import open_copy
+from blender_helpers import open_copy
 
 FRAMES = 30  # steps of the main bake
 
@@ -206,7 +207,7 @@ def test_pc2_cancel_rebake_and_free(addon, built_scenes, tmp_path):
 def test_unsaved_blend_is_refused(addon):
     from haptic_hand.blender import scene_import
 
-    from conftest import SAMPLES
+    from blender_helpers import SAMPLES
 
     context = addon
     scene_import.build(context, SAMPLES / "hand_wave.json")  # never saved

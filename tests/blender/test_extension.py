@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+pytest.importorskip("bpy")
+
 ROOT = Path(__file__).resolve().parents[2]
 
 INSTALL = r"""
@@ -33,7 +35,6 @@ print("RESULT " + json.dumps(out))
 
 
 def test_extension_zip_installs_and_loads_bundled_library(tmp_path):
-    pytest.importorskip("bpy")
     if not (ROOT / "build" / "native" / "libhaptic_hand.so").is_file():
         pytest.skip("the native library is not built (make native)")
     # the small variant (no wheels: this venv has them); `make addon` bundles them too

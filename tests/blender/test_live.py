@@ -3,13 +3,14 @@ puts the scene back; a real session driven by the simulated device for 2 s."""
 
 import time
 
-import bpy
-import numpy as np
 import pytest
+
+bpy = pytest.importorskip("bpy")
+import numpy as np
 
 from haptic_hand.blender import draw, live, meshdata
 
-from conftest import open_copy
+from blender_helpers import open_copy
 
 
 def world_vertices(context, obj):

@@ -2,10 +2,11 @@
 show exists and every button names a registered operator (a typo there would only show up as
 a broken panel in a real Blender window)."""
 
-import bpy
 import pytest
 
-from conftest import open_copy
+bpy = pytest.importorskip("bpy")
+
+from blender_helpers import open_copy
 
 
 class Recorder:

@@ -1,14 +1,15 @@
 """Authoring the rig: tetrahedralize from the operator, the captured-node count, bad input."""
 
-import bpy
-import numpy as np
 import pytest
+
+bpy = pytest.importorskip("bpy")
+import numpy as np
 
 from haptic_hand.blender import meshdata, scene_export
 from haptic_hand.engine import mesh as meshing
 from haptic_hand.engine import native
 
-from conftest import SAMPLES
+from blender_helpers import SAMPLES
 
 
 def add_mesh(context, name, vertices, faces, location=(0.0, 0.0, 0.0)):
@@ -114,7 +115,7 @@ def test_non_manifold_mesh_is_refused_and_scene_untouched(addon):
 
 
 def test_seed_outside_hand_is_refused_and_scene_untouched(addon, built_scenes, tmp_path):
-    from conftest import open_copy
+    from blender_helpers import open_copy
 
     context = open_copy(built_scenes("hand_wave"), tmp_path)
     s = context.scene.haptic_hand

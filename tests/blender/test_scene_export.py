@@ -3,16 +3,17 @@ engine scene (metres, world space, vertex order kept); moving colliders and rigi
 
 import json
 
-import bpy
-import numpy as np
 import pytest
+
+bpy = pytest.importorskip("bpy")
+import numpy as np
 
 from haptic_hand.blender import meshdata, ops_bake, scene_export
 from haptic_hand.engine import mesh as meshing
 from haptic_hand.engine import scene as scenes
 from haptic_hand.engine import simulate
 
-from conftest import SAMPLES, open_copy
+from blender_helpers import SAMPLES, open_copy
 
 F32 = 2e-7  # metres: float32 rounding of coordinates below 1 m, as Blender stores them
 
