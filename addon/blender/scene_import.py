@@ -89,6 +89,8 @@ def build(context, path, frame_start: int = 1) -> dict:
     t = hand["tetrahedralize"]
     s.edge_length_fac, s.coarsen, s.epsilon = t["edge_length_fac"], t["coarsen"], t["epsilon"]
     s.time_step = scene.dt
+    if "haptics" in data:
+        s.haptic_loop, s.haptic_rate = bool(data["haptics"]["enabled"]), float(data["haptics"]["rate"])
 
     scenes.load_hand_geometry(scene)
     objects = {}
