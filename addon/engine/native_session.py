@@ -88,6 +88,7 @@ def _lib() -> ctypes.CDLL:
         "hh_session_fetch_frame": ([vp, pi, ctypes.POINTER(SessionFrame)], i),
         "hh_session_frame_surface": ([vp, i, pd, i], i),
         "hh_session_read_log": ([vp, pd, i, pi], i),
+        "hh_session_frame_pose": ([vp, i, pd], i),
         "hh_session_coupling_model": ([vp, pd, pd, pi], i),
     }
     for name, (args, res) in sig.items():
@@ -202,6 +203,12 @@ class NativeSession:
     def frame_surface(self, body: int, n_vertices: int) -> np.ndarray:
         out = np.empty((n_vertices, 3))
         _check(_lib().hh_session_frame_surface(self._handle, int(body), _ptr(out), int(n_vertices)))
+        return out
+
+    def frame_pose(self, body: int) -> np.ndarray:
+        """The fetched frame's pose (centre, quaternion) of a rigid, kinematic or static body."""
+        out = np.empty(7)
+        _check(_lib().hh_session_frame_pose(self._handle, int(body), _ptr(out)))
         return out
 
     def read_log(self, max_rows: int | None = None) -> np.ndarray:

@@ -139,6 +139,8 @@ class LiveSession:
             kind, _, n_surface = self._kinds[name]
             if kind in (native_world.HAND, native_world.SOFT):
                 f.surfaces[name] = self.native.frame_surface(i, n_surface)
+            elif kind in (native_world.RIGID, native_world.KINEMATIC, native_world.STATIC):
+                f.poses[name] = self.native.frame_pose(i)
         handle, proxy, dev = (np.array(fi.handle), np.array(fi.proxy), np.array(fi.device))
         f.handle_position, f.handle_quaternion = handle[:3], handle[3:]
         f.proxy_position, f.proxy_quaternion = proxy[:3], proxy[3:]

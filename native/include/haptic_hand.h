@@ -322,6 +322,8 @@ int hh_session_get_status(hh_session* session, hh_session_status* out);
 int hh_session_fetch_frame(hh_session* session, int* out_new, hh_session_frame* out);
 /* The fetched frame's collision-surface vertices of a body (hand or soft body). */
 int hh_session_frame_surface(hh_session* session, int body, double* out, int n_vertices);
+/* The fetched frame's pose of a rigid, kinematic or static body: centre and quaternion. */
+int hh_session_frame_pose(hh_session* session, int body, double pose[7]);
 /* Copies up to capacity unread log rows into out (row-major, HH_LOG_COLUMNS each). */
 int hh_session_read_log(hh_session* session, double* out, int capacity, int* out_rows);
 /* The coupling model of the fetched frame: wrench0 (6) and stiffness (36, row-major,

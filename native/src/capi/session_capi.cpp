@@ -242,6 +242,17 @@ int hh_session_frame_surface(hh_session* session, int body, double* out, int n_v
     });
 }
 
+int hh_session_frame_pose(hh_session* session, int body, double pose[7]) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        const hh::Frame& f = s.s.frame();
+        require(body >= 0 && 7 * static_cast<std::size_t>(body) < f.poses.size(), "no such body in this world");
+        require(pose != nullptr, "hh_session_frame_pose: null output");
+        std::memcpy(pose, f.poses.data() + 7 * body, 7 * sizeof(double));
+        return HH_OK;
+    });
+}
+
 int hh_session_read_log(hh_session* session, double* out, int capacity, int* out_rows) {
     return guard([&] {
         hh_session& s = session_of(session);
