@@ -1,6 +1,7 @@
 #include "solver/hand_system.h"
 
 #include <Eigen/SparseLU>
+#include <algorithm>
 #include <chrono>
 
 namespace hh {
@@ -72,6 +73,25 @@ VecX HandSystem::apply_inverse(const VecX& rhs) {
     out.tail(n3) = s0;
     for (int i = 0; i < 6; ++i) out.tail(n3) -= temp_[i] * handle.s[i];
     return out;
+}
+
+void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out) {
+    const Eigen::Index n3 = tool.A.rows();
+    const Eigen::Index k = rhs.cols();
+    out.resize(6 + n3, k);
+    Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
+    MatX flesh;
+    for (Eigen::Index first = 0; first < k; first += 8) {
+        const Eigen::Index w = std::min<Eigen::Index>(8, k - first);
+        tool.solve_many(rhs.block(6, first, n3, w), flesh, 8);
+        for (Eigen::Index j = 0; j < w; ++j) {
+            const Vec6 vh = schur.solve(Vec6(rhs.col(first + j).head<6>() - aht_times(flesh.col(j))));
+            out.col(first + j).head<6>() = vh;
+            auto ft = out.col(first + j).tail(n3);
+            ft = flesh.col(j);
+            for (int i = 0; i < 6; ++i) ft -= temp_[i] * vh[i];
+        }
+    }
 }
 
 VecX solve_monolithic(const HandSystem& system, const VecX& rhs) {

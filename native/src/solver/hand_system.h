@@ -26,6 +26,10 @@ public:
     // columns A_t^-1 Ath and the Schur complement (one At solve instead of eight). The
     // contact solver uses it to build the Delassus operator.
     VecX apply_inverse(const VecX& rhs);
+    // After solve(): out = A^-1 rhs for every column of rhs at once (the At solves batched 8
+    // columns per pass through the tool's solve_many, warm-start slots 8-15). Added for the
+    // contact solver's Delassus operator.
+    void apply_inverse_many(const MatX& rhs, MatX& out);
     double t_deformable = 0;  // s spent in tool solves during the last solve()
     double t_schur = 0;       // s spent forming and solving the Schur complement
 
