@@ -42,6 +42,7 @@ def main() -> None:
         if live.poll() is not None:
             frames += 1
         time.sleep(0.005)
+    realtime = live.native.status()["realtime"]
     live.stop()
     if live.error:
         raise SystemExit(f"the session stopped: {live.error}")
@@ -52,6 +53,7 @@ def main() -> None:
     q = lambda a, p: float(np.percentile(a, p))  # noqa: E731
     wall = args.seconds
     print(f"scene {args.scene}: {len(log['t'])} haptic steps and {frames} visual frames in {wall:.1f} s of wall time")
+    print(f"haptic thread real-time priority (SCHED_FIFO): {'yes' if realtime else 'no (needs CAP_SYS_NICE)'}")
     print(f"haptic rate achieved: {len(log['t']) / wall:.0f} Hz (nominal {args.rate:.0f} Hz); "
           f"visual loop: {frames / wall:.1f} Hz")
     print(f"haptic period (us): p50 {q(period_us, 50):.1f}  p99 {q(period_us, 99):.1f}  "

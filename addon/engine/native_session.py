@@ -33,6 +33,7 @@ class SessionParams(ctypes.Structure):
         ("max_torque", ctypes.c_double),
         ("linearized", ctypes.c_int),
         ("log_capacity", ctypes.c_int),
+        ("realtime", ctypes.c_int),
     ]
 
 
@@ -44,6 +45,7 @@ class SessionStatus(ctypes.Structure):
         ("visual_steps", ctypes.c_double),
         ("log_unread", ctypes.c_double),
         ("log_dropped", ctypes.c_double),
+        ("realtime", ctypes.c_int),
         ("message", ctypes.c_char * 512),
     ]
 
@@ -192,7 +194,8 @@ class NativeSession:
         _check(_lib().hh_session_get_status(self._handle, ctypes.byref(s)))
         return {"running": bool(s.running), "failed": bool(s.failed), "haptic_steps": int(s.haptic_steps),
                 "visual_steps": int(s.visual_steps), "log_unread": int(s.log_unread),
-                "log_dropped": int(s.log_dropped), "message": s.message.decode("utf-8", "replace")}
+                "log_dropped": int(s.log_dropped), "realtime": bool(s.realtime),
+                "message": s.message.decode("utf-8", "replace")}
 
     def fetch_frame(self) -> bool:
         """Takes the newest frame (True when it is new); its scalars are in frame_info."""

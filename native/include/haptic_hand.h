@@ -269,6 +269,7 @@ typedef struct hh_session_params {
     int linearized;                    /* 1: proxy under the linearized coupling force (the paper);
                                           0: feedback from the last visual-loop handle only */
     int log_capacity;                  /* rows of the haptic log ring (one per haptic step) */
+    int realtime;                      /* 1: live haptic thread asks for SCHED_FIFO (needs CAP_SYS_NICE) */
 } hh_session_params;
 
 /* One row of the haptic log, HH_LOG_COLUMNS doubles: time, period, step cost (s), device
@@ -281,6 +282,7 @@ typedef struct hh_session_status {
     int failed;              /* 1 once the session stopped on an error (message below) */
     double haptic_steps, visual_steps;
     double log_unread, log_dropped;
+    int realtime;            /* 1 when the haptic thread runs with real-time priority */
     char message[512];
 } hh_session_status;
 

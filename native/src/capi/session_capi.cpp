@@ -48,6 +48,7 @@ void hh_default_session_params(hh_session_params* p) {
     p->max_torque = d.max_torque;
     p->linearized = d.linearized ? 1 : 0;
     p->log_capacity = static_cast<int>(d.log_capacity);
+    p->realtime = d.realtime ? 1 : 0;
 }
 
 int hh_session_create(hh_world* world, int hand_body, const hh_session_params* params, hh_session** out) {
@@ -67,6 +68,7 @@ int hh_session_create(hh_world* world, int hand_body, const hh_session_params* p
         p.linearized = params->linearized != 0;
         require(params->log_capacity >= 1, "the haptic log needs room for at least one row");
         p.log_capacity = static_cast<std::size_t>(params->log_capacity);
+        p.realtime = params->realtime != 0;
         *out = new hh_session(world, hand_body, p);
         return HH_OK;
     });
@@ -197,6 +199,7 @@ int hh_session_get_status(hh_session* session, hh_session_status* out) {
         out->visual_steps = static_cast<double>(s.s.visual_steps());
         out->log_unread = static_cast<double>(s.s.log().unread());
         out->log_dropped = static_cast<double>(s.s.log().dropped());
+        out->realtime = s.s.realtime() ? 1 : 0;
         std::snprintf(out->message, sizeof out->message, "%s", s.s.error());
         return HH_OK;
     });

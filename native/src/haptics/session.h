@@ -31,6 +31,7 @@ struct SessionParams {
     double max_torque = 1e9;    // N m
     bool linearized = true;     // false: feedback from the last visual-loop handle only
     std::size_t log_capacity = 1 << 16;  // rows (65 s at 1 kHz): the host reads them as they come
+    bool realtime = true;       // live: ask for SCHED_FIFO for the haptic thread (needs CAP_SYS_NICE)
 };
 
 // What the haptic loop tells the visual loop: the proxy, where the device is.
@@ -76,6 +77,8 @@ public:
     void start();
     void stop() noexcept;
     bool running() const { return running_.load(std::memory_order_acquire); }
+    // whether the haptic thread got real-time priority
+    bool realtime() const { return realtime_.load(std::memory_order_acquire); }
     bool failed() const { return failed_.load(std::memory_order_acquire); }
     const char* error() const { return failed() ? message_ : ""; }
 
@@ -124,7 +127,7 @@ private:
     Vec3 previous_v_ = Vec3::Zero(), previous_omega_ = Vec3::Zero();  // the last step's handle velocity
     std::vector<int> surface_offset_;
 
-    std::atomic<bool> running_{false}, stop_{false}, failed_{false}, failing_{false};
+    std::atomic<bool> running_{false}, stop_{false}, failed_{false}, failing_{false}, realtime_{false};
     std::atomic<std::uint64_t> haptic_steps_{0}, visual_steps_{0};
     char message_[512] = {0};
     std::thread haptic_thread_, visual_thread_;
