@@ -9,12 +9,28 @@
 #include <string>
 #include <thread>
 
+#include <cstdlib>
+#include <new>
+
 #include "box_mesh.h"
+#include "capi/guard.h"
 #include "check.h"
 #include "device/openhaptics.h"
+#include "device/simulated_arm.h"
 #include "haptic_hand.h"
 #include "haptics/haptic_log.h"
+#include "haptics/session.h"
 #include "haptics/triple_buffer.h"
+
+// Every allocation of this test program goes through here, so a test can count them.
+static std::atomic<long> g_allocations{0};
+void* operator new(std::size_t n) {
+    g_allocations.fetch_add(1, std::memory_order_relaxed);
+    if (void* p = std::malloc(n ? n : 1)) return p;
+    throw std::bad_alloc();
+}
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
 
 namespace {
 void sleep_s(double s) { std::this_thread::sleep_for(std::chrono::duration<double>(s)); }
@@ -251,4 +267,21 @@ TEST(openhaptics_backend_drives_the_session_from_the_servo_loop) {
     CHECK(std::string(st.message).find("OpenHaptics device stopped answering") != std::string::npos);
     CHECK(hh_session_stop(rig.session) == HH_OK);
     set_failing(0);
+}
+
+TEST(haptic_step_never_allocates) {
+    LiveRig rig;
+    hh::SessionParams p;
+    hh::Session session(rig.world->w, rig.hand, p);
+    hh::Keyframes target(std::vector<double>{0.0, 1.0}.data(),
+                         std::vector<double>{rig.com[0], rig.com[1], rig.com[2], rig.com[0] + 0.01, rig.com[1], rig.com[2]}.data(),
+                         nullptr, 2);
+    session.set_device(std::make_unique<hh::SimulatedArm>(target, hh::ArmParams{}));
+    session.run_offline(2);  // a valid coupling model is published
+    const long before = g_allocations.load();
+    bool ok = true;
+    for (int i = 1; i <= 1000; ++i) ok = ok && session.haptic_step(0.1 + 1e-3 * i);
+    const long during = g_allocations.load() - before;
+    CHECK(ok);
+    CHECK(during == 0);
 }
