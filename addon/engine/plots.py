@@ -20,8 +20,13 @@ def force_plot(result: dict, path: Path | str) -> Path:
     for c, name in enumerate("xyz"):
         ax_f.plot(t, w[:, c], label=f"F{name}")
     ax_f.plot(t, np.linalg.norm(w[:, :3], axis=1), "k", lw=2, label="|F|")
+    haptic = result.get("haptic")
+    if haptic is not None and len(haptic["t"]):
+        # the feedback the device displayed, one point per haptic step (1 kHz)
+        ax_f.plot(haptic["t"], np.linalg.norm(haptic["force"], axis=1), color="tab:red", lw=0.8,
+                  label="|feedback| (haptic loop)")
     ax_f.set_ylabel("spring force on handle (N)")
-    ax_f.legend(loc="upper right", ncol=4)
+    ax_f.legend(loc="center right", ncol=3, fontsize=8)
     ax_f.grid(alpha=0.3)
     ax_d.plot(t, gap * 1000, color="tab:purple")
     ax_d.set_ylabel("device - handle gap (mm)")

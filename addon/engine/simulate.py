@@ -225,6 +225,12 @@ def summary(result: dict) -> str:
     n_frames = len(result["time"]) - 1
     travel = np.linalg.norm(result["handle_pose"][:, :3] - result["handle_pose"][0, :3], axis=1)
     force = np.linalg.norm(result["coupling_wrench"][:, :3], axis=1)
+    haptic = []
+    if result.get("haptic") is not None and len(result["haptic"]["t"]):
+        h = result["haptic"]
+        felt = np.linalg.norm(h["force"], axis=1)
+        haptic = [f"haptic loop: {len(h['t'])} steps ({len(h['t']) / max(h['t'][-1], 1e-12):.0f} Hz), felt force "
+                  f"max {felt.max():.3f} N, final {felt[-1]:.3f} N, step cost median {np.median(h['cost']) * 1e6:.1f} us"]
     return "\n".join([
         f"frames: {n_frames} at dt = {result['time'][1]:.4f} s ({result['time'][-1]:.2f} s simulated)",
         f"hand: {len(result['rest_nodes'])} nodes, {len(result['tets'])} tets, "
@@ -239,4 +245,4 @@ def summary(result: dict) -> str:
         f"{1.0 / vt[:, 3].mean():.0f} Hz",
         f"contacts: up to {int(cs[:, 0].max())} ({int(cs[:, 1].max())} between fingers), deepest into the "
         f"{thickness * 1e3:.1f} mm thickness: {cs[:, 2].max() * 1e3:.3f} mm",
-    ])
+    ] + haptic)
