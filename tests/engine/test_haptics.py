@@ -178,9 +178,13 @@ def test_offline_sessions_repeat_bit_for_bit():
         assert np.array_equal(a[key], b[key])
 
 
-def test_device_that_disconnects_stops_with_a_message_and_keeps_what_was_done():
+@pytest.mark.parametrize("kind", ["simulated", "playback"])
+def test_device_that_disconnects_stops_with_a_message_and_keeps_what_was_done(kind):
     rig = Rig(hand_scene(gravity=(0.0, 0.0, -9.81)))
-    rig.session.device_simulated([0.0], rig.com[None, :], fail_at=0.5)
+    if kind == "simulated":
+        rig.session.device_simulated([0.0], rig.com[None, :], fail_at=0.5)
+    else:
+        rig.session.device_playback([0.0, 1.0], [rig.com, rig.com + [0.01, 0, 0]], fail_at=0.5)
     with pytest.raises(native.InvalidInput, match="disconnect"):
         rig.run(2.0)
     log = native_session.log_arrays(rig.session.read_log())
