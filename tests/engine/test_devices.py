@@ -83,3 +83,47 @@ def test_coupling_stiffer_than_tested_is_refused():
     data = {"format": scenes.FORMAT, "haptics": {"enabled": True}, "coupling": {"stiffness": 1e6}}
     with pytest.raises(scenes.SceneError, match="coupling.stiffness"):
         scenes.from_dict(data)
+
+
+class FakeHidDevice:
+    """Stands in for hidapi's device: plays recorded reports, then fails like an unplugged one."""
+
+    def __init__(self, reports, fail_after: float):
+        self.reports, self.fail_after, self.opened = list(reports), fail_after, None
+
+    def open_path(self, path):
+        self.opened = path
+        import time
+        self.t0 = time.monotonic()
+
+    def set_nonblocking(self, on):
+        pass
+
+    def read(self, size):
+        import time
+        if time.monotonic() - self.t0 > self.fail_after:
+            raise OSError("read error")
+        return self.reports.pop(0) if self.reports else []
+
+    def close(self):
+        pass
+
+
+def test_hid_reader_pushes_integrated_poses_and_reports_an_unplugged_device(monkeypatch):
+    import sys
+    import time
+    import types
+
+    fake = FakeHidDevice([list(report(1, 350, 0, 0, 0, 0, 0))], fail_after=0.3)
+    monkeypatch.setitem(sys.modules, "hid", types.SimpleNamespace(device=lambda: fake))
+    pushed = []
+    reader = devices.HidSpaceMouse(b"/dev/hidraw-test", lambda p, q: pushed.append((time.monotonic(), p)),
+                                   np.zeros(3))
+    time.sleep(0.6)
+    reader.stop()
+    assert fake.opened == b"/dev/hidraw-test"
+    assert reader.error is not None and "unplugged" in reader.error
+    # full right deflection: x grows at 0.1 m/s while the device answers, y and z stay
+    (t0, p0), (t1, p1) = pushed[1], pushed[-1]
+    assert p1[0] - p0[0] == pytest.approx(0.1 * (t1 - t0), rel=0.2)
+    assert abs(p1[1]) < 1e-12 and abs(p1[2]) < 1e-12
