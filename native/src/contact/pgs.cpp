@@ -29,35 +29,36 @@ Eigen::Vector2d disk_constrained_minimum(const Eigen::Matrix2d& w, const Eigen::
 }
 }  // namespace
 
-PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, double tolerance) {
-    const int c = static_cast<int>(p.gap.size());
-    if (lambda.size() != 3 * c) lambda = VecX::Zero(3 * c);  // else: a warm start
-    for (int i = 0; i < c; ++i) lambda[3 * i] = std::max(0.0, lambda[3 * i]);
-    VecX u = p.u_free + p.W * lambda;
+namespace {
+// The sweeps, on any form of W. Op gives, per contact i, its current relative velocity
+// velocity(i) (3: normal, tangent1, tangent2), the symmetric 3x3 diagonal block block(i) of
+// W, and apply(i, delta): the impulses of contact i change by delta.
+template <class Op>
+PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX& kinetic, double dt,
+                double recovery_speed, VecX& lambda, int max_iterations, double tolerance) {
     PgsResult result;
     // target normal velocity: close an open gap exactly within the step, never faster; push
     // out of a penetration at a bounded speed, so a deep one is resolved over a few steps
     // instead of by one violent impulse that would feed energy into the scene
     VecX bias(c);
-    for (int i = 0; i < c; ++i) bias[i] = std::max(p.gap[i] / p.dt, -p.recovery_speed);
-    auto apply = [&](int col, double delta) {
-        if (delta != 0) u.noalias() += p.W.col(col) * delta;
-        lambda[col] += delta;
-    };
+    for (int i = 0; i < c; ++i) bias[i] = std::max(gap[i] / dt, -recovery_speed);
     // Friction coefficient each contact's disk uses: static first; contacts still sliding once
     // the static problem is solved break loose and are solved again against kinetic friction.
     // (Deciding per contact inside the sweep would let the first contact of a resting block
     // give way before its neighbours had taken their share.)
-    VecX coefficient = p.friction;
+    VecX coefficient = friction;
+    std::vector<Vec3> u(c);
     // How far the current impulses are from satisfying every condition, in m/s: normal
     // complementarity, sticking contacts at rest, sliding ones sliding against their friction.
     auto residual = [&]() {
         double worst = 0;
         for (int i = 0; i < c; ++i) {
             const int n = 3 * i;
-            const double un = u[n] + bias[i];
+            const Vec3 ui = op.velocity(i);
+            u[i] = ui;
+            const double un = ui[0] + bias[i];
             worst = std::max(worst, lambda[n] > 0 ? std::abs(un) : std::max(0.0, -un));
-            const Eigen::Vector2d ut(u[n + 1], u[n + 2]), lt(lambda[n + 1], lambda[n + 2]);
+            const Eigen::Vector2d ut(ui[1], ui[2]), lt(lambda[n + 1], lambda[n + 2]);
             const double limit = coefficient[i] * lambda[n];
             if (lt.norm() < limit * (1 - 1e-9) || lt.norm() == 0)
                 worst = std::max(worst, ut.norm());  // sticking: no sliding allowed
@@ -69,21 +70,28 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
     for (int it = 0, pass = 0; it < max_iterations; ++it) {
         for (int i = 0; i < c; ++i) {
             const int n = 3 * i;
-            const double wnn = p.W(n, n);
-            if (wnn <= 0) continue;  // both sides immovable
-            const double ln = std::max(0.0, lambda[n] - (u[n] + bias[i]) / wnn);
-            apply(n, ln - lambda[n]);
+            const Mat3& w = op.block(i);
+            if (w(0, 0) <= 0) continue;  // both sides immovable
+            Vec3 ui = op.velocity(i);
+            const double ln = std::max(0.0, lambda[n] - (ui[0] + bias[i]) / w(0, 0));
+            Vec3 delta(ln - lambda[n], 0, 0);
+            lambda[n] = ln;
+            ui += w.col(0) * delta[0];
             // friction: the exact solution of this contact's 2x2 subproblem (impulse inside
             // the disk of radius mu lambda_n minimizing the block's kinetic energy), whose
             // optimality conditions are Coulomb's: sticking inside the disk, or on its rim
             // exactly opposite the post-step sliding velocity (maximal dissipation).
-            const Eigen::Matrix2d wtt = 0.5 * (p.W.block<2, 2>(n + 1, n + 1) + p.W.block<2, 2>(n + 1, n + 1).transpose());
-            if (!(wtt.trace() > 0)) continue;
-            const Eigen::Vector2d ut(u[n + 1], u[n + 2]);
-            const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
-            const Eigen::Vector2d target = disk_constrained_minimum(wtt, wtt * lt - ut, coefficient[i] * lambda[n]);
-            apply(n + 1, target[0] - lt[0]);
-            apply(n + 2, target[1] - lt[1]);
+            const Eigen::Matrix2d wtt = 0.5 * (w.block<2, 2>(1, 1) + w.block<2, 2>(1, 1).transpose());
+            if (wtt.trace() > 0) {
+                const Eigen::Vector2d ut(ui[1], ui[2]);
+                const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
+                const Eigen::Vector2d target = disk_constrained_minimum(wtt, wtt * lt - ut, coefficient[i] * lambda[n]);
+                delta[1] = target[0] - lt[0];
+                delta[2] = target[1] - lt[1];
+                lambda[n + 1] = target[0];
+                lambda[n + 2] = target[1];
+            }
+            op.apply(i, delta);
         }
         result.iterations = it + 1;
         result.residual = residual();
@@ -91,19 +99,106 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
         if (pass++ > 0) break;
         bool broke_loose = false;
         for (int i = 0; i < c; ++i) {
-            const Eigen::Vector2d ut(u[3 * i + 1], u[3 * i + 2]);
+            const Eigen::Vector2d ut(u[i][1], u[i][2]);
             // sliding clearly faster than the solver's tolerance (not a sticking contact
             // still converging) while at the static limit: it breaks loose
             const Eigen::Vector2d lt(lambda[3 * i + 1], lambda[3 * i + 2]);
-            if (p.kinetic[i] < coefficient[i] && ut.norm() > 10 * tolerance &&
+            if (kinetic[i] < coefficient[i] && ut.norm() > 10 * tolerance &&
                 lt.norm() >= coefficient[i] * lambda[3 * i] * (1 - 1e-9)) {
-                coefficient[i] = p.kinetic[i];
+                coefficient[i] = kinetic[i];
                 broke_loose = true;
             }
         }
         if (!broke_loose) break;
     }
     return result;
+}
+
+// W dense: u = u_free + W lambda kept up to date, a column per changed impulse.
+struct DenseOp {
+    const MatX& W;
+    VecX u;
+    std::vector<Mat3> blocks;
+    DenseOp(const ContactProblem& p, const VecX& lambda) : W(p.W), u(p.u_free + p.W * lambda) {
+        const int c = static_cast<int>(p.gap.size());
+        blocks.resize(c);
+        for (int i = 0; i < c; ++i) blocks[i] = W.block<3, 3>(3 * i, 3 * i);
+    }
+    Vec3 velocity(int i) const { return u.segment<3>(3 * i); }
+    const Mat3& block(int i) const { return blocks[i]; }
+    void apply(int i, const Vec3& delta) {
+        for (int d = 0; d < 3; ++d)
+            if (delta[d] != 0) u.noalias() += W.col(3 * i + d) * delta[d];
+    }
+};
+
+// W = sum_b P_b C_b P_b^T: y_b = C_b P_b^T lambda kept up to date.
+struct ReducedOp {
+    const ReducedContactProblem& p;
+    std::vector<VecX> y;
+    std::vector<Mat3> blocks;
+    ReducedOp(const ReducedContactProblem& p, const VecX& lambda) : p(p) {
+        const int c = static_cast<int>(p.gap.size());
+        std::vector<VecX> f(p.bodies.size());
+        for (size_t b = 0; b < p.bodies.size(); ++b) f[b] = VecX::Zero(p.bodies[b].C.rows());
+        blocks.assign(c, Mat3::Zero());
+        for (int i = 0; i < c; ++i)
+            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
+                const auto& a = p.entries[e];
+                f[a.body][a.index] += a.coefficient.dot(lambda.segment<3>(3 * i));
+                for (int g = p.begin[i]; g < p.begin[i + 1]; ++g) {
+                    const auto& h = p.entries[g];
+                    if (h.body == a.body) blocks[i] += p.bodies[a.body].C(a.index, h.index) * a.coefficient * h.coefficient.transpose();
+                }
+            }
+        y.resize(p.bodies.size());
+        for (size_t b = 0; b < p.bodies.size(); ++b) y[b] = p.bodies[b].C * f[b];
+    }
+    Vec3 velocity(int i) const {
+        Vec3 out = p.u_free.segment<3>(3 * i);
+        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) out += p.entries[e].coefficient * y[p.entries[e].body][p.entries[e].index];
+        return out;
+    }
+    const Mat3& block(int i) const { return blocks[i]; }
+    void apply(int i, const Vec3& delta) {
+        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
+            const double s = p.entries[e].coefficient.dot(delta);
+            if (s != 0) y[p.entries[e].body].noalias() += p.bodies[p.entries[e].body].C.col(p.entries[e].index) * s;
+        }
+    }
+};
+
+void start(int c, VecX& lambda) {
+    if (lambda.size() != 3 * c) lambda = VecX::Zero(3 * c);  // else: a warm start
+    for (int i = 0; i < c; ++i) lambda[3 * i] = std::max(0.0, lambda[3 * i]);
+}
+}  // namespace
+
+PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, double tolerance) {
+    const int c = static_cast<int>(p.gap.size());
+    start(c, lambda);
+    DenseOp op(p, lambda);
+    return sweep(op, c, p.gap, p.friction, p.kinetic, p.dt, p.recovery_speed, lambda, max_iterations, tolerance);
+}
+
+PgsResult solve_pgs(const ReducedContactProblem& p, VecX& lambda, int max_iterations, double tolerance) {
+    const int c = static_cast<int>(p.gap.size());
+    start(c, lambda);
+    ReducedOp op(p, lambda);
+    return sweep(op, c, p.gap, p.friction, p.kinetic, p.dt, p.recovery_speed, lambda, max_iterations, tolerance);
+}
+
+MatX ReducedContactProblem::delassus() const {
+    const int c = static_cast<int>(gap.size());
+    MatX w = MatX::Zero(3 * c, 3 * c);
+    for (int i = 0; i < c; ++i)
+        for (int j = 0; j < c; ++j)
+            for (int e = begin[i]; e < begin[i + 1]; ++e)
+                for (int g = begin[j]; g < begin[j + 1]; ++g)
+                    if (entries[e].body == entries[g].body)
+                        w.block<3, 3>(3 * i, 3 * j) += bodies[entries[e].body].C(entries[e].index, entries[g].index) *
+                                                       entries[e].coefficient * entries[g].coefficient.transpose();
+    return w;
 }
 
 }  // namespace hh

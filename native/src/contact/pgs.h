@@ -6,7 +6,17 @@
 //   friction: |lambda_t| <= mu lambda_n; sticking (u_t = 0) inside the cone, sliding on its
 //             boundary against the sliding direction (maximal dissipation)
 // solved by projected Gauss-Seidel over 3x3 contact blocks.
+//
+// Two forms of W, the same sweeps:
+// - ContactProblem: W dense (3c x 3c).
+// - ReducedContactProblem: W = sum_b P_b C_b P_b^T, per dynamic body b a small symmetric
+//   matrix C_b (its response A_b^-1 on the m_b unknowns the contacts touch, or on its contact
+//   rows) and the sparse P_b (each contact's three rows on those m_b entries). A sweep keeps
+//   y_b = C_b P_b^T lambda instead of u, so W is never formed: a contact costs ~12 m_b per
+//   body it touches instead of 3 x 3c, and forming W (3c x 3c x ~12) is skipped.
 #pragma once
+#include <vector>
+
 #include "common/types.h"
 
 namespace hh {
@@ -21,6 +31,25 @@ struct ContactProblem {
     double recovery_speed = 0.05;  // m/s: largest speed at which a penetration is pushed out
 };
 
+struct ReducedContactProblem {
+    struct Body {
+        MatX C;  // m x m, symmetric
+    };
+    struct Entry {   // contact rows (normal, tangent1, tangent2) on entry `index` of body `body`'s basis
+        int body;
+        int index;
+        Vec3 coefficient;
+    };
+    std::vector<Body> bodies;
+    std::vector<int> begin;       // c + 1: contact i's entries are entries[begin[i], begin[i + 1])
+    std::vector<Entry> entries;
+    VecX u_free, gap, friction, kinetic;  // as in ContactProblem
+    double dt = 0;
+    double recovery_speed = 0.05;
+    // W = sum_b P_b C_b P_b^T, rows and columns of the given contacts (3 per contact)
+    MatX delassus() const;
+};
+
 struct PgsResult {
     int iterations = 0;
     double residual = 0;  // m/s: largest violation of the conditions above (see solve_pgs)
@@ -29,5 +58,6 @@ struct PgsResult {
 // lambda: in, a warm start when it has 3c entries (the previous step's impulses of the same
 // contacts); out, the impulses. Sweeps end when every condition holds to `tolerance` m/s.
 PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, double tolerance);
+PgsResult solve_pgs(const ReducedContactProblem& p, VecX& lambda, int max_iterations, double tolerance);
 
 }  // namespace hh

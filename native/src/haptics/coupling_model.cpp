@@ -46,8 +46,7 @@ CouplingModel linearize_coupling(const World& world, int hand) {
     CouplingModel out;
     // held rows: normals that pushed; tangents of contacts that stuck inside the cone
     const int nc = static_cast<int>(world.contact_lambda.size() / 3);
-    auto cols_it = world.contact_columns.find(hand);
-    if (nc > 0 && cols_it != world.contact_columns.end()) {
+    if (nc > 0 && world.contact_bodies.count(hand)) {
         const VecX& lambda = world.contact_lambda;
         std::vector<int> held;
         double scale = 0;
@@ -63,20 +62,25 @@ CouplingModel linearize_coupling(const World& world, int hand) {
             }
         }
         const int na = static_cast<int>(held.size());
-        const std::vector<VecX>& cols = cols_it->second;
-        MatX hr = MatX::Zero(na, 6), hl = MatX::Zero(6, na), wa(na, na);
+        // the hand's unknowns at the handle nodes (flesh, after the handle's 6)
+        std::vector<int> handle_unknowns;
+        for (int node : nodes)
+            for (int k = 0; k < 3; ++k) handle_unknowns.push_back(6 + 3 * node + k);
+        MatX hr = MatX::Zero(na, 6), hl = MatX::Zero(6, na);
+        MatX wa = world.contact_delassus(held);  // held rows of the step's W (unsymmetrized)
         bool touches_hand = false;
         for (int a = 0; a < na; ++a) {
-            for (int e = 0; e < na; ++e) wa(a, e) = world.contact_W(held[a], held[e]);
-            const VecX& col = cols[held[a]];
+            // A^-1 J^T of the row at the handle nodes (its handle part is zero: it is prescribed)
+            const VecX col = world.contact_column(hand, held[a], handle_unknowns);
             if (col.size() == 0) continue;
             touches_hand = true;
-            const auto flesh = col.tail(col.size() - 6);  // handle part is zero: it is prescribed
+            Vec6 aht_col = Vec6::Zero();
             for (std::size_t j = 0; j < nodes.size(); ++j) {
-                const Vec3 s = flesh.segment<3>(3 * nodes[j]);
+                const Vec3 s = col.segment<3>(3 * j);
                 hr.row(a) += s.transpose() * cb.ath[j];  // (J At^-1 Ath)_a, At symmetric
+                aht_col += cb.aht[j] * s;
             }
-            hl.col(a) = aht_times(flesh);
+            hl.col(a) = aht_col;
         }
         if (touches_hand && na > 0) {
             // Redundant contacts make W_a singular; a compliance of 1e-9 of its largest

@@ -1,7 +1,11 @@
 #include "sim/world.h"
 
+#include <algorithm>
 #include <chrono>
+#include <functional>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <limits>
 #include <map>
 
@@ -217,88 +221,93 @@ void World::solve_free() {
 }
 
 void World::solve_contacts() {
+    using clock = std::chrono::steady_clock;
+    const auto t_start = clock::now();
     const int nc = static_cast<int>(contacts.size());
-    contact_W.resize(0, 0);
+    contact_groups.clear();
+    contact_group_of.assign(nc, -1);
+    contact_slot.assign(nc, -1);
+    contact_bodies.clear();
     contact_lambda.resize(0);
     contact_friction.resize(0);
-    contact_columns.clear();
     if (nc == 0) {
         previous_impulse.clear();
         return;
     }
     const int rows = 3 * nc;
-    // every (body, row) pair: the sparse Jacobian row as (unknown offset, coefficient) terms
+    auto direction = [&](int row) -> const Vec3& {
+        const Contact& c = contacts[row / 3];
+        return row % 3 == 0 ? c.normal : (row % 3 == 1 ? c.tangent1 : c.tangent2);
+    };
+
+    // Per contact and dynamic side: the body's unknowns it moves, as (first unknown, weight)
+    // terms for flesh nodes (3 unknowns each) or the rigid body's (v, omega) lever arm.
     struct Term {
         int offset;
         double weight;
         bool rigid;
         Vec3 r;
     };
-    std::map<int, std::vector<std::vector<Term>>> terms;  // body -> contact -> side terms
-    auto side_terms = [&](const ContactSide& side, double sign) {
-        std::vector<Term> out;
-        const Body& b = *bodies[side.body];
-        for (int k = 0; k < side.count; ++k) {
-            const int v = side.vertex[k];
-            if (b.kind == BodyKind::Rigid) {
-                out.push_back({0, sign * side.weight[k], true, b.surface.x[v] - b.rigid.x_com});
-            } else {
-                const int base = b.kind == BodyKind::Hand ? 6 : 0;
-                for (int s = 0; s < 4; ++s)
-                    if (b.surface.weights[v][s] != 0)
-                        out.push_back({base + 3 * b.surface.nodes[v][s], sign * side.weight[k] * b.surface.weights[v][s], false, Vec3::Zero()});
-            }
-        }
-        return out;
-    };
+    std::vector<std::vector<std::pair<int, std::vector<Term>>>> sides(nc);  // contact -> (body, terms)
     std::vector<int> involved;
     for (int c = 0; c < nc; ++c)
         for (int s = 0; s < 2; ++s) {
             const ContactSide& side = s == 0 ? contacts[c].a : contacts[c].b;
             if (side.body < 0 || !bodies[side.body]->dynamic()) continue;
-            auto& per_body = terms[side.body];
-            if (per_body.empty()) {
-                per_body.resize(nc);
-                involved.push_back(side.body);
+            const Body& b = *bodies[side.body];
+            const double sign = s == 0 ? 1.0 : -1.0;
+            std::vector<Term>* ts = nullptr;
+            for (auto& e : sides[c])
+                if (e.first == side.body) ts = &e.second;  // self-contact: both sides on one body
+            if (!ts) {
+                sides[c].emplace_back(side.body, std::vector<Term>());
+                ts = &sides[c].back().second;
             }
-            auto t = side_terms(side, s == 0 ? 1.0 : -1.0);
-            per_body[c].insert(per_body[c].end(), t.begin(), t.end());
-        }
-    auto direction = [&](int row) -> const Vec3& {
-        const Contact& c = contacts[row / 3];
-        return row % 3 == 0 ? c.normal : (row % 3 == 1 ? c.tangent1 : c.tangent2);
-    };
-    auto scatter = [&](const std::vector<Term>& ts, const Vec3& u, VecX& out) {
-        for (const Term& t : ts) {
-            if (t.rigid) {
-                out.head<3>() += t.weight * u;
-                out.tail<3>() += t.weight * t.r.cross(u);
-            } else {
-                out.segment<3>(t.offset) += t.weight * u;
+            for (int k = 0; k < side.count; ++k) {
+                const int v = side.vertex[k];
+                if (b.kind == BodyKind::Rigid) {
+                    ts->push_back({0, sign * side.weight[k], true, b.surface.x[v] - b.rigid.x_com});
+                } else {
+                    const int base = b.kind == BodyKind::Hand ? 6 : 0;
+                    for (int q = 0; q < 4; ++q) {
+                        const int node = b.surface.nodes[v][q];
+                        // a fixed node of a soft body does not move: it takes no impulse
+                        if (b.surface.weights[v][q] == 0 || (b.kind == BodyKind::Soft && b.fixed[node])) continue;
+                        ts->push_back({base + 3 * node, sign * side.weight[k] * b.surface.weights[v][q], false, Vec3::Zero()});
+                    }
+                }
             }
+            if (std::find(involved.begin(), involved.end(), side.body) == involved.end()) involved.push_back(side.body);
         }
-    };
-    auto gather = [&](const std::vector<Term>& ts, const Vec3& u, const VecX& y) {
-        double sum = 0;
-        for (const Term& t : ts)
-            sum += t.rigid ? t.weight * (u.dot(y.head<3>()) + t.r.cross(u).dot(y.tail<3>()))
-                           : t.weight * u.dot(y.segment<3>(t.offset));
-        return sum;
-    };
+    std::sort(involved.begin(), involved.end());
 
-    ContactProblem prob;
-    prob.dt = settings.dt;
-    prob.W = MatX::Zero(rows, rows);
-    prob.u_free = VecX::Zero(rows);
-    prob.gap.resize(nc);
-    prob.friction.resize(nc);
-    prob.kinetic.resize(nc);
+    // Groups: contacts joined by the dynamic bodies they share (union-find over bodies).
+    std::vector<int> parent(bodies.size());
+    for (size_t i = 0; i < parent.size(); ++i) parent[i] = static_cast<int>(i);
+    std::function<int(int)> root = [&](int i) { return parent[i] == i ? i : (parent[i] = root(parent[i])); };
+    for (int c = 0; c < nc; ++c)
+        for (size_t e = 1; e < sides[c].size(); ++e) parent[root(sides[c][e].first)] = root(sides[c][0].first);
+    std::map<int, int> group_of_root;
+    for (int c = 0; c < nc; ++c) {
+        const int r = sides[c].empty() ? -1 - c : root(sides[c][0].first);
+        auto it = group_of_root.find(r);
+        if (it == group_of_root.end()) {
+            it = group_of_root.emplace(r, static_cast<int>(contact_groups.size())).first;
+            contact_groups.emplace_back();
+        }
+        ContactGroup& g = contact_groups[it->second];
+        contact_group_of[c] = it->second;
+        contact_slot[c] = static_cast<int>(g.contacts.size());
+        g.contacts.push_back(c);
+    }
+
+    // The problem's data per contact (global rows)
+    VecX u_free = VecX::Zero(rows), gap(nc), friction(nc), kinetic(nc);
     for (int c = 0; c < nc; ++c) {
         const Contact& k = contacts[c];
-        prob.gap[c] = k.distance - settings.contact_thickness;
-        const double mu_a = bodies[k.a.body]->friction, mu_b = bodies[k.b.body]->friction;
-        prob.friction[c] = std::sqrt(mu_a * mu_b);
-        prob.kinetic[c] = std::sqrt(bodies[k.a.body]->kinetic_friction * bodies[k.b.body]->kinetic_friction);
+        gap[c] = k.distance - settings.contact_thickness;
+        friction[c] = std::sqrt(bodies[k.a.body]->friction * bodies[k.b.body]->friction);
+        kinetic[c] = std::sqrt(bodies[k.a.body]->kinetic_friction * bodies[k.b.body]->kinetic_friction);
         // kinematic bodies' motion enters as a known relative velocity
         for (int s = 0; s < 2; ++s) {
             const ContactSide& side = s == 0 ? k.a : k.b;
@@ -306,45 +315,101 @@ void World::solve_contacts() {
             if (b.kind != BodyKind::Kinematic) continue;
             const Vec3 p = side.count > 0 ? side.point(b.surface) : k.point;
             const Vec3 vel = carried_velocity(b, p);
-            for (int d = 0; d < 3; ++d) prob.u_free[3 * c + d] += (s == 0 ? 1.0 : -1.0) * direction(3 * c + d).dot(vel);
+            for (int d = 0; d < 3; ++d) u_free[3 * c + d] += (s == 0 ? 1.0 : -1.0) * direction(3 * c + d).dot(vel);
         }
     }
-    // columns A_b^-1 J_b^T, one black-box solve per row a body takes part in
-    std::map<int, std::vector<VecX>> columns;
+
+    std::map<int, MatX> response;  // per body: its symmetrized C_b (see ReducedContactProblem)
+    // Per dynamic body: J_b on the unknowns it touches (G), their responses K from batched
+    // black-box solves (8 right-hand sides per pass), and its block G K G^T (or G K) of W.
     for (int bi : involved) {
         Body& b = *bodies[bi];
-        auto& cols = columns[bi];
-        cols.assign(rows, VecX());
-        const auto& bt = terms[bi];
-        for (int row = 0; row < rows; ++row) {
-            const auto& ts = bt[row / 3];
-            if (ts.empty()) continue;
-            VecX rhs = VecX::Zero(b.dofs());
-            scatter(ts, direction(row), rhs);
-            switch (b.kind) {
-                case BodyKind::Hand: cols[row] = b.hand->hand.apply_inverse(rhs); break;
-                case BodyKind::Soft:
-                    for (int i = 0; i < b.flesh->mesh.n_nodes; ++i)
-                        if (b.fixed[i]) rhs.segment<3>(3 * i).setZero();
-                    b.tool->r = rhs;
-                    b.tool->select_slot(1 + row % 3);
-                    b.tool->solve();
-                    cols[row] = b.tool->s;
-                    break;
-                default:
-                    b.rigid_system->r = rhs;
-                    b.rigid_system->solve();
-                    cols[row] = b.rigid_system->s;
+        ContactBody& cb = contact_bodies[bi];
+        const int dofs = b.dofs();
+        std::vector<int> touched_mark(dofs, 0);
+        for (int c = 0; c < nc; ++c)
+            for (const auto& e : sides[c]) {
+                if (e.first != bi) continue;
+                for (int d = 0; d < 3; ++d) cb.rows.push_back(3 * c + d);
+                for (const Term& t : e.second) {
+                    if (t.rigid) std::fill(touched_mark.begin(), touched_mark.begin() + 6, 1);
+                    else for (int d = 0; d < 3; ++d) touched_mark[t.offset + d] = 1;
+                }
+            }
+        std::vector<int> index_of(dofs, -1);
+        for (int k = 0; k < dofs; ++k)
+            if (touched_mark[k]) {
+                index_of[k] = static_cast<int>(cb.touched.size());
+                cb.touched.push_back(k);
+            }
+        const int nr = static_cast<int>(cb.rows.size()), nt = static_cast<int>(cb.touched.size());
+        cb.local_row.assign(rows, -1);
+        for (int l = 0; l < nr; ++l) cb.local_row[cb.rows[l]] = l;
+        std::vector<Eigen::Triplet<double>> trip;
+        for (int l = 0; l < nr; ++l) {
+            const int row = cb.rows[l];
+            const Vec3& u = direction(row);
+            for (const auto& e : sides[row / 3]) {
+                if (e.first != bi) continue;
+                for (const Term& t : e.second) {
+                    if (t.rigid) {
+                        const Vec3 ru = t.r.cross(u);
+                        for (int d = 0; d < 3; ++d) {
+                            trip.emplace_back(l, index_of[d], t.weight * u[d]);
+                            trip.emplace_back(l, index_of[3 + d], t.weight * ru[d]);
+                        }
+                    } else {
+                        for (int d = 0; d < 3; ++d) trip.emplace_back(l, index_of[t.offset + d], t.weight * u[d]);
+                    }
+                }
             }
         }
-        for (int row = 0; row < rows; ++row) {
-            const auto& ts = bt[row / 3];
-            if (ts.empty()) continue;
-            prob.u_free[row] += gather(ts, direction(row), b.v_free);
-            for (int col = 0; col < rows; ++col)
-                if (cols[col].size() > 0) prob.W(row, col) += gather(ts, direction(row), cols[col]);
+        cb.G.resize(nr, nt);
+        cb.G.setFromTriplets(trip.begin(), trip.end());
+        // watched unknowns: the touched ones, then (hand) the handle nodes' for the coupling model
+        cb.watched = cb.touched;
+        if (b.kind == BodyKind::Hand)
+            for (int node : b.hand_model->handle.nodes)
+                for (int d = 0; d < 3; ++d)
+                    if (!touched_mark[6 + 3 * node + d]) cb.watched.push_back(6 + 3 * node + d);
+        for (size_t w = 0; w < cb.watched.size(); ++w) cb.watched_index[cb.watched[w]] = static_cast<int>(w);
+        // basis: whichever needs fewer solves
+        cb.row_basis = nr < nt;
+        const int m = cb.row_basis ? nr : nt;
+        cb.K.resize(cb.watched.size(), m);
+        const Eigen::SparseMatrix<double> gt = cb.G.transpose();  // touched x rows, column-major
+        MatX rhs, x;
+        for (int first = 0; first < m; first += 8) {
+            const int w = std::min(8, m - first);
+            rhs.setZero(dofs, w);
+            for (int j = 0; j < w; ++j) {
+                if (cb.row_basis) {
+                    for (Eigen::SparseMatrix<double>::InnerIterator it(gt, first + j); it; ++it)
+                        rhs(cb.touched[it.row()], j) = it.value();
+                } else {
+                    rhs(cb.touched[first + j], j) = 1;
+                }
+            }
+            switch (b.kind) {
+                case BodyKind::Hand: b.hand->hand.apply_inverse_many(rhs, x); break;
+                case BodyKind::Soft: b.tool->solve_many(rhs, x, 1); break;
+                default: x = Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
+            }
+            for (size_t k = 0; k < cb.watched.size(); ++k) cb.K.block(k, first, 1, w) = x.block(cb.watched[k], 0, 1, w);
         }
+        // u_free, and the body's symmetric response on its basis for the sweeps
+        VecX v_touched(nt);
+        for (int k = 0; k < nt; ++k) v_touched[k] = b.v_free[cb.touched[k]];
+        const VecX u_b = cb.G * v_touched;
+        for (int l = 0; l < nr; ++l) u_free[cb.rows[l]] += u_b[l];
+        MatX c_b = cb.row_basis ? MatX(cb.G * cb.K.topRows(nt)) : MatX(cb.K.topRows(nt));
+        response[bi] = 0.5 * (c_b + c_b.transpose());
     }
+    const auto t_built = clock::now();
+    stats.t_contact_build = std::chrono::duration<double>(t_built - t_start).count();
+    stats.contact_groups = static_cast<int>(contact_groups.size());
+
+    // Warm start from the previous step's impulses of the same contacts
     VecX lambda = VecX::Zero(rows);
     for (int c = 0; c < nc; ++c) {
         auto it = previous_impulse.find(contact_key(contacts[c]));
@@ -353,21 +418,85 @@ void World::solve_contacts() {
         lambda[3 * c + 1] = it->second.dot(contacts[c].tangent1);
         lambda[3 * c + 2] = it->second.dot(contacts[c].tangent2);
     }
-    // The hand's system is not symmetric (spring torques), so neither is W; Gauss-Seidel is
-    // only sure to converge on a symmetric one. Its symmetric part differs by terms of the
-    // order of the springs' damping times the handle's spin; the velocities below use the
-    // true columns.
-    contact_W = prob.W;
-    prob.W = 0.5 * (prob.W + prob.W.transpose()).eval();
-    const PgsResult res = solve_pgs(prob, lambda, settings.max_iterations, settings.tolerance);
-    previous_impulse.clear();
-    stats.iterations = res.iterations;
-    stats.residual = res.residual;
+    // Each group is its own contact problem. The hand's system is not symmetric (spring
+    // torques), so neither is W; Gauss-Seidel is only sure to converge on a symmetric one. Its
+    // symmetric part differs by terms of the order of the springs' damping times the handle's
+    // spin; the velocities below use the true operator.
+    stats.iterations = 0;
+    stats.residual = 0;
+    for (ContactGroup& g : contact_groups) {
+        const int gc = static_cast<int>(g.contacts.size());
+        ReducedContactProblem prob;
+        prob.dt = settings.dt;
+        prob.u_free.resize(3 * gc);
+        prob.gap.resize(gc);
+        prob.friction.resize(gc);
+        prob.kinetic.resize(gc);
+        prob.begin.assign(1, 0);
+        std::map<int, int> slot;  // body -> index in prob.bodies
+        VecX lg(3 * gc);
+        for (int i = 0; i < gc; ++i) {
+            const int c = g.contacts[i];
+            prob.u_free.segment<3>(3 * i) = u_free.segment<3>(3 * c);
+            prob.gap[i] = gap[c];
+            prob.friction[i] = friction[c];
+            prob.kinetic[i] = kinetic[c];
+            lg.segment<3>(3 * i) = lambda.segment<3>(3 * c);
+            for (const auto& e : sides[c]) {
+                const int bi = e.first;
+                auto sl = slot.find(bi);
+                if (sl == slot.end()) {
+                    sl = slot.emplace(bi, static_cast<int>(prob.bodies.size())).first;
+                    prob.bodies.push_back({std::move(response[bi])});
+                }
+                const ContactBody& cb = contact_bodies[bi];
+                const int l0 = cb.local_row[3 * c];
+                if (cb.row_basis) {
+                    for (int d = 0; d < 3; ++d) prob.entries.push_back({sl->second, l0 + d, Vec3::Unit(d)});
+                } else {
+                    const size_t first = prob.entries.size();
+                    for (int d = 0; d < 3; ++d)
+                        for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(cb.G, l0 + d); it; ++it) {
+                            size_t k = first;
+                            while (k < prob.entries.size() && prob.entries[k].index != it.col()) ++k;
+                            if (k == prob.entries.size()) prob.entries.push_back({sl->second, static_cast<int>(it.col()), Vec3::Zero()});
+                            prob.entries[k].coefficient[d] += it.value();
+                        }
+                }
+            }
+            prob.begin.push_back(static_cast<int>(prob.entries.size()));
+        }
+        const PgsResult res = solve_pgs(prob, lg, settings.max_iterations, settings.tolerance);
+        g.iterations = res.iterations;
+        g.residual = res.residual;
+        stats.iterations = std::max(stats.iterations, res.iterations);
+        stats.residual = std::max(stats.residual, res.residual);
+        for (int i = 0; i < gc; ++i) lambda.segment<3>(3 * g.contacts[i]) = lg.segment<3>(3 * i);
+    }
+    const auto t_swept = clock::now();
+    stats.t_contact_sweeps = std::chrono::duration<double>(t_swept - t_built).count();
+
+    // v = v* + A^-1 J^T lambda: one more solve per body
     for (int bi : involved) {
         Body& b = *bodies[bi];
-        for (int row = 0; row < rows; ++row)
-            if (columns[bi][row].size() > 0) b.v_new += columns[bi][row] * lambda[row];
+        const ContactBody& cb = contact_bodies[bi];
+        VecX lb(cb.rows.size());
+        for (size_t l = 0; l < cb.rows.size(); ++l) lb[l] = lambda[cb.rows[l]];
+        const VecX f = cb.G.transpose() * lb;
+        VecX rhs = VecX::Zero(b.dofs());
+        for (size_t k = 0; k < cb.touched.size(); ++k) rhs[cb.touched[k]] = f[k];
+        switch (b.kind) {
+            case BodyKind::Hand: b.v_new += b.hand->hand.apply_inverse(rhs); break;
+            case BodyKind::Soft:
+                b.tool->r = rhs;
+                b.tool->select_slot(1);
+                b.tool->solve();
+                b.v_new += b.tool->s;
+                break;
+            default: b.v_new += Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
+        }
     }
+    previous_impulse.clear();
     for (int c = 0; c < nc; ++c) {
         const Contact& k = contacts[c];
         const Vec3 impulse = lambda[3 * c] * k.normal + lambda[3 * c + 1] * k.tangent1 + lambda[3 * c + 2] * k.tangent2;
@@ -376,8 +505,71 @@ void World::solve_contacts() {
         bodies[k.b.body]->contact_force -= impulse / settings.dt;
     }
     contact_lambda = lambda;
-    contact_friction = prob.friction;
-    contact_columns = std::move(columns);
+    contact_friction = friction;
+    stats.t_contact_apply = seconds_since(t_swept);
+    if (std::getenv("HH_CONTACT_TRACE")) {
+        std::fprintf(stderr, "contacts %d groups %zu build %.2f sweeps %.2f apply %.2f ms it %d |", nc, contact_groups.size(),
+                     1e3 * stats.t_contact_build, 1e3 * stats.t_contact_sweeps, 1e3 * stats.t_contact_apply, stats.iterations);
+        for (const auto& e : contact_bodies)
+            std::fprintf(stderr, " body %d rows %zu touched %zu %s", e.first, e.second.rows.size(), e.second.touched.size(), e.second.row_basis ? "R" : "D");
+        std::fprintf(stderr, "\n");
+    }
+}
+
+MatX World::contact_delassus(const std::vector<int>& rows) const {
+    const int n = static_cast<int>(rows.size());
+    MatX out = MatX::Zero(n, n);
+    for (const auto& e : contact_bodies) {
+        const ContactBody& cb = e.second;
+        std::vector<int> at, local;  // the asked rows this body takes part in
+        for (int a = 0; a < n; ++a)
+            if (rows[a] >= 0 && rows[a] < static_cast<int>(cb.local_row.size()) && cb.local_row[rows[a]] >= 0) {
+                at.push_back(a);
+                local.push_back(cb.local_row[rows[a]]);
+            }
+        if (at.empty()) continue;
+        const int nt = static_cast<int>(cb.touched.size());
+        const int k = static_cast<int>(at.size());
+        // H = A_b^-1 J_b^T of those rows at the touched unknowns (touched x k)
+        MatX h(nt, k);
+        for (int j = 0; j < k; ++j) {
+            if (cb.row_basis) {
+                h.col(j) = cb.K.col(local[j]).head(nt);
+            } else {
+                h.col(j).setZero();
+                for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(cb.G, local[j]); it; ++it)
+                    h.col(j) += cb.K.col(it.col()).head(nt) * it.value();
+            }
+        }
+        for (int i = 0; i < k; ++i)
+            for (int j = 0; j < k; ++j) {
+                double sum = 0;
+                for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(cb.G, local[i]); it; ++it) sum += it.value() * h(it.col(), j);
+                out(at[i], at[j]) += sum;
+            }
+    }
+    return out;
+}
+
+VecX World::contact_column(int body, int row, const std::vector<int>& unknowns) const {
+    auto it = contact_bodies.find(body);
+    if (it == contact_bodies.end() || row < 0 || row >= static_cast<int>(it->second.local_row.size())) return VecX();
+    const ContactBody& cb = it->second;
+    const int l = cb.local_row[row];
+    if (l < 0) return VecX();
+    VecX out(unknowns.size());
+    for (size_t k = 0; k < unknowns.size(); ++k) {
+        auto w = cb.watched_index.find(unknowns[k]);
+        if (w == cb.watched_index.end())
+            throw InvalidArgument("World::contact_column: that unknown's response was not kept");
+        if (cb.row_basis) out[k] = cb.K(w->second, l);
+        else {
+            double sum = 0;  // G's sparse row l against row w of K
+            for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator g(cb.G, l); g; ++g) sum += g.value() * cb.K(w->second, g.col());
+            out[k] = sum;
+        }
+    }
+    return out;
 }
 
 void World::integrate() {

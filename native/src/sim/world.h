@@ -80,6 +80,10 @@ struct WorldStats {
     double residual = 0;         // m/s: largest constraint violation left by the solver
     int iterations = 0;
     double t_detection = 0, t_dynamics = 0, t_contact = 0, t_total = 0;  // s
+    // inside t_contact: forming the groups' W (the bodies' batched solves included), the
+    // Gauss-Seidel sweeps, and the final velocity solves
+    double t_contact_build = 0, t_contact_sweeps = 0, t_contact_apply = 0;  // s
+    int contact_groups = 0;
 };
 
 class World {
@@ -93,14 +97,41 @@ public:
     // impulses of the last step's contacts (world frame, N s), by contact identity, to warm
     // start the next step's solve: a resting contact's impulse changes little between steps
     std::unordered_map<std::uint64_t, Vec3> previous_impulse;
-    // The last contact solve, kept for the handle-space linearization (haptics/coupling_model):
-    // W = J A^-1 J^T before it is symmetrized for Gauss-Seidel, the impulses, the static
-    // friction coefficients, and per dynamic body the columns A_b^-1 J_b^T (empty where the
-    // body is not in the row).
-    MatX contact_W;
-    VecX contact_lambda;
-    VecX contact_friction;
-    std::map<int, std::vector<VecX>> contact_columns;
+    // The last contact solve, kept for the handle-space linearization (haptics/coupling_model).
+    // Contacts are grouped by the dynamic bodies they share (contacts of bodies that do not
+    // touch, directly or through other bodies, do not couple: W = J A^-1 J^T is block diagonal
+    // over the groups), each group solved on its own. W is not formed: per body, the response
+    // K on the unknowns the contacts touch (or on its rows) and J_b on them (G) are kept, so
+    // W_b = G K G^T (or G K); contact_delassus() forms the entries asked for.
+    struct ContactGroup {
+        std::vector<int> contacts;  // contact indices, ascending
+        int iterations = 0;         // Gauss-Seidel sweeps this group took
+        double residual = 0;        // m/s, left by them
+    };
+    // One dynamic body's part: its response to impulses on the unknowns the contacts act on.
+    struct ContactBody {
+        std::vector<int> rows;      // global contact rows the body takes part in, ascending
+        std::vector<int> touched;   // the body's unknowns those rows act on, ascending
+        std::vector<int> watched;   // unknowns whose response is kept: `touched`, then extra ones (the hand's handle nodes)
+        bool row_basis = false;     // K's columns: per row (A^-1 J_b^T e_row) or per touched unknown (A^-1 e_k)
+        MatX K;                     // watched x (rows or touched): those columns at the watched unknowns
+        Eigen::SparseMatrix<double, Eigen::RowMajor> G;  // rows x touched: J_b on the touched unknowns
+        std::vector<int> local_row;  // per global row: index in `rows`, or -1
+        std::unordered_map<int, int> watched_index;
+    };
+    std::vector<ContactGroup> contact_groups;
+    std::vector<int> contact_group_of;  // per contact: its group
+    std::vector<int> contact_slot;      // per contact: its index within its group
+    std::map<int, ContactBody> contact_bodies;  // per dynamic body in the contact solve
+    VecX contact_lambda;    // 3c impulses (N s) in the contact frames
+    VecX contact_friction;  // c static friction coefficients
+    // Entries of the last step's W (unsymmetrized) for the given global rows: zero between
+    // rows of different groups.
+    MatX contact_delassus(const std::vector<int>& rows) const;
+    // The column A_b^-1 J_b^T e_row of the last step at the body's given unknowns (empty when
+    // the body is not in that row). The unknowns must be touched by the contacts or watched
+    // (for the hand: its handle nodes' flesh unknowns); throws otherwise.
+    VecX contact_column(int body, int row, const std::vector<int>& unknowns) const;
     double time = 0;  // s: simulated time, advanced by step()
 
     int add(std::unique_ptr<Body> body);
