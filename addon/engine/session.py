@@ -22,6 +22,7 @@ from . import devices
 from . import native_world
 from . import scene as scenes
 from .native_session import LOG_COLUMNS, NativeSession, log_arrays
+from .scene_world import build_world
 
 
 def create(world, hand: int, scene: scenes.Scene, log_capacity: int = 1 << 16) -> NativeSession:
@@ -93,10 +94,9 @@ class LiveSession:
 
     def __init__(self, scene: scenes.Scene, device: str | None = None, haptic_rate: float | None = None,
                  progress=None):
-        from . import simulate  # simulate imports this module for offline runs
         if haptic_rate is not None:
             scene.data["haptics"]["rate"] = float(haptic_rate)
-        self.world, self.hand, self.model, others, _ = simulate.build_world(scene, progress=progress)
+        self.world, self.hand, self.model, others, _ = build_world(scene, progress=progress)
         self.native = create(self.world, self.hand, scene)
         handle_com = np.array(self.model.info()["handle_com"])
         self._helper = attach_device(self.native, scene, handle_com, device)

@@ -11,11 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import bodies
-from . import mesh as meshing
 from . import native_world
 from . import scene as scenes
 from . import session as session_module
+from .scene_world import build_world
 
 RESULT_FORMAT = "haptic_hand.result/2"
 TIMING_FIELDS = ("t_assembly", "t_deformable", "t_schur", "t_total")  # the hand's implicit step
@@ -31,29 +30,6 @@ def text_progress(fraction: float, message: str) -> None:
     if fraction >= 1.0:
         sys.stderr.write("\n")
     sys.stderr.flush()
-
-
-def build_world(scene: scenes.Scene, progress=None):
-    """The native World of a scene: the hand (its render surface embedded in its tets as the
-    collision surface) and the other bodies. Returns (world, hand index, hand model, bodies)."""
-    model = scenes.build_model(scene, progress=progress)
-    c = scene.data["contact"]
-    world = native_world.World(dt=scene.dt, gravity=scene.data["gravity"], contact_thickness=c["thickness"],
-                               contact_patch=c["patch"], max_iterations=c["max_iterations"], tolerance=c["tolerance"])
-    tet_index, weights = meshing.embed_points(scene.nodes, scene.tets, scene.surface_vertices)
-    sn, sw = native_world.embedded_surface(scene.tets, tet_index, weights)
-    hand_spec = scene.data["hand"]
-    hand = world.add_hand(model, sn, sw, scene.surface_faces, friction=hand_spec["friction"],
-                          self_collision=hand_spec["self_collision"])
-    if hand_spec["kinetic_friction"] is not None:
-        world.set_friction(hand, hand_spec["friction"], hand_spec["kinetic_friction"])
-    others = [bodies.prepare(spec) for spec in scene.bodies]
-    for b in others:
-        bodies.add_to_world(world, b)
-        if b.kind == native_world.KINEMATIC:  # the world moves it along its script itself
-            script = scenes.body_trajectory(b.spec, world.pose(b.index)[0])
-            world.set_script(b.index, script.times, script.positions, script.quaternions)
-    return world, hand, model, others, (tet_index, weights)
 
 
 class ScriptedInputs:
