@@ -129,3 +129,130 @@ TEST(block_ldlt_warped_solve_inverts_the_rotated_matrix) {
     }
     CHECK_LT(diff / x.leftCols(3).cwiseAbs().maxCoeff(), 1e-13);
 }
+
+// ---- supernodal form, single-precision copy, SIMD levels, node-major products ----------------
+
+namespace {
+// node-major packing of the columns of b into width w (zero-padded)
+std::vector<double> node_major(const MatX& b, int w) {
+    std::vector<double> out(static_cast<size_t>(b.rows()) * w, 0.0);
+    for (Eigen::Index e = 0; e < b.rows(); ++e)
+        for (Eigen::Index j = 0; j < b.cols(); ++j) out[w * e + j] = b(e, j);
+    return out;
+}
+double max_abs_diff(const std::vector<double>& nm, const MatX& x, int w) {
+    double d = 0;
+    for (Eigen::Index e = 0; e < x.rows(); ++e)
+        for (Eigen::Index j = 0; j < x.cols(); ++j) d = std::max(d, std::abs(nm[w * e + j] - x(e, j)));
+    return d;
+}
+}  // namespace
+
+TEST(supernodal_factor_solves_like_a_dense_solver_at_every_simd_level) {
+    // a box large enough for supernodes several nodes wide (and the 8-column groups of the
+    // kernels, with remainders), every width, with and without a warp, double and single
+    const SpMat a = system_matrix(7, 5, 4, 11);
+    const int n = static_cast<int>(a.rows() / 3);
+    BlockLDLT f;
+    f.set_supernodal(true);
+    f.set_keep_single(true);
+    f.analyze(a);
+    f.factorize(a);
+    CHECK(f.supernodes() < n);  // some supernodes hold several nodes
+    CHECK(f.has_single());
+    std::mt19937 rng(12);
+    std::normal_distribution<double> g(0, 1);
+    std::vector<Mat3> w(n);
+    MatX wd = MatX::Zero(a.rows(), a.rows());
+    for (int i = 0; i < n; ++i) {
+        w[i] = quat_to_matrix(Vec4(g(rng), g(rng), g(rng), g(rng)).normalized());
+        wd.block<3, 3>(3 * i, 3 * i) = w[i];
+    }
+    const MatX dense_a = MatX(a);
+    const Eigen::LDLT<MatX> plain(dense_a);
+    const Eigen::LDLT<MatX> rotated(wd * dense_a * wd.transpose());
+    for (int level = 0; level <= detected_simd_level(); ++level) {
+        simd_level_override() = level;
+        for (int width : {1, 4, 8})
+            for (int cols : {1, 3, 8}) {
+                if (cols > width) continue;
+                MatX b(a.rows(), cols);
+                for (int i = 0; i < b.size(); ++i) b.data()[i] = g(rng);
+                for (bool warped : {false, true}) {
+                    const MatX exact = warped ? MatX(rotated.solve(b)) : MatX(plain.solve(b));
+                    const double scale = exact.cwiseAbs().maxCoeff();
+                    for (bool single : {false, true}) {
+                        std::vector<double> nm = node_major(b, width);
+                        f.solve_node_major(nm.data(), width, warped ? &w : nullptr, single);
+                        const double err = max_abs_diff(nm, exact, width) / scale;
+                        // single: the inverse of a matrix within float round-off of A
+                        CHECK_LT(err, single ? 1e-4 : 1e-12);
+                        if (!single) CHECK_LT(err, 1e-12);
+                        for (Eigen::Index e = 0; e < b.rows(); ++e)  // padding lanes stay zero
+                            for (int j = cols; j < width; ++j) CHECK(nm[width * e + j] == 0.0);
+                    }
+                }
+            }
+    }
+    simd_level_override() = -1;
+}
+
+TEST(supernodal_and_up_looking_factors_agree_and_refactorize) {
+    const SpMat a1 = system_matrix(6, 4, 4, 21), a2 = system_matrix(6, 4, 4, 22);
+    BlockLDLT up, sn;
+    sn.set_supernodal(true);
+    up.analyze(a1);
+    sn.analyze(a1);
+    std::mt19937 rng(23);
+    std::normal_distribution<double> g(0, 1);
+    for (const SpMat* a : {&a1, &a2, &a1}) {  // same pattern, new values: analysis reused
+        up.factorize(*a);
+        sn.factorize(*a);
+        MatX b(a->rows(), 5);
+        for (int i = 0; i < b.size(); ++i) b.data()[i] = g(rng);
+        MatX xu = b, xs = b;
+        up.solve(xu);
+        sn.solve(xs);
+        CHECK_LT((xu - xs).cwiseAbs().maxCoeff() / xu.cwiseAbs().maxCoeff(), 1e-12);
+        CHECK_LT((MatX(*a * xs) - b).norm() / b.norm(), 1e-12);
+    }
+}
+
+TEST(supernodal_factor_rejects_an_indefinite_matrix) {
+    SpMat a = system_matrix(3, 3, 3, 7);
+    for (int i = 0; i < a.rows(); ++i) a.coeffRef(i, i) -= 1e6;
+    BlockLDLT f;
+    f.set_supernodal(true);
+    f.analyze(a);
+    bool thrown = false;
+    try {
+        f.factorize(a);
+    } catch (const NumericalError&) {
+        thrown = true;
+    }
+    CHECK(thrown);
+}
+
+TEST(node_major_product_matches_the_sparse_product_at_every_simd_level) {
+    const SpMat a = system_matrix(5, 4, 3, 31);
+    CHECK(has_node_block_pattern(a));
+    std::mt19937 rng(32);
+    std::normal_distribution<double> g(0, 1);
+    for (int level = 0; level <= detected_simd_level(); ++level) {
+        simd_level_override() = level;
+        for (int width : {1, 4, 8}) {
+            MatX x(a.rows(), width);
+            for (int i = 0; i < x.size(); ++i) x.data()[i] = g(rng);
+            std::vector<double> nx = node_major(x, width), ny(nx.size());
+            multiply_node_major(a, nx.data(), ny.data(), width);
+            const MatX y = a * x;
+            CHECK_LT(max_abs_diff(ny, y, width) / y.cwiseAbs().maxCoeff(), 1e-14);
+        }
+    }
+    simd_level_override() = -1;
+    SpMat scalar(6, 6);  // not made of node blocks
+    scalar.insert(0, 1) = 1;
+    scalar.insert(1, 0) = 1;
+    scalar.makeCompressed();
+    CHECK(!has_node_block_pattern(scalar));
+}

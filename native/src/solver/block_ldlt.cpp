@@ -2,6 +2,7 @@
 
 #include <Eigen/OrderingMethods>
 #include <algorithm>
+#include <cstdlib>
 #include <numeric>
 
 namespace hh {
@@ -45,6 +46,21 @@ void BlockLDLT::analyze(const SpMat& a) {
             column_[k].push_back(ref);
         }
     }
+    lower_.assign(n_, {});
+    for (int k = 0; k < n_; ++k) {
+        const int old_k = order_[k];
+        for (SpMat::InnerIterator it(graph, old_k); it; ++it) {
+            const int old_i = static_cast<int>(it.row());
+            const int i = inverse_[old_i];
+            if (i < k) continue;
+            BlockRef ref;
+            ref.row = i;
+            for (int r = 0; r < 3; ++r)
+                for (int c = 0; c < 3; ++c) ref.offsets[3 * r + c] = offset(3 * old_i + r, 3 * old_k + c);
+            lower_[k].push_back(ref);
+        }
+        std::sort(lower_[k].begin(), lower_[k].end(), [](const BlockRef& a, const BlockRef& b) { return a.row < b.row; });
+    }
     // elimination tree and column counts of L (Davis, LDL symbolic)
     parent_.assign(n_, -1);
     lnz_.assign(n_, 0);
@@ -67,9 +83,67 @@ void BlockLDLT::analyze(const SpMat& a) {
     d_inverse_.assign(n_, Mat3::Identity());
     y_.assign(n_, Mat3::Zero());
     pattern_.assign(n_, 0);
+    factored_ = single_valid_ = false;
+    if (supernodal_) analyze_supernodes();
+}
+
+void BlockLDLT::analyze_supernodes() {
+    // column structures of L (rows below the diagonal, ascending), from the elimination tree
+    std::vector<int> cp(n_ + 1, 0), fill(n_, 0);
+    for (int k = 0; k < n_; ++k) cp[k + 1] = cp[k] + lnz_[k];
+    std::vector<int> rows(cp[n_]);
+    std::fill(flag_.begin(), flag_.end(), -1);
+    for (int k = 0; k < n_; ++k) {
+        flag_[k] = k;
+        for (const BlockRef& ref : column_[k])
+            for (int i = ref.row; i < k && flag_[i] != k; i = parent_[i]) {
+                rows[cp[i] + fill[i]++] = k;
+                flag_[i] = k;
+            }
+    }
+    // fundamental supernodes: k joins k-1's when k is its parent and their structures match
+    sn_start_.clear();
+    node_sn_.assign(n_, 0);
+    for (int k = 0; k < n_; ++k) {
+        if (k == 0 || !(parent_[k - 1] == k && lnz_[k - 1] == lnz_[k] + 1)) sn_start_.push_back(k);
+        node_sn_[k] = static_cast<int>(sn_start_.size()) - 1;
+    }
+    sn_start_.push_back(n_);
+    const int ns = static_cast<int>(sn_start_.size()) - 1;
+    sn_rows_ptr_.assign(ns + 1, 0);
+    sn_val_ptr_.assign(ns + 1, 0);
+    sn_rows_.clear();
+    for (int s = 0; s < ns; ++s) {
+        const int c0 = sn_start_[s], c1 = sn_start_[s + 1], last = c1 - 1;
+        for (int c = c0; c < c1; ++c) sn_rows_.push_back(c);
+        sn_rows_.insert(sn_rows_.end(), rows.begin() + cp[last], rows.begin() + cp[last + 1]);
+        sn_rows_ptr_[s + 1] = static_cast<int>(sn_rows_.size());
+        const size_t nr = sn_rows_ptr_[s + 1] - sn_rows_ptr_[s];
+        sn_val_ptr_[s + 1] = sn_val_ptr_[s] + 9 * nr * (c1 - c0);
+    }
+    sn_val_.assign(sn_val_ptr_[ns], 0.0);
+    sn_diag_ptr_.assign(ns + 1, 0);
+    for (int s = 0; s < ns; ++s) sn_diag_ptr_[s + 1] = sn_diag_ptr_[s] + 3 * (sn_start_[s + 1] - sn_start_[s]);
+    sn_diag_inverse_.assign(sn_diag_ptr_[ns], 0.0);
+    relmap_.assign(n_, 0);
+    link_head_.assign(ns, -1);
+    link_next_.assign(ns, -1);
+    sn_pos_.assign(ns, 0);
+    // the up-looking form's arrays are not needed
+    lx_.clear();
+    lx_.shrink_to_fit();
+    li_.assign(cp[n_], 0);
 }
 
 void BlockLDLT::factorize(const SpMat& a) {
+    factored_ = false;
+    if (supernodal_) {
+        factorize_supernodal(a);
+        factored_ = true;
+        single_valid_ = false;
+        if (keep_single_) make_single();
+        return;
+    }
     const double* values = a.valuePtr();
     std::fill(flag_.begin(), flag_.end(), -1);
     std::fill(lnz_.begin(), lnz_.end(), 0);
@@ -109,118 +183,523 @@ void BlockLDLT::factorize(const SpMat& a) {
             throw NumericalError(
                 "the deformable system At is not positive definite (block LDL^T failed): check for "
                 "inverted elements, negative parameters or a far too large time step");
-        d_inverse_[k] = llt.solve(Mat3::Identity());
+        const Mat3 dinv = llt.solve(Mat3::Identity());
+        d_inverse_[k] = 0.5 * (dinv + dinv.transpose());  // exactly symmetric, so L D L^T is
     }
+    factored_ = true;
+    single_valid_ = false;
+    if (keep_single_) make_single();
+}
+
+void BlockLDLT::factorize_supernodal(const SpMat& a) {
+    using Panel = Eigen::Map<MatX, 0, Eigen::OuterStride<>>;
+    const double* values = a.valuePtr();
+    const int ns = supernodes();
+    std::fill(link_head_.begin(), link_head_.end(), -1);
+    auto link = [&](int k) {  // queue supernode k for the supernode owning its next row
+        const int target = node_sn_[sn_rows_[sn_rows_ptr_[k] + sn_pos_[k]]];
+        link_next_[k] = link_head_[target];
+        link_head_[target] = k;
+    };
+    for (int j = 0; j < ns; ++j) {
+        const int c0 = sn_start_[j], c1 = sn_start_[j + 1], width = c1 - c0, m = 3 * width;
+        const int* rows = sn_rows_.data() + sn_rows_ptr_[j];
+        const int nr = sn_rows_ptr_[j + 1] - sn_rows_ptr_[j], ld = 3 * nr;
+        double* p = sn_val_.data() + sn_val_ptr_[j];
+        std::fill(p, p + static_cast<size_t>(ld) * m, 0.0);
+        for (int t = 0; t < nr; ++t) relmap_[rows[t]] = t;
+        for (int c = c0; c < c1; ++c)  // A's columns of the supernode, lower part
+            for (const BlockRef& ref : lower_[c]) {
+                double* to = p + static_cast<size_t>(3 * (c - c0)) * ld + 3 * relmap_[ref.row];
+                for (int r = 0; r < 3; ++r)
+                    for (int q = 0; q < 3; ++q) to[static_cast<size_t>(q) * ld + r] = values[ref.offsets[3 * r + q]];
+            }
+        // updates from the descendants whose next rows fall in this supernode's columns
+        for (int k = link_head_[j]; k != -1;) {
+            const int next = link_next_[k];
+            const int* krows = sn_rows_.data() + sn_rows_ptr_[k];
+            const int knr = sn_rows_ptr_[k + 1] - sn_rows_ptr_[k], kld = 3 * knr;
+            const int km = 3 * (sn_start_[k + 1] - sn_start_[k]);
+            const int first = sn_pos_[k];
+            int q1 = 0;
+            while (first + q1 < knr && krows[first + q1] < c1) ++q1;
+            const int q = knr - first;
+            const Panel lq(sn_val_.data() + sn_val_ptr_[k] + 3 * first, 3 * q, km, Eigen::OuterStride<>(kld));
+            update_.resize(static_cast<size_t>(9) * q * q1);
+            Eigen::Map<MatX> u(update_.data(), 3 * q, 3 * q1);
+            u.noalias() = lq * lq.topRows(3 * q1).transpose();
+            for (int cc = 0; cc < 3 * q1; ++cc) {
+                double* to = p + static_cast<size_t>(3 * (krows[first + cc / 3] - c0) + cc % 3) * ld;
+                const double* from = update_.data() + static_cast<size_t>(cc) * 3 * q;
+                for (int t = 0; t < q; ++t) {
+                    double* dst = to + 3 * relmap_[krows[first + t]];
+                    dst[0] -= from[3 * t];
+                    dst[1] -= from[3 * t + 1];
+                    dst[2] -= from[3 * t + 2];
+                }
+            }
+            sn_pos_[k] = first + q1;
+            if (sn_pos_[k] < knr) link(k);
+            k = next;
+        }
+        Panel diag(p, m, m, Eigen::OuterStride<>(ld));
+        if (Eigen::internal::llt_inplace<double, Eigen::Lower>::blocked(diag) >= 0 || !diag.diagonal().allFinite())
+            throw NumericalError(
+                "the deformable system At is not positive definite (block LDL^T failed): check for "
+                "inverted elements, negative parameters or a far too large time step");
+        for (int c = 0; c < m; ++c) sn_diag_inverse_[sn_diag_ptr_[j] + c] = 1.0 / diag(c, c);
+        if (nr > width) {
+            Panel below(p + m, ld - m, m, Eigen::OuterStride<>(ld));
+            diag.triangularView<Eigen::Lower>().adjoint().solveInPlace<Eigen::OnTheRight>(below);
+            sn_pos_[j] = width;
+            link(j);
+        }
+    }
+}
+
+void BlockLDLT::make_single() {
+    if (supernodal_) {
+        sn_val_single_.resize(sn_val_.size());
+        for (size_t e = 0; e < sn_val_.size(); ++e) sn_val_single_[e] = static_cast<float>(sn_val_[e]);
+        single_valid_ = true;
+        return;
+    }
+    lx_single_.resize(9 * lx_.size());
+    d_inverse_single_.resize(9 * static_cast<size_t>(n_));
+    for (int k = 0; k < n_; ++k) {  // only the first lnz_[k] entries of each column are L's
+        const Mat3* from = lx_.data() + lp_[k];
+        float* to = lx_single_.data() + 9 * static_cast<size_t>(lp_[k]);
+        for (int p = 0; p < lnz_[k]; ++p)
+            for (int e = 0; e < 9; ++e) to[9 * p + e] = static_cast<float>(from[p].data()[e]);
+        for (int e = 0; e < 9; ++e) d_inverse_single_[9 * static_cast<size_t>(k) + e] = static_cast<float>(d_inverse_[k].data()[e]);
+    }
+    single_valid_ = true;
 }
 
 namespace {
 
 // L D L^T x = b on the permuted right-hand sides, K at a time, stored node-major so that a
-// node's 3 x K values are contiguous: every 3x3 block of L is loaded once for all K.
+// node's 3 x K values are contiguous: every 3x3 block of L is loaded once for all K. The
+// factor's values are LT (double, or float for the single-precision copy); the arithmetic is
+// always double, so a float factor is an exact linear operator (L_f D_f L_f^T) and CG stays CG.
+template <typename LT>
 struct Factor {
     int n;
     const int *lp, *lnz, *li;
-    const double *lx, *d_inverse;  // 3x3 blocks, column-major, 9 doubles each
+    const LT *lx, *d_inverse;  // 3x3 blocks, column-major, 9 values each
 };
 
-// Four doubles as one value (GCC/Clang vector extension): explicit SIMD the compiler maps to
-// one AVX register or two SSE registers; aligned(8) allows unaligned loads and stores.
+// Four and eight doubles as one value (GCC/Clang vector extension): explicit SIMD the compiler
+// maps to AVX / AVX-512 registers; aligned(8) allows unaligned loads and stores.
+// (Template arguments drop type attributes such as aligned(8), so the kernels take the lane
+// count L and name the type through Lanes<L>::V.)
 typedef double V4 __attribute__((vector_size(32), aligned(8)));
+typedef double V8 __attribute__((vector_size(64), aligned(8)));
+template <int L> struct Lanes;
+template <> struct Lanes<1> { typedef double V; };
+template <> struct Lanes<4> { typedef V4 V; };
+template <> struct Lanes<8> { typedef V8 V; };
 
-template <int K>
-__attribute__((always_inline)) inline void solve_permuted(const Factor& f, double* x) {
-    static_assert(K % 4 == 0, "right-hand sides in groups of four");
-    constexpr int N = K / 4;  // vectors per row of a node's 3 x K block
-    V4* xv = reinterpret_cast<V4*>(x);
+// V: the SIMD value of L lanes (double for one right-hand side, V4 or V8), N of them per row of a node's
+// 3 x K block (K = N * lanes of V).
+template <int L, int N, typename LT>
+__attribute__((always_inline)) inline void solve_permuted(const Factor<LT>& f, double* x) {
+    typedef typename Lanes<L>::V V;
+    V* xv = reinterpret_cast<V*>(x);
     for (int i = 0; i < f.n; ++i) {  // L z = b
-        V4 xi[3 * N];
+        V xi[3 * N];
         for (int e = 0; e < 3 * N; ++e) xi[e] = xv[3 * N * i + e];
         for (int p = f.lp[i], end = f.lp[i] + f.lnz[i]; p < end; ++p) {
-            const double* l = f.lx + 9 * p;
-            V4* xr = xv + 3 * N * f.li[p];
-            for (int r = 0; r < 3; ++r)
-                for (int j = 0; j < N; ++j) xr[r * N + j] -= l[r] * xi[j] + l[3 + r] * xi[N + j] + l[6 + r] * xi[2 * N + j];
+            const LT* l = f.lx + 9 * p;
+            V* xr = xv + 3 * N * f.li[p];
+            for (int r = 0; r < 3; ++r) {
+                const double l0 = l[r], l1 = l[3 + r], l2 = l[6 + r];
+                for (int j = 0; j < N; ++j) xr[r * N + j] -= l0 * xi[j] + l1 * xi[N + j] + l2 * xi[2 * N + j];
+            }
         }
     }
     for (int i = 0; i < f.n; ++i) {  // z <- D^-1 z
-        V4* xi = xv + 3 * N * i;
-        const double* d = f.d_inverse + 9 * i;
-        V4 t[3 * N];
-        for (int r = 0; r < 3; ++r)
-            for (int j = 0; j < N; ++j) t[r * N + j] = d[r] * xi[j] + d[3 + r] * xi[N + j] + d[6 + r] * xi[2 * N + j];
+        V* xi = xv + 3 * N * i;
+        const LT* d = f.d_inverse + 9 * i;
+        V t[3 * N];
+        for (int r = 0; r < 3; ++r) {
+            const double d0 = d[r], d1 = d[3 + r], d2 = d[6 + r];
+            for (int j = 0; j < N; ++j) t[r * N + j] = d0 * xi[j] + d1 * xi[N + j] + d2 * xi[2 * N + j];
+        }
         for (int e = 0; e < 3 * N; ++e) xi[e] = t[e];
     }
     for (int i = f.n - 1; i >= 0; --i) {  // L^T x = z
-        V4 t[3 * N];
-        V4* xi = xv + 3 * N * i;
+        V t[3 * N];
+        V* xi = xv + 3 * N * i;
         for (int e = 0; e < 3 * N; ++e) t[e] = xi[e];
         for (int p = f.lp[i], end = f.lp[i] + f.lnz[i]; p < end; ++p) {
-            const double* l = f.lx + 9 * p;
-            const V4* xr = xv + 3 * N * f.li[p];
-            for (int c = 0; c < 3; ++c)
-                for (int j = 0; j < N; ++j)
-                    t[c * N + j] -= l[3 * c] * xr[j] + l[3 * c + 1] * xr[N + j] + l[3 * c + 2] * xr[2 * N + j];
+            const LT* l = f.lx + 9 * p;
+            const V* xr = xv + 3 * N * f.li[p];
+            for (int c = 0; c < 3; ++c) {
+                const double l0 = l[3 * c], l1 = l[3 * c + 1], l2 = l[3 * c + 2];
+                for (int j = 0; j < N; ++j) t[c * N + j] -= l0 * xr[j] + l1 * xr[N + j] + l2 * xr[2 * N + j];
+            }
         }
         for (int e = 0; e < 3 * N; ++e) xi[e] = t[e];
     }
 }
 
-// One right-hand side: scalar code (a 3-vector per node does not fill a SIMD register).
-template <>
-inline void solve_permuted<1>(const Factor& f, double* x) {
-    for (int i = 0; i < f.n; ++i) {
-        const double x0 = x[3 * i], x1 = x[3 * i + 1], x2 = x[3 * i + 2];
-        for (int p = f.lp[i], end = f.lp[i] + f.lnz[i]; p < end; ++p) {
-            const double* l = f.lx + 9 * p;
-            double* xr = x + 3 * f.li[p];
-            for (int r = 0; r < 3; ++r) xr[r] -= l[r] * x0 + l[3 + r] * x1 + l[6 + r] * x2;
+// y = A x on node-major storage for a symmetric A whose pattern is made of 3x3 node blocks
+// (the three columns of a node share their row pattern): column 3j + c of the compressed-
+// column storage is row 3j + c. One index per block, each x row loaded once for 3 outputs.
+template <int L, int N>
+__attribute__((always_inline)) inline void multiply_blocks(int n, const int* outer, const int* inner, const double* values,
+                                                           const double* x, double* y) {
+    typedef typename Lanes<L>::V V;
+    const V* xv = reinterpret_cast<const V*>(x);
+    V* yv = reinterpret_cast<V*>(y);
+    for (int j = 0; j < n; ++j) {
+        const int o0 = outer[3 * j], o1 = outer[3 * j + 1], o2 = outer[3 * j + 2];
+        const int blocks = (o1 - o0) / 3;
+        V acc[3 * N] = {};
+        for (int k = 0; k < blocks; ++k) {
+            const V* xi = xv + N * inner[o0 + 3 * k];  // row 3i: its 3 x K block
+            const double* v0 = values + o0 + 3 * k;
+            const double* v1 = values + o1 + 3 * k;
+            const double* v2 = values + o2 + 3 * k;
+            for (int q = 0; q < N; ++q) {
+                const V a = xi[q], b = xi[N + q], c = xi[2 * N + q];
+                acc[q] += v0[0] * a + v0[1] * b + v0[2] * c;
+                acc[N + q] += v1[0] * a + v1[1] * b + v1[2] * c;
+                acc[2 * N + q] += v2[0] * a + v2[1] * b + v2[2] * c;
+            }
         }
-    }
-    for (int i = 0; i < f.n; ++i) {
-        const double* d = f.d_inverse + 9 * i;
-        const double x0 = x[3 * i], x1 = x[3 * i + 1], x2 = x[3 * i + 2];
-        for (int r = 0; r < 3; ++r) x[3 * i + r] = d[r] * x0 + d[3 + r] * x1 + d[6 + r] * x2;
-    }
-    for (int i = f.n - 1; i >= 0; --i) {
-        double t0 = x[3 * i], t1 = x[3 * i + 1], t2 = x[3 * i + 2];
-        for (int p = f.lp[i], end = f.lp[i] + f.lnz[i]; p < end; ++p) {
-            const double* l = f.lx + 9 * p;
-            const double* xr = x + 3 * f.li[p];
-            t0 -= l[0] * xr[0] + l[1] * xr[1] + l[2] * xr[2];
-            t1 -= l[3] * xr[0] + l[4] * xr[1] + l[5] * xr[2];
-            t2 -= l[6] * xr[0] + l[7] * xr[1] + l[8] * xr[2];
-        }
-        x[3 * i] = t0;
-        x[3 * i + 1] = t1;
-        x[3 * i + 2] = t2;
+        for (int e = 0; e < 3 * N; ++e) yv[3 * N * j + e] = acc[e];
     }
 }
 
-// The same loops compiled for AVX2 + FMA, chosen at run time when the CPU has them: the
-// library itself is built for the baseline x86-64 instruction set.
+// The same loops compiled for AVX2 + FMA and for AVX-512, chosen at run time when the CPU has
+// them: the library itself is built for the baseline x86-64 instruction set.
 #if defined(__GNUC__) && defined(__x86_64__)
-#define HH_HAVE_AVX2_KERNELS 1
-template <int K>
-__attribute__((target("avx2,fma"))) void solve_permuted_avx2(const Factor& f, double* x) {
-    solve_permuted<K>(f, x);
+#define HH_HAVE_SIMD_KERNELS 1
+template <int L, int N, typename LT>
+__attribute__((target("avx2,fma"))) void solve_avx2(const Factor<LT>& f, double* x) {
+    solve_permuted<L, N, LT>(f, x);
 }
-bool cpu_has_avx2() {
-    static const bool has = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-    return has;
+template <int L, int N, typename LT>
+__attribute__((target("avx512f,avx512vl,avx2,fma"))) void solve_avx512(const Factor<LT>& f, double* x) {
+    solve_permuted<L, N, LT>(f, x);
+}
+template <int L, int N>
+__attribute__((target("avx2,fma"))) void multiply_avx2(int n, const int* o, const int* i, const double* v, const double* x, double* y) {
+    multiply_blocks<L, N>(n, o, i, v, x, y);
+}
+template <int L, int N>
+__attribute__((target("avx512f,avx512vl,avx2,fma"))) void multiply_avx512(int n, const int* o, const int* i, const double* v,
+                                                                         const double* x, double* y) {
+    multiply_blocks<L, N>(n, o, i, v, x, y);
+}
+int simd_level() {  // 0: baseline, 1: AVX2 + FMA, 2: AVX-512
+    if (simd_level_override() >= 0) return std::min(simd_level_override(), detected_simd_level());
+    return detected_simd_level();
 }
 #endif
 
-template <int K>
-void solve_dispatch(const Factor& f, double* x) {
-#ifdef HH_HAVE_AVX2_KERNELS
-    if (cpu_has_avx2()) return solve_permuted_avx2<K>(f, x);
+}  // namespace
+
+int& simd_level_override() {
+    static int level = -1;
+    return level;
+}
+
+int detected_simd_level() {
+#if defined(__GNUC__) && defined(__x86_64__)
+    static const int level = []() {
+        if (std::getenv("HH_NO_SIMD")) return 0;
+        const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+        const bool avx512 = avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
+        if (avx512 && !std::getenv("HH_NO_AVX512")) return 2;
+        return avx2 ? 1 : 0;
+    }();
+    return level;
+#else
+    return 0;
 #endif
-    solve_permuted<K>(f, x);
+}
+
+namespace {
+
+template <typename LT>
+void solve_dispatch(const Factor<LT>& f, double* x, int w) {
+#ifdef HH_HAVE_SIMD_KERNELS
+    const int level = simd_level();
+    if (level == 2) {
+        if (w == 1) return solve_avx512<1, 1, LT>(f, x);
+        if (w == 4) return solve_avx512<4, 1, LT>(f, x);
+        return solve_avx512<8, 1, LT>(f, x);
+    }
+    if (level == 1) {
+        if (w == 1) return solve_avx2<1, 1, LT>(f, x);
+        if (w == 4) return solve_avx2<4, 1, LT>(f, x);
+        return solve_avx2<4, 2, LT>(f, x);
+    }
+#endif
+    if (w == 1) solve_permuted<1, 1, LT>(f, x);
+    else if (w == 4) solve_permuted<4, 1, LT>(f, x);
+    else solve_permuted<4, 2, LT>(f, x);
+}
+
+
+// ---- supernodal solves --------------------------------------------------------------------
+// Per supernode, the rows it touches are copied into one contiguous buffer y (its own rows,
+// then its rows below), so that each column of the panel meets y as one contiguous run.
+// Forward (L y = b): columns in groups of 4, y_r -= sum_k P(r, c_k) y_{c_k} for the rows below
+// the group; backward (L^T x = y): the 4 dot products of the group's columns with the rows
+// below it, then the group's own triangle. The panel values are PT (double or float); the
+// arithmetic is double.
+struct SupernodalFactor {
+    int ns;
+    const int *start, *rows_ptr, *rows;
+    const size_t* val_ptr;
+    const double* val;
+    const float* val_single;
+    const double* diag_inverse;  // 1 / L(c, c), per scalar column
+    const int* diag_ptr;
+    const double* diag_inverse_single;  // the same (set when val_single is)
+};
+
+template <typename PT> struct PanelVec;
+template <> struct PanelVec<double> {
+    typedef double F4 __attribute__((vector_size(32), aligned(8)));
+    typedef double F8 __attribute__((vector_size(64), aligned(8)));
+};
+template <> struct PanelVec<float> {
+    typedef float F4 __attribute__((vector_size(16), aligned(4)));
+    typedef float F8 __attribute__((vector_size(32), aligned(4)));
+};
+template <int VL, typename PT>
+__attribute__((always_inline)) inline typename Lanes<VL>::V load_panel(const PT* p) {
+    typedef typename Lanes<VL>::V V;
+    if constexpr (VL == 4) {
+        typename PanelVec<PT>::F4 v;
+        __builtin_memcpy(&v, p, sizeof v);
+        return __builtin_convertvector(v, V);
+    } else {
+        typename PanelVec<PT>::F8 v;
+        __builtin_memcpy(&v, p, sizeof v);
+        return __builtin_convertvector(v, V);
+    }
+}
+template <int VL>
+__attribute__((always_inline)) inline typename Lanes<VL>::V load_y(const double* p) {
+    typename Lanes<VL>::V v;
+    __builtin_memcpy(&v, p, sizeof v);
+    return v;
+}
+template <int VL>
+__attribute__((always_inline)) inline void store_y(double* p, typename Lanes<VL>::V v) {
+    __builtin_memcpy(p, &v, sizeof v);
+}
+
+// W lanes per row (1, 4 or 8); VL: the SIMD width used along rows when W = 1.
+template <int W, int VL, typename PT>
+__attribute__((always_inline)) inline void supernodal_solve(const SupernodalFactor& f, const PT* val, const double* dinv_all,
+                                                            double* x, double* y) {
+    typedef typename Lanes<(W == 1 ? VL : W)>::V V;
+    constexpr int G = W == 1 ? 4 : 8;  // columns per group
+    for (int j = 0; j < f.ns; ++j) {  // L z = b
+        const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
+        const int* rows = f.rows + f.rows_ptr[j];
+        const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
+        const PT* p = val + f.val_ptr[j];
+        const double* dinv = dinv_all + f.diag_ptr[j];
+        double* xj = x + static_cast<size_t>(W) * 3 * c0;
+        std::copy(xj, xj + static_cast<size_t>(W) * m, y);
+        std::fill(y + static_cast<size_t>(W) * m, y + static_cast<size_t>(W) * ld, 0.0);
+        for (int c = 0; c < m; c += G) {
+            const int g = std::min(G, m - c);
+            const PT* col[G];
+            for (int k = 0; k < G; ++k) col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
+            for (int k = 0; k < g; ++k) {  // the group's triangle
+                double* yk = y + static_cast<size_t>(W) * (c + k);
+                for (int e = 0; e < W; ++e) yk[e] *= dinv[c + k];
+                for (int k2 = k + 1; k2 < g; ++k2) {
+                    const double l = col[k][c + k2];
+                    double* y2 = y + static_cast<size_t>(W) * (c + k2);
+                    for (int e = 0; e < W; ++e) y2[e] -= l * yk[e];
+                }
+            }
+            const int r0 = c + g;
+            if constexpr (W == 1) {
+                const double a0 = y[c], a1 = g > 1 ? y[c + 1] : 0.0, a2 = g > 2 ? y[c + 2] : 0.0, a3 = g > 3 ? y[c + 3] : 0.0;
+                int r = r0;
+                for (; r + VL <= ld; r += VL)
+                    store_y<VL>(y + r, load_y<VL>(y + r) - (load_panel<VL>(col[0] + r) * a0 + load_panel<VL>(col[1] + r) * a1 +
+                                                          load_panel<VL>(col[2] + r) * a2 + load_panel<VL>(col[3] + r) * a3));
+                for (; r < ld; ++r) y[r] -= col[0][r] * a0 + col[1][r] * a1 + col[2][r] * a2 + col[3][r] * a3;
+            } else {
+                V a[G];
+                for (int k = 0; k < G; ++k) a[k] = k < g ? load_y<W>(y + W * (c + k)) : V{} * 0.0;
+                for (int r = r0; r < ld; ++r) {
+                    double* yr = y + static_cast<size_t>(W) * r;
+                    V t = double(col[0][r]) * a[0];
+                    for (int k = 1; k < G; ++k) t += double(col[k][r]) * a[k];
+                    store_y<W>(yr, load_y<W>(yr) - t);
+                }
+            }
+        }
+        std::copy(y, y + static_cast<size_t>(W) * m, xj);
+        for (int t = m / 3; t < nr; ++t) {
+            double* to = x + static_cast<size_t>(W) * 3 * rows[t];
+            const double* from = y + static_cast<size_t>(W) * 3 * t;
+            for (int e = 0; e < 3 * W; ++e) to[e] += from[e];
+        }
+    }
+    for (int j = f.ns - 1; j >= 0; --j) {  // L^T x = z
+        const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
+        const int* rows = f.rows + f.rows_ptr[j];
+        const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
+        const PT* p = val + f.val_ptr[j];
+        const double* dinv = dinv_all + f.diag_ptr[j];
+        double* xj = x + static_cast<size_t>(W) * 3 * c0;
+        std::copy(xj, xj + static_cast<size_t>(W) * m, y);
+        for (int t = m / 3; t < nr; ++t) {
+            const double* from = x + static_cast<size_t>(W) * 3 * rows[t];
+            std::copy(from, from + 3 * W, y + static_cast<size_t>(W) * 3 * t);
+        }
+        for (int c = ((m - 1) / G) * G; c >= 0; c -= G) {
+            const int g = std::min(G, m - c);
+            const PT* col[G];
+            for (int k = 0; k < G; ++k) col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
+            const int r0 = c + g;
+            double acc[G][W];
+            if constexpr (W == 1) {
+                V s0 = V{} * 0.0, s1 = s0, s2 = s0, s3 = s0;
+                int r = r0;
+                for (; r + VL <= ld; r += VL) {
+                    const V yr = load_y<VL>(y + r);
+                    s0 += load_panel<VL>(col[0] + r) * yr;
+                    s1 += load_panel<VL>(col[1] + r) * yr;
+                    s2 += load_panel<VL>(col[2] + r) * yr;
+                    s3 += load_panel<VL>(col[3] + r) * yr;
+                }
+                double t0 = 0, t1 = 0, t2 = 0, t3 = 0;
+                for (int e = 0; e < VL; ++e) {
+                    t0 += s0[e];
+                    t1 += s1[e];
+                    t2 += s2[e];
+                    t3 += s3[e];
+                }
+                for (; r < ld; ++r) {
+                    t0 += col[0][r] * y[r];
+                    t1 += col[1][r] * y[r];
+                    t2 += col[2][r] * y[r];
+                    t3 += col[3][r] * y[r];
+                }
+                acc[0][0] = t0;
+                acc[1][0] = t1;
+                acc[2][0] = t2;
+                acc[3][0] = t3;
+            } else {
+                V sk[G];
+                for (int k = 0; k < G; ++k) sk[k] = V{} * 0.0;
+                for (int r = r0; r < ld; ++r) {
+                    const V yr = load_y<W>(y + static_cast<size_t>(W) * r);
+                    for (int k = 0; k < G; ++k) sk[k] += double(col[k][r]) * yr;
+                }
+                for (int k = 0; k < G; ++k) store_y<W>(acc[k], sk[k]);
+            }
+            for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
+                double* yk = y + static_cast<size_t>(W) * (c + k);
+                for (int e = 0; e < W; ++e) {
+                    double v = yk[e] - acc[k][e];
+                    for (int k2 = k + 1; k2 < g; ++k2) v -= col[k][c + k2] * y[static_cast<size_t>(W) * (c + k2) + e];
+                    yk[e] = v * dinv[c + k];
+                }
+            }
+        }
+        std::copy(y, y + static_cast<size_t>(W) * m, xj);
+    }
+}
+
+#ifdef HH_HAVE_SIMD_KERNELS
+template <int W, int VL, typename PT>
+__attribute__((target("avx2,fma"))) void supernodal_avx2(const SupernodalFactor& f, const PT* v, const double* d, double* x, double* y) {
+    supernodal_solve<W, VL, PT>(f, v, d, x, y);
+}
+template <int W, int VL, typename PT>
+__attribute__((target("avx512f,avx512vl,avx2,fma"))) void supernodal_avx512(const SupernodalFactor& f, const PT* v, const double* d,
+                                                                           double* x, double* y) {
+    supernodal_solve<W, VL, PT>(f, v, d, x, y);
+}
+#endif
+
+template <typename PT>
+void supernodal_dispatch_typed(const SupernodalFactor& f, const PT* v, const double* d, double* x, int w, double* y) {
+#ifdef HH_HAVE_SIMD_KERNELS
+    const int level = simd_level();
+    if (level == 2) {
+        if (w == 1) return supernodal_avx512<1, 8, PT>(f, v, d, x, y);
+        if (w == 4) return supernodal_avx512<4, 4, PT>(f, v, d, x, y);
+        return supernodal_avx512<8, 8, PT>(f, v, d, x, y);
+    }
+    if (level == 1) {
+        if (w == 1) return supernodal_avx2<1, 4, PT>(f, v, d, x, y);
+        if (w == 4) return supernodal_avx2<4, 4, PT>(f, v, d, x, y);
+        return supernodal_avx2<8, 8, PT>(f, v, d, x, y);
+    }
+#endif
+    if (w == 1) supernodal_solve<1, 4, PT>(f, v, d, x, y);
+    else if (w == 4) supernodal_solve<4, 4, PT>(f, v, d, x, y);
+    else supernodal_solve<8, 8, PT>(f, v, d, x, y);
+}
+
+void supernodal_solve_dispatch(const SupernodalFactor& f, double* x, int w, double* y) {
+    if (f.val_single) supernodal_dispatch_typed<float>(f, f.val_single, f.diag_inverse_single, x, w, y);
+    else supernodal_dispatch_typed<double>(f, f.val, f.diag_inverse, x, w, y);
 }
 
 }  // namespace
 
-void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp) const {
+void multiply_node_major(const SpMat& a, const double* x, double* y, int w) {
+    if (w != 1 && w != 4 && w != 8) throw std::logic_error("multiply_node_major: width must be 1, 4 or 8");
+    const int n = static_cast<int>(a.cols() / 3);
+    const int* o = a.outerIndexPtr();
+    const int* i = a.innerIndexPtr();
+    const double* v = a.valuePtr();
+#ifdef HH_HAVE_SIMD_KERNELS
+    const int level = simd_level();
+    if (level == 2) {
+        if (w == 1) return multiply_avx512<1, 1>(n, o, i, v, x, y);
+        if (w == 4) return multiply_avx512<4, 1>(n, o, i, v, x, y);
+        return multiply_avx512<8, 1>(n, o, i, v, x, y);
+    }
+    if (level == 1) {
+        if (w == 1) return multiply_avx2<1, 1>(n, o, i, v, x, y);
+        if (w == 4) return multiply_avx2<4, 1>(n, o, i, v, x, y);
+        return multiply_avx2<4, 2>(n, o, i, v, x, y);
+    }
+#endif
+    if (w == 1) multiply_blocks<1, 1>(n, o, i, v, x, y);
+    else if (w == 4) multiply_blocks<4, 1>(n, o, i, v, x, y);
+    else multiply_blocks<4, 2>(n, o, i, v, x, y);
+}
+
+bool has_node_block_pattern(const SpMat& a) {
+    if (a.rows() != a.cols() || a.cols() % 3 != 0 || !a.isCompressed()) return false;
+    const int* o = a.outerIndexPtr();
+    const int* in = a.innerIndexPtr();
+    for (Eigen::Index j = 0; j < a.cols() / 3; ++j) {
+        const int len = o[3 * j + 1] - o[3 * j];
+        if (len % 3 != 0) return false;
+        for (int c = 1; c < 3; ++c)
+            if (o[3 * j + c + 1] - o[3 * j + c] != len) return false;
+        for (int k = 0; k < len; ++k) {
+            const int row = in[o[3 * j] + k];
+            if (row % 3 != k % 3 || (k % 3 != 0 && row != in[o[3 * j] + k - 1] + 1)) return false;
+            for (int c = 1; c < 3; ++c)
+                if (in[o[3 * j + c] + k] != row) return false;
+        }
+    }
+    return true;
+}
+
+void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, bool single) const {
     if (w != 1 && w != 4 && w != 8) throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8");
     work_.resize(static_cast<size_t>(3) * n_ * w);
     double* x = work_.data();
@@ -236,10 +715,17 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
         for (int r = 0; r < 3; ++r)
             for (int j = 0; j < w; ++j) xn[r * w + j] = m[3 * r] * bn[j] + m[3 * r + 1] * bn[w + j] + m[3 * r + 2] * bn[2 * w + j];
     }
-    const Factor f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data()};
-    if (w == 1) solve_dispatch<1>(f, x);
-    else if (w == 4) solve_dispatch<4>(f, x);
-    else solve_dispatch<8>(f, x);
+    if (supernodal_) {
+        if (single && !single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
+        solve_supernodal(x, w, single);
+    } else if (single) {
+        if (!single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
+        const Factor<float> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_single_.data(), d_inverse_single_.data()};
+        solve_dispatch(f, x, w);
+    } else {
+        const Factor<double> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data()};
+        solve_dispatch(f, x, w);
+    }
     for (int node = 0; node < n_; ++node) {  // b = W P^T x
         const int old = order_[node];
         const double* xn = x + 3 * w * node;
@@ -274,6 +760,24 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp) const {
         for (int j = 0; j < k; ++j)
             for (int e = 0; e < 3 * n_; ++e) b(e, first + j) = packed_[w * e + j];
     }
+}
+
+void BlockLDLT::solve_supernodal(double* x, int w, bool single) const {
+    const int ns = supernodes();
+    size_t most = 0;
+    for (int j = 0; j < ns; ++j) most = std::max<size_t>(most, sn_rows_ptr_[j + 1] - sn_rows_ptr_[j]);
+    gather_.resize(3 * most * w + 64);
+    const SupernodalFactor f{ns,
+                             sn_start_.data(),
+                             sn_rows_ptr_.data(),
+                             sn_rows_.data(),
+                             sn_val_ptr_.data(),
+                             single ? nullptr : sn_val_.data(),
+                             single ? sn_val_single_.data() : nullptr,
+                             single ? nullptr : sn_diag_inverse_.data(),
+                             sn_diag_ptr_.data(),
+                             single ? sn_diag_inverse_.data() : nullptr};
+    supernodal_solve_dispatch(f, x, w, gather_.data());
 }
 
 }  // namespace hh

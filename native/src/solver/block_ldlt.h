@@ -17,6 +17,15 @@ class BlockLDLT {
 public:
     // A: 3n x 3n, column-major, both triangles stored, pattern closed under 3x3 node blocks.
     void analyze(const SpMat& a);
+    // Before analyze(): the up-looking block LDL^T (the default: fastest to factor for the
+    // sizes here) or the supernodal L L^T (dense panels: faster solves, a single-precision copy
+    // that halves their memory traffic; for a factor reused over many solves).
+    void set_supernodal(bool on) {
+        if (on != supernodal_ && n_ > 0) throw std::logic_error("BlockLDLT::set_supernodal: call it before analyze()");
+        supernodal_ = on;
+    }
+    bool supernodal() const { return supernodal_; }
+    int supernodes() const { return static_cast<int>(sn_start_.size()) - 1; }
     void factorize(const SpMat& a);
     VecX solve(const VecX& b) const;
     // In place, every column of b a right-hand side.
@@ -25,13 +34,24 @@ public:
     // rotation of each node since the factorization): x = W A^-1 W^T b. warp null: W = I.
     void solve(MatX& b, const std::vector<Mat3>* warp) const;
     // The same on node-major storage: x holds n nodes x 3 x w values (w = 1, 4 or 8; node i's
-    // 3 x w block at x + 3 w i, row-major), in the matrix's own node order.
-    void solve_node_major(double* x, int w, const std::vector<Mat3>* warp) const;
+    // 3 x w block at x + 3 w i, row-major), in the matrix's own node order. single: with the
+    // single-precision copy of the factor (half the memory traffic; the arithmetic stays
+    // double, so this applies the exact inverse of L_f D_f L_f^T, a matrix within float
+    // round-off of A: a preconditioner, not a solve).
+    void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, bool single = false) const;
+    // Keep a single-precision copy of L and D^-1 with every factorization (for preconditioning).
+    void set_keep_single(bool keep) { keep_single_ = keep; if (keep && !single_valid_ && n_ > 0 && factored_) make_single(); }
+    bool has_single() const { return single_valid_; }
     int nodes() const { return n_; }
     // Scalar floating-point operations of one factorization (from the symbolic analysis).
     double factor_flops() const { return factor_flops_; }
     bool analysed() const { return n_ > 0; }
     long block_nonzeros() const { return static_cast<long>(li_.size()); }
+    // debugging / statistics
+    const std::vector<int>& column_counts() const { return lnz_; }
+    const std::vector<int>& column_rows() const { return li_; }
+    const std::vector<int>& column_starts() const { return lp_; }
+    const std::vector<int>& etree() const { return parent_; }
 
 private:
     struct BlockRef {
@@ -44,11 +64,44 @@ private:
     std::vector<std::vector<BlockRef>> column_;  // upper pattern of permuted A, by column
     std::vector<int> parent_, lp_, lnz_, li_;    // elimination tree, L's column pointers and rows
     std::vector<Mat3> lx_, d_inverse_;
+    std::vector<float> lx_single_, d_inverse_single_;  // 9 per block, column-major
+    // Supernodal form: A = L L^T with scalar L stored as dense panels, one per
+    // supernode (consecutive nodes sharing their column structure): supernode s covers nodes
+    // [sn_start_[s], sn_start_[s+1]); its rows (nodes) are sn_rows_[sn_rows_ptr_[s] ..), its own
+    // nodes first; its panel is 3 rows x 3 width values, column-major, at sn_val_ptr_[s].
+    bool supernodal_ = false;
+    std::vector<int> sn_start_, sn_rows_ptr_, sn_rows_, node_sn_;
+    std::vector<size_t> sn_val_ptr_;
+    std::vector<double> sn_val_;
+    std::vector<float> sn_val_single_;
+    std::vector<int> sn_diag_ptr_;          // 3 width per supernode
+    std::vector<double> sn_diag_inverse_;   // 1 / L(c, c) of every scalar column
+    std::vector<std::vector<BlockRef>> lower_;  // lower pattern of permuted A by column (row >= column)
+    std::vector<int> relmap_, link_head_, link_next_, sn_pos_;
+    std::vector<double> update_;
+    mutable std::vector<double> gather_;
+    void analyze_supernodes();
+    void factorize_supernodal(const SpMat& a);
+    void solve_supernodal(double* x, int w, bool single) const;
+    bool keep_single_ = false, single_valid_ = false, factored_ = false;
+    void make_single();
     double factor_flops_ = 0;
     mutable std::vector<double> work_, packed_;
     // workspaces of factorize()
     std::vector<Mat3> y_;
     std::vector<int> flag_, pattern_;
 };
+
+// y = A x on node-major storage (x, y: 3n rows x w values, w = 1, 4 or 8) for a symmetric A,
+// 3n x 3n, both triangles stored, whose three columns of a node share one row pattern made
+// of whole 3x3 blocks (has_node_block_pattern). AVX2 / AVX-512 kernels chosen at run time.
+void multiply_node_major(const SpMat& a, const double* x, double* y, int w);
+bool has_node_block_pattern(const SpMat& a);
+
+// The SIMD kernels used: 0 baseline x86-64, 1 AVX2 + FMA, 2 AVX-512 (detected at run time;
+// HH_NO_AVX512 or HH_NO_SIMD in the environment lower it). Tests set the override (>= 0) to
+// run every level the CPU has; -1: automatic.
+int detected_simd_level();
+int& simd_level_override();
 
 }  // namespace hh

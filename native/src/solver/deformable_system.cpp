@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 
 #include "fem/corotational.h"
 #include "rigid/quaternion.h"
@@ -19,10 +20,10 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 // Width of a node-major block of k right-hand sides (the kernels take 1, 4 or 8).
 int padded_width(int k) { return k == 1 ? 1 : (k <= 4 ? 4 : 8); }
 
-// Y = A X on node-major storage (node i's 3 x w values at 3 w i): A is symmetric, so column
-// 3c + k of its compressed-column storage is row 3c + k, a dot product with X's rows.
+// Y = A X on node-major storage for any symmetric pattern (the fallback of the block kernel):
+// column c of the compressed-column storage is row c, a dot product with X's rows.
 template <int W>
-void multiply_node_major(const SpMat& a, const double* x, double* y) {
+void multiply_scalar(const SpMat& a, const double* x, double* y) {
     const int* outer = a.outerIndexPtr();
     const int* inner = a.innerIndexPtr();
     const double* values = a.valuePtr();
@@ -36,10 +37,11 @@ void multiply_node_major(const SpMat& a, const double* x, double* y) {
         std::copy(acc, acc + W, y + static_cast<size_t>(W) * c);
     }
 }
-void multiply_node_major(const SpMat& a, const double* x, double* y, int w) {
-    if (w == 1) multiply_node_major<1>(a, x, y);
-    else if (w == 4) multiply_node_major<4>(a, x, y);
-    else multiply_node_major<8>(a, x, y);
+void multiply_any(const SpMat& a, bool blocks, const double* x, double* y, int w) {
+    if (blocks) return multiply_node_major(a, x, y, w);
+    if (w == 1) multiply_scalar<1>(a, x, y);
+    else if (w == 4) multiply_scalar<4>(a, x, y);
+    else multiply_scalar<8>(a, x, y);
 }
 }  // namespace
 
@@ -52,6 +54,8 @@ struct DeformableSystem::Impl {
     BlockLDLT cholesky;
     Eigen::ConjugateGradient<SpMat, Eigen::Lower | Eigen::Upper, Eigen::DiagonalPreconditioner<double>> cg;
     std::vector<VecX> warm;
+    std::vector<VecX> warm2;  // ReusedCholesky: the solutions before those in warm
+    std::vector<double> tolerance_scale;  // per slot, ReusedCholesky
 
     // ReusedCholesky
     bool have_factor = false;        // cholesky holds the factor of some earlier At
@@ -59,6 +63,11 @@ struct DeformableSystem::Impl {
     std::vector<Vec4> node_q;        // nodes' rotations this step (warm starts of the polar decomposition)
     std::vector<Mat3> node_r, node_r_factor, warp;  // this step's, at the factorization, and R R_factor^T
     bool have_rotations = false;
+    bool block_pattern = false;  // At's pattern suits the block kernel of multiply_node_major
+    // A/B switches for measurements: HH_REUSE_DOUBLE (no single-precision preconditioner
+    // passes), HH_REUSE_UPLOOKING (the up-looking block LDL^T instead of the supernodal form)
+    bool use_single = std::getenv("HH_REUSE_DOUBLE") == nullptr;
+    bool supernodal = std::getenv("HH_REUSE_UPLOOKING") == nullptr;
     // cost bookkeeping of the refactorization policy (seconds)
     double factor_seconds = 0;       // the last factorization
     double epoch_seconds = 0;        // solves since the last factorization, its own step included
@@ -71,7 +80,14 @@ struct DeformableSystem::Impl {
 
     void factor(DeformableSystem& sys) {
         const auto t0 = std::chrono::steady_clock::now();
-        if (!cholesky.analysed()) cholesky.analyze(sys.A);
+        if (!cholesky.analysed()) {
+            // many preconditioner passes per factorization: the supernodal form's dense panel
+            // kernels (and its single-precision copy) pay off
+            cholesky.set_supernodal(supernodal);
+            cholesky.set_keep_single(use_single);
+            cholesky.analyze(sys.A);
+            block_pattern = has_node_block_pattern(sys.A);
+        }
         cholesky.factorize(sys.A);
         factor_seconds = seconds_since(t0);
         ++sys.factorizations;
@@ -90,6 +106,7 @@ struct DeformableSystem::Impl {
         return &warp;
     }
     void pcg(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot);
+    void pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count);
 };
 
 DeformableSystem::DeformableSystem() : impl_(new Impl) {}
@@ -139,6 +156,12 @@ void DeformableSystem::set_element_rotations(const std::vector<Eigen::Vector4i>&
 
 void DeformableSystem::select_slot(int slot) { slot_ = slot; }
 
+void DeformableSystem::set_tolerance_scale(int slot, double scale) {
+    std::vector<double>& t = impl_->tolerance_scale;
+    if (static_cast<int>(t.size()) <= slot) t.resize(slot + 1, 1.0);
+    t[slot] = scale;
+}
+
 void DeformableSystem::solve() {
     MatX b = r, x;
     solve_many(b, x, slot_);
@@ -187,122 +210,216 @@ void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot) {
         throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 
-// Conjugate gradient on every column of b at once, preconditioned by the (warped) reused
-// factor: each iteration is one batched pass over the factor and one over At.
+
+// Conjugate gradient on up to 8 columns of b at once, preconditioned by the (warped) reused
+// factor. The iterates live in node-major blocks (node i's 3 x w values together, w = 1, 4 or 8
+// lanes), so that each iteration is one batched pass over the factor and one over At; a
+// converged column leaves its lane, and the block narrows (8 -> 4 -> 1) when it can.
 void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot) {
     const int n3 = static_cast<int>(sys.A.rows());
     const int k = static_cast<int>(b.cols());
     if (!have_factor || renew) factor(sys);
-    const double tol = std::min(cg_tolerance, 1e-10);
     x.resize(n3, k);
-    if (factor_current) {  // the factor is this step's: a direct solve
-        x = b;
-        cholesky.solve(x, nullptr);
-        return;
-    }
-    const std::vector<Mat3>* w = current_warp();
-    // per column: warm start, norms, state
-    std::vector<double> bnorm(k), rz(k);
-    std::vector<int> active, its(k, 0);
     for (int j = 0; j < k; ++j) {
         const int slot = first_slot + j;
         if (static_cast<int>(warm.size()) <= slot) warm.resize(slot + 1);
         if (warm[slot].size() != n3) warm[slot] = VecX::Zero(n3);
-        x.col(j) = warm[slot];
-        bnorm[j] = b.col(j).norm();
-        if (bnorm[j] == 0) x.col(j).setZero();
-        else active.push_back(j);
+        if (static_cast<int>(warm2.size()) <= slot) warm2.resize(slot + 1);
+        if (warm2[slot].size() != n3) warm2[slot] = VecX::Zero(n3);
     }
-    MatX r(n3, k), p(n3, k);
-    // pack / unpack the active columns into node-major blocks of width wd
-    auto pack = [&](const MatX& from, std::vector<double>& to, int wd) {
-        to.assign(static_cast<size_t>(n3) * wd, 0.0);
-        for (size_t a = 0; a < active.size(); ++a)
-            for (int e = 0; e < n3; ++e) to[static_cast<size_t>(wd) * e + a] = from(e, active[a]);
-    };
-    auto unpack = [&](const std::vector<double>& from, MatX& to, int wd) {
-        for (size_t a = 0; a < active.size(); ++a)
-            for (int e = 0; e < n3; ++e) to(e, active[a]) = from[static_cast<size_t>(wd) * e + a];
-    };
-    MatX z(n3, k), q(n3, k);
-    // r = b - A x
-    auto residual_of_active = [&]() {
-        const int wd = padded_width(static_cast<int>(active.size()));
-        pack(x, nx, wd);
-        nq.resize(nx.size());
-        multiply_node_major(sys.A, nx.data(), nq.data(), wd);
-        unpack(nq, q, wd);
-        for (int j : active) r.col(j) = b.col(j) - q.col(j);
-    };
-    auto precondition_active = [&]() {  // z = M^-1 r
-        const int wd = padded_width(static_cast<int>(active.size()));
-        pack(r, nz, wd);
-        cholesky.solve_node_major(nz.data(), wd, w);
-        unpack(nz, z, wd);
-    };
-    auto drop_converged = [&]() {
-        std::vector<int> still;
-        for (int j : active) {
-            const double rel = r.col(j).norm() / bnorm[j];
-            if (rel > tol) still.push_back(j);
-            else sys.max_residual = std::max(sys.max_residual, rel);
+    if (factor_current) {  // the factor is this step's: a direct solve
+        x = b;
+        cholesky.solve(x, nullptr);
+        for (int j = 0; j < k; ++j) {
+            warm2[first_slot + j].swap(warm[first_slot + j]);
+            warm[first_slot + j] = x.col(j);
         }
-        active.swap(still);
-    };
-    if (active.empty()) return;
-    residual_of_active();
-    drop_converged();
-    bool restarted = false;
-    while (!active.empty()) {
-        precondition_active();
-        for (int j : active) {
-            rz[j] = r.col(j).dot(z.col(j));
-            p.col(j) = z.col(j);
-        }
-        bool need_restart = false;
-        while (!active.empty()) {
-            const int wd = padded_width(static_cast<int>(active.size()));
-            pack(p, np, wd);
-            nq.resize(np.size());
-            multiply_node_major(sys.A, np.data(), nq.data(), wd);
-            unpack(nq, q, wd);
-            for (int j : active) {
-                const double alpha = rz[j] / p.col(j).dot(q.col(j));
-                x.col(j) += alpha * p.col(j);
-                r.col(j) -= alpha * q.col(j);
-                ++its[j];
-                ++sys.iterations;
-            }
-            drop_converged();
-            if (active.empty()) break;
-            int worst = 0;
-            for (int j : active) worst = std::max(worst, its[j]);
-            if (worst >= sys.reuse_iteration_limit && !restarted) {  // the factor is too stale: renew it now
-                need_restart = true;
-                break;
-            }
-            if (worst >= std::max(cg_max_iterations, sys.reuse_iteration_limit + 5)) {
-                for (int j : active) sys.max_residual = std::max(sys.max_residual, r.col(j).norm() / bnorm[j]);
-                active.clear();
-                break;
-            }
-            precondition_active();
-            for (int j : active) {
-                const double rz_new = r.col(j).dot(z.col(j));
-                p.col(j) = z.col(j) + (rz_new / rz[j]) * p.col(j);
-                rz[j] = rz_new;
-            }
-        }
-        if (!need_restart) break;
-        // renew the factor with this step's At and restart CG from the current iterates: with
-        // the exact factor one more iteration reaches round-off
-        factor(sys);
-        w = nullptr;
-        restarted = true;
-        residual_of_active();
-        drop_converged();
+        return;
     }
-    for (int j = 0; j < k; ++j) warm[first_slot + j] = x.col(j);
+    for (int first = 0; first < k; first += 8) pcg_block(sys, b, x, first_slot, first, std::min(8, k - first));
+    for (int j = 0; j < k; ++j) {
+        warm2[first_slot + j].swap(warm[first_slot + j]);
+        warm[first_slot + j] = x.col(j);
+    }
+}
+
+void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count) {
+    const int n3 = static_cast<int>(sys.A.rows());
+    auto tol_of = [&](int col) {
+        const int slot = first_slot + col;
+        const double scale = slot < static_cast<int>(tolerance_scale.size()) ? tolerance_scale[slot] : 1.0;
+        return std::min(cg_tolerance, 1e-10) * scale;
+    };
+    const std::vector<Mat3>* w = current_warp();
+    bool single = cholesky.has_single();  // for one-lane passes (memory bound: half the traffic)
+    // lanes[l] = column of b held in lane l (-1: an idle lane, all zeros)
+    std::vector<int> lanes;
+    std::vector<double> bnorm(count, 0.0);
+    for (int j = 0; j < count; ++j) {
+        const int col = first + j;
+        bnorm[j] = b.col(col).norm();
+        if (bnorm[j] == 0) x.col(col).setZero();
+        else lanes.push_back(col);
+    }
+    if (lanes.empty()) return;
+    int wd = padded_width(static_cast<int>(lanes.size()));
+    lanes.resize(wd, -1);
+    auto lane_norm_b = [&](int l) { return bnorm[lanes[l] - first]; };
+    const size_t size = static_cast<size_t>(n3) * 8;
+    for (std::vector<double>* v : {&nb, &nx, &nr, &nz, &np, &nq}) v->resize(size);
+    auto load = [&](int l, const double* from, std::vector<double>& to) {
+        for (int e = 0; e < n3; ++e) to[static_cast<size_t>(wd) * e + l] = from ? from[e] : 0.0;
+    };
+    for (int l = 0; l < wd; ++l) {
+        const int col = lanes[l];
+        load(l, col < 0 ? nullptr : b.col(col).data(), nb);
+        load(l, col < 0 ? nullptr : warm[first_slot + col].data(), nx);
+        load(l, col < 0 ? nullptr : warm2[first_slot + col].data(), np);
+    }
+    // per-lane sums over node-major blocks
+    auto lane_dot = [&](const std::vector<double>& u, const std::vector<double>& v, double* out) {
+        double acc[8] = {};
+        const size_t total = static_cast<size_t>(n3) * wd;
+        for (size_t e = 0; e < total; e += wd)
+            for (int l = 0; l < wd; ++l) acc[l] += u[e + l] * v[e + l];
+        std::copy(acc, acc + wd, out);
+    };
+    auto residual = [&]() {  // r = b - A x
+        multiply_any(sys.A, block_pattern, nx.data(), nq.data(), wd);
+        const size_t total = static_cast<size_t>(n3) * wd;
+        for (size_t e = 0; e < total; ++e) nr[e] = nb[e] - nq[e];
+    };
+    auto finish_lane = [&](int l, double rel) {
+        const int col = lanes[l];
+        for (int e = 0; e < n3; ++e) x(e, col) = nx[static_cast<size_t>(wd) * e + l];
+        sys.max_residual = std::max(sys.max_residual, rel);
+        lanes[l] = -1;
+        for (std::vector<double>* v : {&nb, &nx, &nr, &np})
+            for (int e = 0; e < n3; ++e) (*v)[static_cast<size_t>(wd) * e + l] = 0.0;
+    };
+    // narrow the block when the live lanes fit in a smaller width
+    auto compact = [&]() {
+        int live = 0;
+        for (int c : lanes) live += c >= 0;
+        const int nw = padded_width(std::max(live, 1));
+        if (nw >= wd) return;
+        std::vector<int> keep;
+        for (int l = 0; l < wd; ++l)
+            if (lanes[l] >= 0) keep.push_back(l);
+        for (std::vector<double>* v : {&nb, &nx, &nr, &np}) {
+            std::vector<double>& a = *v;
+            for (int e = 0; e < n3; ++e)  // in place: the new layout never overtakes the old
+                for (int m = 0; m < nw; ++m)
+                    a[static_cast<size_t>(nw) * e + m] = m < static_cast<int>(keep.size()) ? a[static_cast<size_t>(wd) * e + keep[m]] : 0.0;
+        }
+        std::vector<int> nl(nw, -1);
+        for (size_t m = 0; m < keep.size(); ++m) nl[m] = lanes[keep[m]];
+        lanes.swap(nl);
+        wd = nw;
+    };
+    double rnorm2[8], rz_new[8], pq[8], qz[8];
+    std::vector<double> rz(count, 0.0), cross(count, 0.0);  // per column (lanes move when the block narrows)
+    std::vector<int> its(count, 0);
+    // Initial guess: the Galerkin (A-norm optimal) combination c1 h1 + c2 h2 of the slot's last
+    // two solutions h1, h2: it contains the plain warm start (1, 0), the linear extrapolation
+    // (2, -1) and zero, so it is never worse than any of them in the A-norm.
+    {
+        const size_t total = static_cast<size_t>(n3) * wd;
+        multiply_any(sys.A, block_pattern, nx.data(), nq.data(), wd);  // A h1
+        multiply_any(sys.A, block_pattern, np.data(), nz.data(), wd);  // A h2 (h2 loaded in np)
+        double a11[8], a12[8], a22[8], b1[8], b2[8];
+        lane_dot(nx, nq, a11);
+        lane_dot(nx, nz, a12);
+        lane_dot(np, nz, a22);
+        lane_dot(nx, nb, b1);
+        lane_dot(np, nb, b2);
+        double c1[8] = {}, c2[8] = {};
+        for (int l = 0; l < wd; ++l) {
+            if (lanes[l] < 0) continue;
+            const double det = a11[l] * a22[l] - a12[l] * a12[l];
+            if (a11[l] > 0 && a22[l] > 0 && det > 1e-10 * a11[l] * a22[l]) {
+                c1[l] = (a22[l] * b1[l] - a12[l] * b2[l]) / det;
+                c2[l] = (a11[l] * b2[l] - a12[l] * b1[l]) / det;
+            } else if (a11[l] > 0) {
+                c1[l] = b1[l] / a11[l];
+            }
+        }
+        for (size_t e = 0; e < total; e += wd)
+            for (int l = 0; l < wd; ++l) {
+                nx[e + l] = c1[l] * nx[e + l] + c2[l] * np[e + l];
+                nr[e + l] = nb[e + l] - c1[l] * nq[e + l] - c2[l] * nz[e + l];
+            }
+        std::fill(np.begin(), np.begin() + total, 0.0);
+    }
+    lane_dot(nr, nr, rnorm2);
+    for (int l = 0; l < wd; ++l) {
+        if (lanes[l] < 0) continue;
+        const double bn = lane_norm_b(l);
+        if (std::sqrt(rnorm2[l]) <= tol_of(lanes[l]) * bn) finish_lane(l, std::sqrt(rnorm2[l]) / bn);
+    }
+    bool restarted = false, fresh = true;
+    for (;;) {
+        compact();
+        bool any = false;
+        for (int c : lanes) any |= c >= 0;
+        if (!any) break;
+        const size_t total = static_cast<size_t>(n3) * wd;
+        std::copy(nr.begin(), nr.begin() + total, nz.begin());  // z = M^-1 r
+        cholesky.solve_node_major(nz.data(), wd, w, single && wd == 1);
+        lane_dot(nr, nz, rz_new);
+        double beta[8] = {};
+        for (int l = 0; l < wd; ++l) {
+            if (lanes[l] < 0) continue;
+            const int j = lanes[l] - first;
+            // Polak-Ribiere (flexible) CG: beta = r_new . (z_new - z_old) / (r_old . z_old), with
+            // r_new . z_old = r_old . z_old - alpha q . z_old. It equals Fletcher-Reeves for a
+            // fixed preconditioner and stays robust when the preconditioner changes between
+            // iterations (double passes on 4-8 lanes, single on one lane).
+            beta[l] = fresh ? 0.0 : std::max(0.0, (rz_new[l] - cross[j]) / rz[j]);
+            rz[j] = rz_new[l];
+        }
+        for (size_t e = 0; e < total; e += wd)
+            for (int l = 0; l < wd; ++l) np[e + l] = nz[e + l] + beta[l] * np[e + l];
+        fresh = false;
+        multiply_any(sys.A, block_pattern, np.data(), nq.data(), wd);
+        lane_dot(np, nq, pq);
+        lane_dot(nq, nz, qz);
+        double alpha[8] = {};
+        for (int l = 0; l < wd; ++l) {
+            if (lanes[l] < 0) continue;
+            const int j = lanes[l] - first;
+            alpha[l] = pq[l] == 0 ? 0.0 : rz[j] / pq[l];
+            cross[j] = rz[j] - alpha[l] * qz[l];
+        }
+        double acc[8] = {};
+        for (size_t e = 0; e < total; e += wd)
+            for (int l = 0; l < wd; ++l) {
+                nx[e + l] += alpha[l] * np[e + l];
+                nr[e + l] -= alpha[l] * nq[e + l];
+                acc[l] += nr[e + l] * nr[e + l];
+            }
+        int worst = 0;
+        for (int l = 0; l < wd; ++l) {
+            if (lanes[l] < 0) continue;
+            const int j = lanes[l] - first;
+            ++its[j];
+            ++sys.iterations;
+            const double rel = std::sqrt(acc[l]) / bnorm[j];
+            if (rel <= tol_of(lanes[l])) finish_lane(l, rel);
+            else if (its[j] >= std::max(cg_max_iterations, sys.reuse_iteration_limit + 5)) finish_lane(l, rel);  // give up
+            else worst = std::max(worst, its[j]);
+        }
+        if (worst >= sys.reuse_iteration_limit && !restarted) {
+            // the factor is too stale: renew it with this step's At and restart CG from the
+            // current iterates (with the exact factor one or two iterations reach the tolerance)
+            factor(sys);
+            w = nullptr;
+            single = cholesky.has_single();
+            restarted = true;
+            fresh = true;
+            residual();
+        }
+    }
 }
 
 }  // namespace hh

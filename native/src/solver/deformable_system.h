@@ -32,6 +32,10 @@ public:
     DeformableSolver solver() const;
     // Warm-start slot for CG: the Schur solve uses slots 0-6 (b_t and the 6 columns of Ath).
     void select_slot(int slot);
+    // ReusedCholesky: the tolerance of a slot's solves is min(cg_tolerance, 1e-10) * scale
+    // (default scale 1). The hand asks 1e-3 for the columns A_t^-1 Ath that form the Schur
+    // complement, whose conditioning amplifies their error.
+    void set_tolerance_scale(int slot, double scale);
     void solve() override;
     // X = A^-1 B, column j of B in warm-start slot first_slot + j: one factorization and
     // batched passes over it serve all the columns.

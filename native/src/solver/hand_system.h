@@ -37,6 +37,7 @@ private:
     Vec6 aht_times(const VecX& vt) const;  // Aht * vt, touching only coupled nodes
     MatX rhs_, solved_;                   // the 7 batched right-hand sides and solutions
     std::vector<VecX> temp_;              // A_t^-1 Ath(i), i = 1..6
+    double schur_condition_ = 0;          // of the last step's Schur complement (0: none yet)
 
 public:
     // After solve(): Aht A_t^-1 Ath, the flesh's part of the Schur complement (Eq. 13).
