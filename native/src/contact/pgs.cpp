@@ -9,12 +9,33 @@ namespace {
 // argmin over |x| <= radius of 1/2 x^T W x - c^T x, W symmetric positive definite 2x2:
 // inside, x = W^-1 c; else x = (W + nu I)^-1 c with nu >= 0 such that |x| = radius (the norm
 // decreases monotonically in nu; Newton's method from nu = 0 converges from the left).
-Eigen::Vector2d disk_constrained_minimum(const Eigen::Matrix2d& w, const Eigen::Vector2d& c, double radius) {
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(w);
-    const Eigen::Vector2d a = eig.eigenvalues().cwiseMax(1e-300);
-    const Eigen::Vector2d d = eig.eigenvectors().transpose() * c;
+// y += h0 d0 + h1 d1 + h2 d2 over m entries, h_k = h + k ld: a contact's update of one body's
+// y (the sweeps' inner loop). Built for AVX2/FMA too, chosen at load time where supported.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 12
+__attribute__((target_clones("arch=x86-64-v3", "default")))
+#endif
+void add_three_columns(double* __restrict y, const double* __restrict h, long m, long ld, double d0, double d1, double d2) {
+    const double* __restrict h0 = h;
+    const double* __restrict h1 = h + ld;
+    const double* __restrict h2 = h + 2 * ld;
+    for (long k = 0; k < m; ++k) y[k] += h0[k] * d0 + h1[k] * d1 + h2[k] * d2;
+}
+
+// The eigen-decomposition of a contact's 2x2 tangential block, made once per solve.
+struct Disk {
+    Eigen::Matrix2d vectors;
+    Eigen::Vector2d values;
+    explicit Disk(const Eigen::Matrix2d& w = Eigen::Matrix2d::Identity()) {
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(w);
+        values = eig.eigenvalues().cwiseMax(1e-300);
+        vectors = eig.eigenvectors();
+    }
+};
+Eigen::Vector2d disk_constrained_minimum(const Disk& eig, const Eigen::Vector2d& c, double radius) {
+    const Eigen::Vector2d& a = eig.values;
+    const Eigen::Vector2d d = eig.vectors.transpose() * c;
     auto point = [&](double nu) { return Eigen::Vector2d(d[0] / (a[0] + nu), d[1] / (a[1] + nu)); };
-    if (point(0).norm() <= radius) return eig.eigenvectors() * point(0);
+    if (point(0).norm() <= radius) return eig.vectors * point(0);
     if (radius <= 0) return Eigen::Vector2d::Zero();
     double nu = 0;
     for (int it = 0; it < 50; ++it) {
@@ -25,7 +46,7 @@ Eigen::Vector2d disk_constrained_minimum(const Eigen::Matrix2d& w, const Eigen::
         const double slope = (x[0] * x[0] / (a[0] + nu) + x[1] * x[1] / (a[1] + nu)) / (norm * norm * norm);
         nu += (1.0 / radius - 1.0 / norm) / slope;
     }
-    return eig.eigenvectors() * point(nu);
+    return eig.vectors * point(nu);
 }
 }  // namespace
 
@@ -60,6 +81,8 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             worst = std::max(worst, lambda[n] > 0 ? std::abs(un) : std::max(0.0, -un));
             const Eigen::Vector2d ut(ui[1], ui[2]), lt(lambda[n + 1], lambda[n + 2]);
             const double limit = coefficient[i] * lambda[n];
+            if (!(limit > 0))
+                continue;  // no normal impulse, so no friction (its disk is the point 0): any sliding is allowed
             if (lt.norm() < limit * (1 - 1e-9) || lt.norm() == 0)
                 worst = std::max(worst, ut.norm());  // sticking: no sliding allowed
             else
@@ -67,6 +90,11 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         }
         return worst;
     };
+    std::vector<Disk> disks(c);
+    for (int i = 0; i < c; ++i) {
+        const Mat3& w = op.block(i);
+        disks[i] = Disk(0.5 * (w.block<2, 2>(1, 1) + w.block<2, 2>(1, 1).transpose()));
+    }
     for (int it = 0, pass = 0; it < max_iterations; ++it) {
         for (int i = 0; i < c; ++i) {
             const int n = 3 * i;
@@ -85,7 +113,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             if (wtt.trace() > 0) {
                 const Eigen::Vector2d ut(ui[1], ui[2]);
                 const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
-                const Eigen::Vector2d target = disk_constrained_minimum(wtt, wtt * lt - ut, coefficient[i] * lambda[n]);
+                const Eigen::Vector2d target = disk_constrained_minimum(disks[i], wtt * lt - ut, coefficient[i] * lambda[n]);
                 delta[1] = target[0] - lt[0];
                 delta[2] = target[1] - lt[1];
                 lambda[n + 1] = target[0];
@@ -110,6 +138,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             }
         }
         if (!broke_loose) break;
+
     }
     return result;
 }
@@ -133,26 +162,55 @@ struct DenseOp {
 };
 
 // W = sum_b P_b C_b P_b^T: y_b = C_b P_b^T lambda kept up to date.
+void reduced_velocities(const ReducedContactProblem& p, const VecX& lambda, std::vector<VecX>& f, std::vector<VecX>& y,
+                        VecX& u);
+
+// W = sum_b P_b C_b P_b^T: y_b = C_b P_b^T lambda kept up to date. Per contact and body the
+// three columns H = C_b P_b^T (m_b x 3) are formed once, so a contact's update is three
+// columns of length m_b per body it touches.
 struct ReducedOp {
     const ReducedContactProblem& p;
-    std::vector<VecX> y;
+    std::vector<VecX> y, f;
     std::vector<Mat3> blocks;
+    std::vector<MatX> h;                                   // per body: m_b x 3 (its contacts)
+    std::vector<std::vector<std::pair<int, int>>> parts;  // per contact: (body, first column in h[body])
     ReducedOp(const ReducedContactProblem& p, const VecX& lambda) : p(p) {
         const int c = static_cast<int>(p.gap.size());
-        std::vector<VecX> f(p.bodies.size());
-        for (size_t b = 0; b < p.bodies.size(); ++b) f[b] = VecX::Zero(p.bodies[b].C.rows());
+        const int nb = static_cast<int>(p.bodies.size());
+        std::vector<int> columns(nb, 0);
+        parts.resize(c);
+        for (int i = 0; i < c; ++i)
+            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
+                const int b = p.entries[e].body;
+                bool seen = false;
+                for (const auto& q : parts[i]) seen = seen || q.first == b;
+                if (!seen) {
+                    parts[i].emplace_back(b, columns[b]);
+                    columns[b] += 3;
+                }
+            }
+        h.resize(nb);
+        for (int b = 0; b < nb; ++b) h[b].setZero(p.bodies[b].C.rows(), columns[b]);
         blocks.assign(c, Mat3::Zero());
         for (int i = 0; i < c; ++i)
             for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
                 const auto& a = p.entries[e];
-                f[a.body][a.index] += a.coefficient.dot(lambda.segment<3>(3 * i));
-                for (int g = p.begin[i]; g < p.begin[i + 1]; ++g) {
-                    const auto& h = p.entries[g];
-                    if (h.body == a.body) blocks[i] += p.bodies[a.body].C(a.index, h.index) * a.coefficient * h.coefficient.transpose();
-                }
+                int first = 0;
+                for (const auto& q : parts[i])
+                    if (q.first == a.body) first = q.second;
+                h[a.body].middleCols<3>(first).noalias() += p.bodies[a.body].C.col(a.index) * a.coefficient.transpose();
             }
-        y.resize(p.bodies.size());
-        for (size_t b = 0; b < p.bodies.size(); ++b) y[b] = p.bodies[b].C * f[b];
+        for (int i = 0; i < c; ++i)
+            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
+                const auto& a = p.entries[e];
+                for (const auto& q : parts[i])
+                    if (q.first == a.body) blocks[i] += a.coefficient * h[a.body].row(a.index).segment<3>(q.second);
+            }
+        reset(lambda);
+    }
+    void reset(const VecX& lambda) {
+        VecX u;
+        reduced_velocities(p, lambda, f, y, u);
     }
     Vec3 velocity(int i) const {
         Vec3 out = p.u_free.segment<3>(3 * i);
@@ -161,9 +219,9 @@ struct ReducedOp {
     }
     const Mat3& block(int i) const { return blocks[i]; }
     void apply(int i, const Vec3& delta) {
-        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
-            const double s = p.entries[e].coefficient.dot(delta);
-            if (s != 0) y[p.entries[e].body].noalias() += p.bodies[p.entries[e].body].C.col(p.entries[e].index) * s;
+        for (const auto& q : parts[i]) {
+            const MatX& hb = h[q.first];
+            add_three_columns(y[q.first].data(), hb.data() + hb.rows() * q.second, hb.rows(), hb.rows(), delta[0], delta[1], delta[2]);
         }
     }
 };
@@ -180,6 +238,28 @@ PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, d
     DenseOp op(p, lambda);
     return sweep(op, c, p.gap, p.friction, p.kinetic, p.dt, p.recovery_speed, lambda, max_iterations, tolerance);
 }
+
+namespace {
+// u = u_free + W lambda on the reduced form: f_b = P_b^T lambda, y_b = C_b f_b, u = u_free + sum_b P_b y_b
+// (one product with each small C_b: far cheaper than a Gauss-Seidel sweep, which updates y_b
+// after every contact).
+void reduced_velocities(const ReducedContactProblem& p, const VecX& lambda, std::vector<VecX>& f, std::vector<VecX>& y,
+                        VecX& u) {
+    const int c = static_cast<int>(p.gap.size());
+    f.resize(p.bodies.size());
+    y.resize(p.bodies.size());
+    for (size_t b = 0; b < p.bodies.size(); ++b) f[b].setZero(p.bodies[b].C.rows());
+    for (int i = 0; i < c; ++i)
+        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e)
+            f[p.entries[e].body][p.entries[e].index] += p.entries[e].coefficient.dot(lambda.segment<3>(3 * i));
+    for (size_t b = 0; b < p.bodies.size(); ++b) y[b].noalias() = p.bodies[b].C * f[b];
+    u = p.u_free;
+    for (int i = 0; i < c; ++i)
+        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e)
+            u.segment<3>(3 * i) += p.entries[e].coefficient * y[p.entries[e].body][p.entries[e].index];
+}
+
+}  // namespace
 
 PgsResult solve_pgs(const ReducedContactProblem& p, VecX& lambda, int max_iterations, double tolerance) {
     const int c = static_cast<int>(p.gap.size());

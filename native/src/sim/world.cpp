@@ -135,6 +135,7 @@ void World::reduce_contacts() {
     // a kept one and are still measured in the statistics.
     detected.swap(contacts);
     contacts.clear();
+    contact_patch_keys.clear();
     std::unordered_map<std::uint64_t, int> best;
     const double h = settings.contact_patch;
     for (const Contact& c : detected) {
@@ -155,6 +156,7 @@ void World::reduce_contacts() {
         if (it == best.end()) {
             best[key] = static_cast<int>(contacts.size());
             contacts.push_back(c);
+            contact_patch_keys.push_back(key);
         } else if (c.distance < contacts[it->second].distance) {
             contacts[it->second] = c;
         }
@@ -232,9 +234,11 @@ void World::solve_contacts() {
     contact_friction.resize(0);
     if (nc == 0) {
         previous_impulse.clear();
+        previous_patch_impulse.clear();
         return;
     }
     const int rows = 3 * nc;
+    const bool use_patch_warm = !std::getenv("HH_NO_PATCH_WARM");
     auto direction = [&](int row) -> const Vec3& {
         const Contact& c = contacts[row / 3];
         return row % 3 == 0 ? c.normal : (row % 3 == 1 ? c.tangent1 : c.tangent2);
@@ -411,9 +415,19 @@ void World::solve_contacts() {
 
     // Warm start from the previous step's impulses of the same contacts
     VecX lambda = VecX::Zero(rows);
+    int warm_hits = 0, patch_hits = 0;
     for (int c = 0; c < nc; ++c) {
         auto it = previous_impulse.find(contact_key(contacts[c]));
-        if (it == previous_impulse.end()) continue;
+        if (it == previous_impulse.end() && use_patch_warm) {
+            // another vertex is the deepest of the same patch now: start from that patch's impulse
+            it = previous_patch_impulse.find(contact_patch_keys[c]);
+            if (it == previous_patch_impulse.end()) continue;
+            ++patch_hits;
+        } else if (it == previous_impulse.end()) {
+            continue;
+        } else {
+            ++warm_hits;
+        }
         lambda[3 * c] = it->second.dot(contacts[c].normal);
         lambda[3 * c + 1] = it->second.dot(contacts[c].tangent1);
         lambda[3 * c + 2] = it->second.dot(contacts[c].tangent2);
@@ -497,10 +511,12 @@ void World::solve_contacts() {
         }
     }
     previous_impulse.clear();
+    previous_patch_impulse.clear();
     for (int c = 0; c < nc; ++c) {
         const Contact& k = contacts[c];
         const Vec3 impulse = lambda[3 * c] * k.normal + lambda[3 * c + 1] * k.tangent1 + lambda[3 * c + 2] * k.tangent2;
         previous_impulse[contact_key(k)] = impulse;
+        previous_patch_impulse[contact_patch_keys[c]] = impulse;
         bodies[k.a.body]->contact_force += impulse / settings.dt;
         bodies[k.b.body]->contact_force -= impulse / settings.dt;
     }
@@ -508,6 +524,7 @@ void World::solve_contacts() {
     contact_friction = friction;
     stats.t_contact_apply = seconds_since(t_swept);
     if (std::getenv("HH_CONTACT_TRACE")) {
+        std::fprintf(stderr, "warm %d patch %d ", warm_hits, patch_hits);
         std::fprintf(stderr, "contacts %d groups %zu build %.2f sweeps %.2f apply %.2f ms it %d |", nc, contact_groups.size(),
                      1e3 * stats.t_contact_build, 1e3 * stats.t_contact_sweeps, 1e3 * stats.t_contact_apply, stats.iterations);
         for (const auto& e : contact_bodies)

@@ -97,6 +97,10 @@ public:
     // impulses of the last step's contacts (world frame, N s), by contact identity, to warm
     // start the next step's solve: a resting contact's impulse changes little between steps
     std::unordered_map<std::uint64_t, Vec3> previous_impulse;
+    // the same by patch (pair of bodies, cell, element, normal octant): when another vertex
+    // becomes the deepest of a patch, its contact starts from the patch's last impulse
+    std::unordered_map<std::uint64_t, Vec3> previous_patch_impulse;
+    std::vector<std::uint64_t> contact_patch_keys;  // per contact of the last step
     // The last contact solve, kept for the handle-space linearization (haptics/coupling_model).
     // Contacts are grouped by the dynamic bodies they share (contacts of bodies that do not
     // touch, directly or through other bodies, do not couple: W = J A^-1 J^T is block diagonal
