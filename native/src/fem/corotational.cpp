@@ -93,6 +93,18 @@ Mat3 deformation_gradient(const TetMesh& mesh, const CorotationalElements& eleme
     return ds * elements.rest_inverse[e];
 }
 
+namespace {
+// R of a unit quaternion (x, y, z, s).
+inline Mat3 rotation_of(const Vec4& q) {
+    const double x = q[0], y = q[1], z = q[2], w = q[3];
+    Mat3 r;
+    r << 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+         2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+         2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y);
+    return r;
+}
+}  // namespace
+
 Mat3 polar_rotation(const Mat3& f, Vec4& q) {
     if (f.determinant() <= 0) {
         Eigen::JacobiSVD<Mat3> svd(f, Eigen::ComputeFullU | Eigen::ComputeFullV);
@@ -103,7 +115,7 @@ Mat3 polar_rotation(const Mat3& f, Vec4& q) {
         q = quat_from_matrix(r);
         return r;
     }
-    Mat3 r = quat_to_matrix(q);
+    Mat3 r = rotation_of(q);
     for (int iter = 0; iter < 50; ++iter) {
         // Ascent on trace(R^T F) over rotations R <- exp(omega) R: the gradient is
         // sum_i r_i x f_i (Mueller et al. 2016); with M = F R^T the Hessian is
@@ -111,14 +123,34 @@ Mat3 polar_rotation(const Mat3& f, Vec4& q) {
         // where the Hessian is not positive definite we take Mueller's scaled step instead.
         const Vec3 torque = r.col(0).cross(f.col(0)) + r.col(1).cross(f.col(1)) + r.col(2).cross(f.col(2));
         const Mat3 m = f * r.transpose();
-        const Mat3 hessian = m.trace() * Mat3::Identity() - 0.5 * (m + m.transpose());
-        Eigen::LLT<Mat3> llt(hessian);
-        const Vec3 omega = llt.info() == Eigen::Success ? Vec3(llt.solve(torque))
-                                                         : Vec3(torque / (std::abs(m.trace()) + 1e-300));
-        if (!(omega.norm() > 1e-9)) break;  // quadratic convergence: the error left is ~1e-18
-        q = quat_multiply(quat_from_rotation_vector(omega), q);
+        const double tr = m.trace();
+        // H = tr I - sym(M), solved by its adjugate when positive definite (leading minors)
+        const double h00 = tr - m(0, 0), h11 = tr - m(1, 1), h22 = tr - m(2, 2);
+        const double h01 = -0.5 * (m(0, 1) + m(1, 0)), h02 = -0.5 * (m(0, 2) + m(2, 0)), h12 = -0.5 * (m(1, 2) + m(2, 1));
+        const double c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
+        const double det = h00 * c00 + h01 * c01 + h02 * c02;
+        Vec3 omega;
+        if (h00 > 0 && h00 * h11 - h01 * h01 > 0 && det > 0) {
+            const double c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
+            omega = Vec3(c00 * torque[0] + c01 * torque[1] + c02 * torque[2], c01 * torque[0] + c11 * torque[1] + c12 * torque[2],
+                         c02 * torque[0] + c12 * torque[1] + c22 * torque[2]) /
+                    det;
+        } else {
+            omega = torque / (std::abs(tr) + 1e-300);
+        }
+        const double angle2 = omega.squaredNorm();
+        if (!(angle2 > 1e-18)) break;  // step below 1e-9 rad: quadratic convergence leaves ~1e-18
+        Vec4 dq;  // exp(omega) as a quaternion; a series for the small steps of a warm start
+        if (angle2 < 1e-4) {
+            const double s = 0.5 - angle2 / 48.0 + angle2 * angle2 / 3840.0;
+            const double c = 1.0 - angle2 / 8.0 + angle2 * angle2 / 384.0;
+            dq << s * omega, c;
+        } else {
+            dq = quat_from_rotation_vector(omega);
+        }
+        q = quat_multiply(dq, q);
         q.normalize();
-        r = quat_to_matrix(q);
+        r = rotation_of(q);
     }
     return r;
 }
@@ -174,6 +206,21 @@ StiffnessPattern build_stiffness_pattern(const TetMesh& mesh) {
             for (int c = 0; c < 12; ++c)
                 p.element_offsets[e * 144 + r * 12 + c] = offset(3 * t[r / 3] + r % 3, 3 * t[c / 3] + c % 3);
     }
+    p.column_length.resize(mesh.n_nodes);
+    for (int n = 0; n < mesh.n_nodes; ++n) p.column_length[n] = outer[3 * n + 1] - outer[3 * n];
+    p.element_blocks.resize(mesh.tets.size() * 16);
+    for (size_t e = 0; e < mesh.tets.size(); ++e) {
+        const auto& t = mesh.tets[e];
+        for (int a = 0; a < 4; ++a)
+            for (int b = 0; b < 4; ++b) {
+                const int base = offset(3 * t[a], 3 * t[b]);
+                p.element_blocks[e * 16 + 4 * a + b] = base;
+                for (int i = 0; i < 3; ++i)  // the compact form's assumption, checked once
+                    for (int j = 0; j < 3; ++j)
+                        if (offset(3 * t[a] + i, 3 * t[b] + j) != base + j * p.column_length[t[b]] + i)
+                            throw std::logic_error("build_stiffness_pattern: columns of a node do not share their pattern");
+            }
+    }
     p.node_block_offsets.resize(9 * mesh.n_nodes);
     for (int n = 0; n < mesh.n_nodes; ++n)
         for (int i = 0; i < 3; ++i)
@@ -205,6 +252,63 @@ void add_warped_stiffness(const CorotationalElements& elements, const std::vecto
                     }
             }
     }
+}
+
+double assemble_corotational(const TetMesh& mesh, const CorotationalElements& elements, const VecX& x, VecX& f,
+                             ElementRotations& rot, const StiffnessPattern& pattern, double scale, double* values) {
+    const size_t m = mesh.tets.size();
+    if (rot.q.size() != m) rot.q.assign(m, quat_identity());
+    rot.r.resize(m);
+    const double lambda = elements.lambda, mu = elements.mu;
+    const double* xs = x.data();
+    double* fs = f.data();
+    double energy = 0;
+    for (size_t e = 0; e < m; ++e) {
+        const auto& t = mesh.tets[e];
+        const Vec3 x0 = Eigen::Map<const Vec3>(xs + 3 * t[0]);
+        Mat3 ds;
+        ds << Eigen::Map<const Vec3>(xs + 3 * t[1]) - x0, Eigen::Map<const Vec3>(xs + 3 * t[2]) - x0,
+            Eigen::Map<const Vec3>(xs + 3 * t[3]) - x0;
+        const Mat3 fdef = ds * elements.rest_inverse[e];
+        const Mat3 r = polar_rotation(fdef, rot.q[e]);
+        rot.r[e] = r;
+        const double vol = elements.volume[e];
+        // small strain in the element's frame and the stress
+        const Mat3 g = r.transpose() * fdef;
+        Mat3 eps = 0.5 * (g + g.transpose());
+        eps.diagonal().array() -= 1.0;
+        const double tr = eps.trace();
+        Mat3 sigma = (2 * mu) * eps;
+        sigma.diagonal().array() += lambda * tr;
+        energy += 0.5 * vol * (lambda * tr * tr + 2 * mu * eps.squaredNorm());
+        const Mat3 p = vol * (r * sigma);
+        const auto& gr0 = elements.gradients[e];  // rows g_a
+        Eigen::Matrix<double, 3, 4> gr;           // columns R g_a
+        for (int a = 0; a < 4; ++a) {
+            const Vec3 ga = gr0.row(a).transpose();
+            gr.col(a) = r * ga;
+            Eigen::Map<Vec3>(fs + 3 * t[a]) -= p * ga;
+        }
+        // scale * R Ke R^T, block (a, b) = s (lambda g'_a g'_b^T + mu g'_b g'_a^T + mu (g_a . g_b) I)
+        const double s = scale * vol;
+        const int* blocks = &pattern.element_blocks[e * 16];
+        for (int a = 0; a < 4; ++a)
+            for (int b = a; b < 4; ++b) {
+                Mat3 block = (s * lambda) * gr.col(a) * gr.col(b).transpose() + (s * mu) * gr.col(b) * gr.col(a).transpose();
+                block.diagonal().array() += s * mu * gr0.row(a).dot(gr0.row(b));
+                double* ab = values + blocks[4 * a + b];
+                const int lb = pattern.column_length[t[b]];
+                for (int j = 0; j < 3; ++j)
+                    for (int i = 0; i < 3; ++i) ab[j * lb + i] += block(i, j);
+                if (a != b) {  // block (b, a) = block (a, b)^T
+                    double* ba = values + blocks[4 * b + a];
+                    const int la = pattern.column_length[t[a]];
+                    for (int j = 0; j < 3; ++j)
+                        for (int i = 0; i < 3; ++i) ba[j * la + i] += block(j, i);
+                }
+            }
+    }
+    return energy;
 }
 
 }  // namespace hh

@@ -65,11 +65,24 @@ struct StiffnessPattern {
     SpMat matrix;                      // pattern with zero values, both triangles stored
     std::vector<int> element_offsets;  // 144 per element, row-major over (3a+i, 3b+j)
     std::vector<int> node_block_offsets; // 9 per node: its own 3x3 block, row-major
+    // The compact form used by assembly: the three columns of a node share one row pattern
+    // made of whole 3x3 blocks, so entry (3 t_a + i, 3 t_b + j) of element e sits at
+    // element_blocks[16 e + 4 a + b] + j * column_length[t_b] + i.
+    std::vector<int> element_blocks;   // 16 per element
+    std::vector<int> column_length;    // per node: entries in each of its 3 columns
 };
 StiffnessPattern build_stiffness_pattern(const TetMesh& mesh);
 
 // values += scale * sum_e R_e Ke R_e^T (the warped stiffness), scattered through the pattern.
 void add_warped_stiffness(const CorotationalElements& elements, const std::vector<Mat3>& rotations,
                           const StiffnessPattern& pattern, double scale, double* values);
+
+// The whole per-step element pass in one loop (what add_elastic_forces and
+// add_warped_stiffness do, fused and cheaper): each element's rotation (warm-started polar
+// decomposition, rotations sized for the mesh or resized), its elastic force -V R sigma g_a
+// added to f (sigma = lambda tr(e) I + 2 mu e, e = sym(R^T F) - I, the same as -R Ke u),
+// scale * R Ke R^T added to values through the pattern's compact offsets. Returns the energy.
+double assemble_corotational(const TetMesh& mesh, const CorotationalElements& elements, const VecX& x, VecX& f,
+                             ElementRotations& rotations, const StiffnessPattern& pattern, double scale, double* values);
 
 }  // namespace hh

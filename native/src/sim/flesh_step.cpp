@@ -21,10 +21,11 @@ void formulate_flesh(const Flesh& flesh, FleshState& state, double dt, const Vec
     const int n = flesh.mesh.n_nodes;
     if (tool.A.rows() != 3 * n) tool.A = flesh.pattern.matrix;
     state.f_elastic.setZero(3 * n);
-    state.elastic_energy = add_elastic_forces(flesh.mesh, flesh.elements, state.x, state.f_elastic, &state.rotations);
     double* values = tool.A.valuePtr();
     std::fill(values, values + tool.A.nonZeros(), 0.0);
-    add_warped_stiffness(flesh.elements, state.rotations.r, flesh.pattern, dt * beta + dt * dt, values);
+    // rotations, elastic forces and dt (beta + dt) R K R^T in one pass over the elements
+    state.elastic_energy = assemble_corotational(flesh.mesh, flesh.elements, state.x, state.f_elastic, state.rotations,
+                                                 flesh.pattern, dt * beta + dt * dt, values);
     for (int i = 0; i < n; ++i) {
         for (int c = 0; c < 3; ++c) values[flesh.pattern.node_block_offsets[9 * i + 4 * c]] += flesh.masses[i] * (1 + dt * alpha);
         bt.segment<3>(3 * i) = flesh.masses[i] * state.v.segment<3>(3 * i) +
