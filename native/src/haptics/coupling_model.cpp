@@ -44,50 +44,76 @@ CouplingModel linearize_coupling(const World& world, int hand) {
     for (int i = 0; i < 6; ++i) schur.col(i) -= aht_times(response[i]);
 
     CouplingModel out;
-    // held rows: normals that pushed; tangents of contacts that stuck inside the cone
+    // Held rows: the normal of every contact that pushed, and the tangents of those that stuck
+    // inside the cone. A contact that slid keeps sliding the same way, so its friction impulse
+    // follows its normal one: its normal row's impulse acts along n + (lambda_t / lambda_n).
     const int nc = static_cast<int>(world.contact_lambda.size() / 3);
     if (nc > 0 && world.contact_bodies.count(hand)) {
         const VecX& lambda = world.contact_lambda;
-        std::vector<int> held;
+        std::vector<int> held, rows;   // held constraint rows; every row an impulse acts on
+        std::vector<int> sliding;      // per held row: the contact when it is a sliding normal, else -1
         double scale = 0;
         for (int c = 0; c < nc; ++c) scale = std::max(scale, lambda[3 * c]);
         for (int c = 0; c < nc; ++c) {
             const double ln = lambda[3 * c];
             if (!(ln > 1e-9 * scale)) continue;
-            held.push_back(3 * c);
             const double lt = std::hypot(lambda[3 * c + 1], lambda[3 * c + 2]);
-            if (lt < (1 - 1e-6) * world.contact_friction[c] * ln) {
+            const bool sticks = lt < (1 - 1e-6) * world.contact_friction[c] * ln;
+            held.push_back(3 * c);
+            sliding.push_back(sticks || lt == 0 ? -1 : c);
+            if (sticks) {
                 held.push_back(3 * c + 1);
+                sliding.push_back(-1);
                 held.push_back(3 * c + 2);
+                sliding.push_back(-1);
+            }
+            for (int k = 0; k < 3; ++k)
+                if (k == 0 || sticks || lt > 0) rows.push_back(3 * c + k);
+        }
+        const int na = static_cast<int>(held.size()), nr = static_cast<int>(rows.size());
+        std::vector<int> where(3 * nc, -1);
+        for (int r = 0; r < nr; ++r) where[rows[r]] = r;
+        // G: held impulses -> impulses on every row
+        MatX g = MatX::Zero(nr, na);
+        for (int a = 0; a < na; ++a) {
+            g(where[held[a]], a) = 1;
+            if (sliding[a] >= 0) {
+                const int c = sliding[a];
+                g(where[3 * c + 1], a) = lambda[3 * c + 1] / lambda[3 * c];
+                g(where[3 * c + 2], a) = lambda[3 * c + 2] / lambda[3 * c];
             }
         }
-        const int na = static_cast<int>(held.size());
         // the hand's unknowns at the handle nodes (flesh, after the handle's 6)
         std::vector<int> handle_unknowns;
         for (int node : nodes)
             for (int k = 0; k < 3; ++k) handle_unknowns.push_back(6 + 3 * node + k);
-        MatX hr = MatX::Zero(na, 6), hl = MatX::Zero(6, na);
-        MatX wa = world.contact_delassus(held);  // held rows of the step's W (unsymmetrized)
+        MatX hr = MatX::Zero(na, 6), hl = MatX::Zero(6, nr);
+        const MatX w_rows = world.contact_delassus(rows);  // the step's W on those rows (unsymmetrized)
+        MatX wa(na, na);
+        for (int a = 0; a < na; ++a) wa.row(a) = w_rows.row(where[held[a]]) * g;
         bool touches_hand = false;
-        for (int a = 0; a < na; ++a) {
+        for (int r = 0; r < nr; ++r) {
             // A^-1 J^T of the row at the handle nodes (its handle part is zero: it is prescribed)
-            const VecX col = world.contact_column(hand, held[a], handle_unknowns);
+            const VecX col = world.contact_column(hand, rows[r], handle_unknowns);
             if (col.size() == 0) continue;
             touches_hand = true;
             Vec6 aht_col = Vec6::Zero();
+            Vec6 hr_row = Vec6::Zero();
             for (std::size_t j = 0; j < nodes.size(); ++j) {
                 const Vec3 s = col.segment<3>(3 * j);
-                hr.row(a) += s.transpose() * cb.ath[j];  // (J At^-1 Ath)_a, At symmetric
+                hr_row += cb.ath[j].transpose() * s;  // (J At^-1 Ath) of the row, At symmetric
                 aht_col += cb.aht[j] * s;
             }
-            hl.col(a) = aht_col;
+            hl.col(r) = aht_col;
+            for (int a = 0; a < na; ++a)
+                if (held[a] == rows[r]) hr.row(a) = hr_row.transpose();
         }
         if (touches_hand && na > 0) {
             // Redundant contacts make W_a singular; a compliance of 1e-9 of its largest
             // diagonal entry picks the least-norm impulses without changing the response.
             const double reg = 1e-9 * wa.diagonal().cwiseAbs().maxCoeff() + 1e-300;
             wa.diagonal().array() += reg;
-            schur += hl * wa.ldlt().solve(hr);
+            schur += (hl * g) * wa.partialPivLu().solve(hr);
             out.held_rows = na;
         }
     }
