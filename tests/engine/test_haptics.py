@@ -143,8 +143,8 @@ def test_linear_model_error_is_second_order_with_contacts_held():
     """Two identical worlds pressed into a frictionless wall; at the last step one handle goes
     a little further and turns a little: the first's model predicts the second's wrench with an
     error that falls as the square of the displacement (the rotation is the nonlinear part).
-    Frictionless because with friction Gauss-Seidel stops short of the exact active set and the
-    model is then only as good as the solver's residual (docs/haptics.md)."""
+    Frictionless because with sliding friction the turn of the sliding direction is a small
+    first-order term the model leaves out (the next test bounds it; docs/haptics.md)."""
     def pressed(dx: np.ndarray, dtheta: np.ndarray):
         sc = hand_scene()
         sc.data["hand"]["friction"] = 0.0
