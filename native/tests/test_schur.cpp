@@ -189,3 +189,67 @@ TEST(cholesky_schur_batched_solves_match_single_solves) {
     CHECK_LT((d.hand.s.tail(n3) - vt).norm() / vt.norm(), 1e-12);
     (void)y0;
 }
+
+TEST(reused_cholesky_policy_counts_work_so_runs_repeat_exactly) {
+    // the refactorization policy counts passes over the factor instead of timing them: two runs
+    // of the same scenario factor at the same steps and end on identical states
+    auto run = [](int limit, std::vector<int>& factored, VecX& x) {
+        const BoxMesh b = make_box(6, 4, 3, 0.01);
+        hh_params p = box_params();
+        p.solver = HH_SOLVER_REUSED_CHOLESKY;
+        const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
+        Data d(m);
+        d.tool.reuse_iteration_limit = limit;
+        d.device.enabled = true;
+        for (int s = 0; s < 30; ++s) {
+            const double t = s * p.dt;
+            d.device.position = m.handle.rest_com + 0.03 * Vec3(std::cos(3 * t) - 1, std::sin(3 * t), 0.5 * std::sin(2 * t));
+            d.device.quaternion = quat_from_rotation_vector(Vec3(0.6 * std::sin(2 * t), 0.4 * std::sin(1.5 * t), 1.5 * t));
+            step(m, d, false);
+            if (d.tool.factorizations > 0) factored.push_back(s);
+        }
+        x = d.x;
+    };
+    for (int limit : {25, 3}) {  // 3: renewals in the middle of solves too
+        std::vector<int> f1, f2;
+        VecX x1, x2;
+        run(limit, f1, x1);
+        run(limit, f2, x2);
+        CHECK(f1 == f2);
+        CHECK(!f1.empty() && f1[0] == 0);
+        if (limit == 3) CHECK(f1.size() >= 2);
+        CHECK((x1 - x2).cwiseAbs().maxCoeff() == 0.0);
+    }
+}
+
+TEST(reused_cholesky_matches_a_fresh_factorization_every_step_on_a_larger_hand) {
+    // a box big enough for wide supernodes (the dense-panel kernels and their 8-column groups)
+    // and the single-precision passes: the reused-factor run against the per-step exact
+    // factorization run, step by step, from the same states
+    const BoxMesh b = make_box(9, 6, 5, 0.008);
+    hh_params p = box_params();
+    p.solver = HH_SOLVER_REUSED_CHOLESKY;
+    const Model reused = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
+    p.solver = HH_SOLVER_CHOLESKY;
+    const Model exact = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
+    Data dr(reused), de(exact);
+    dr.device.enabled = de.device.enabled = true;
+    double worst = 0;
+    int stale = 0;
+    for (int s = 0; s < 20; ++s) {
+        const double t = s * p.dt;
+        dr.device.position = de.device.position = reused.handle.rest_com + 0.04 * Vec3(std::sin(4 * t), 0.3 * t, 0);
+        dr.device.quaternion = de.device.quaternion = quat_from_rotation_vector(Vec3(0, 0.5 * std::sin(3 * t), t));
+        formulate(reused, dr);
+        formulate(exact, de);
+        dr.tool.reset_counters();
+        dr.hand.solve();
+        de.hand.solve();
+        worst = std::max(worst, (dr.hand.s - de.hand.s).cwiseAbs().maxCoeff() / de.hand.s.cwiseAbs().maxCoeff());
+        stale += dr.tool.iterations > 0;
+        integrate(reused, dr, de.hand.s);  // both continue from the exact solution
+        integrate(exact, de, de.hand.s);
+    }
+    CHECK_LT(worst, 1e-8);
+    CHECK(stale >= 10);
+}

@@ -6,9 +6,15 @@
 //   the same right-hand-side slot.
 // - ReusedCholesky: the block LDL^T factor of an earlier step's At, "warped" by each node's
 //   rotation since then, preconditions CG warm started per slot, to a relative residual of
-//   min(cg_tolerance, 1e-10). The factor is renewed when a step's solves start to cost more
-//   than the average step since the last factorization (so the mean cost per step is close to
-//   its minimum), or at once when a solve needs reuse_iteration_limit iterations.
+//   min(cg_tolerance, 1e-10) (the hand's Schur columns tighter, see set_tolerance_scale). The
+//   factor is renewed when a step's solves start to cost more than the average step since the
+//   last factorization (so the mean cost per step is close to its minimum), or at once when a
+//   solve needs reuse_iteration_limit iterations. Costs are counted in passes over the factor
+//   (a factorization is worth factor_flops / (4.8 x stored entries) one-lane passes), not
+//   timed, so the policy and the results do not depend on the machine's load.
+//   The factor is kept in supernodal form (dense panels) with a single-precision copy for the
+//   one-lane passes; CG runs on node-major blocks of up to 8 columns (flexible beta), warm
+//   started by the Galerkin combination of each slot's last two solutions.
 //   Meant for large meshes, where a factorization costs many times a solve.
 #pragma once
 #include <memory>
