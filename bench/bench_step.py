@@ -491,6 +491,9 @@ def main(argv=None) -> int:
                         help="hand surface: shared hand.obj when present (auto), or the procedural hand")
     parser.add_argument("--remesh", action="store_true", help="tetrahedralize again instead of using the cache")
     parser.add_argument("--out", type=Path, default=OUT_DIR, help="where to write bench_step.json and .png")
+    parser.add_argument("--export-meshes", type=Path, default=None, metavar="DIR",
+                        help="only write the hands (cached or new) as DIR/hand_<size>.bin for bench/compare_builds "
+                             "and exit")
     args = parser.parse_args(argv)
 
     if args.sizes:
@@ -530,6 +533,18 @@ def main(argv=None) -> int:
               f"handle nodes, handle radius {1e3 * hand['radius']:g} mm{note}; pytetwild {hand['settings']}, "
               f"{origin} {Path(hand['cache']).relative_to(REPO)}")
         hands[size] = hand
+
+    if args.export_meshes:
+        args.export_meshes.mkdir(parents=True, exist_ok=True)
+        for size, hand in hands.items():
+            path = args.export_meshes / f"hand_{size}.bin"
+            with open(path, "wb") as f:  # int32 nodes, tets; float64 seed[3], nodes[3n]; int32 tets[4m]
+                np.array([len(hand["nodes"]), len(hand["tets"])], dtype=np.int32).tofile(f)
+                np.asarray(hand["seed"], dtype=np.float64).tofile(f)
+                np.ascontiguousarray(hand["nodes"], dtype=np.float64).tofile(f)
+                np.ascontiguousarray(hand["tets"], dtype=np.int32).tofile(f)
+            print(f"wrote {path}")
+        return 0
 
     print(f"\nsteps: {warmup} warm-up + {steps} measured per run; device frame {1e3 * DEVICE_OFFSET[0]:g} mm "
           f"from the handle, gravity on, dt 1/30 s; CG: Jacobi, tolerance {CG_TOLERANCE:g}, warm started",

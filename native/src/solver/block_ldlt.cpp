@@ -500,7 +500,11 @@ __attribute__((always_inline)) inline void store_y(double* p, typename Lanes<VL>
 template <int W, int VL, typename PT>
 __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFactor& f, const PT* val, const double* dinv_all,
                                                             double* x, double* y) {
-    typedef typename Lanes<(W == 1 ? VL : W)>::V V;
+    // W = 1: V has VL lanes along the rows. W = 4, 8: each row's W values are N vectors of
+    // LV lanes (LV = min(W, VL): two 4-lane vectors per row for W = 8 with AVX2).
+    constexpr int LV = W == 1 ? VL : (W < VL ? W : VL);
+    constexpr int N = W == 1 ? 1 : W / LV;
+    typedef typename Lanes<LV>::V V;
     constexpr int G = W == 1 ? 4 : 8;  // columns per group
     for (int j = 0; j < f.ns; ++j) {  // L z = b
         const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
@@ -533,13 +537,16 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
                                                           load_panel<VL>(col[2] + r) * a2 + load_panel<VL>(col[3] + r) * a3));
                 for (; r < ld; ++r) y[r] -= col[0][r] * a0 + col[1][r] * a1 + col[2][r] * a2 + col[3][r] * a3;
             } else {
-                V a[G];
-                for (int k = 0; k < G; ++k) a[k] = k < g ? load_y<W>(y + W * (c + k)) : V{} * 0.0;
+                V a[G][N];
+                for (int k = 0; k < G; ++k)
+                    for (int q = 0; q < N; ++q) a[k][q] = k < g ? load_y<LV>(y + W * (c + k) + LV * q) : V{} * 0.0;
                 for (int r = r0; r < ld; ++r) {
                     double* yr = y + static_cast<size_t>(W) * r;
-                    V t = double(col[0][r]) * a[0];
-                    for (int k = 1; k < G; ++k) t += double(col[k][r]) * a[k];
-                    store_y<W>(yr, load_y<W>(yr) - t);
+                    for (int q = 0; q < N; ++q) {
+                        V t = double(col[0][r]) * a[0][q];
+                        for (int k = 1; k < G; ++k) t += double(col[k][r]) * a[k][q];
+                        store_y<LV>(yr + LV * q, load_y<LV>(yr + LV * q) - t);
+                    }
                 }
             }
         }
@@ -596,13 +603,16 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
                 acc[2][0] = t2;
                 acc[3][0] = t3;
             } else {
-                V sk[G];
-                for (int k = 0; k < G; ++k) sk[k] = V{} * 0.0;
-                for (int r = r0; r < ld; ++r) {
-                    const V yr = load_y<W>(y + static_cast<size_t>(W) * r);
-                    for (int k = 0; k < G; ++k) sk[k] += double(col[k][r]) * yr;
-                }
-                for (int k = 0; k < G; ++k) store_y<W>(acc[k], sk[k]);
+                V sk[G][N];
+                for (int k = 0; k < G; ++k)
+                    for (int q = 0; q < N; ++q) sk[k][q] = V{} * 0.0;
+                for (int r = r0; r < ld; ++r)
+                    for (int q = 0; q < N; ++q) {
+                        const V yr = load_y<LV>(y + static_cast<size_t>(W) * r + LV * q);
+                        for (int k = 0; k < G; ++k) sk[k][q] += double(col[k][r]) * yr;
+                    }
+                for (int k = 0; k < G; ++k)
+                    for (int q = 0; q < N; ++q) store_y<LV>(acc[k] + LV * q, sk[k][q]);
             }
             for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
                 double* yk = y + static_cast<size_t>(W) * (c + k);
@@ -641,12 +651,12 @@ void supernodal_dispatch_typed(const SupernodalFactor& f, const PT* v, const dou
     if (level == 1) {
         if (w == 1) return supernodal_avx2<1, 4, PT>(f, v, d, x, y);
         if (w == 4) return supernodal_avx2<4, 4, PT>(f, v, d, x, y);
-        return supernodal_avx2<8, 8, PT>(f, v, d, x, y);
+        return supernodal_avx2<8, 4, PT>(f, v, d, x, y);
     }
 #endif
     if (w == 1) supernodal_solve<1, 4, PT>(f, v, d, x, y);
     else if (w == 4) supernodal_solve<4, 4, PT>(f, v, d, x, y);
-    else supernodal_solve<8, 8, PT>(f, v, d, x, y);
+    else supernodal_solve<8, 4, PT>(f, v, d, x, y);
 }
 
 void supernodal_solve_dispatch(const SupernodalFactor& f, double* x, int w, double* y) {
