@@ -305,8 +305,8 @@ def print_tables(results: list[dict]) -> None:
               f"{s['frames']:>6} | {cells} | {s['rate_hz']:>7.1f} {s['rate_p95_hz']:>7.1f} | "
               f"{s['contacts']['mean']:>8.1f} {s['iterations']['mean']:>6.0f} "
               f"{100 * s['frames_at_sweep_cap'] / s['frames']:>5.0f}%")
-    print("(dynamics: the hand's coupled implicit step and the soft bodies' steps; contact: the Delassus "
-          "operator and the projected Gauss-Seidel solve;\n rate = 1 / mean total, p95 Hz = 1 / p95 total; contacts and Gauss-Seidel "
+    print("(dynamics: the hand's coupled implicit step and the soft bodies' steps; contact: each body's "
+          "response to the contacts (batched solves) and the Gauss-Seidel sweeps per group of coupled contacts;\n rate = 1 / mean total, p95 Hz = 1 / p95 total; contacts and Gauss-Seidel "
           "sweeps (GS it) per frame, mean;\n at cap: frames whose solve stopped at the scene's sweep cap "
           f"(contact.max_iterations = {results[0]['summary']['sweep_cap'] if results else '?'}) "
           "rather than at its tolerance)")
