@@ -226,7 +226,7 @@ TEST(reused_cholesky_matches_a_fresh_factorization_every_step_on_a_larger_hand) 
     // a box big enough for wide supernodes (the dense-panel kernels and their 8-column groups)
     // and the single-precision passes: the reused-factor run against the per-step exact
     // factorization run, step by step, from the same states
-    const BoxMesh b = make_box(9, 6, 5, 0.008);
+    const BoxMesh b = make_box(8, 5, 4, 0.008);
     hh_params p = box_params();
     p.solver = HH_SOLVER_REUSED_CHOLESKY;
     const Model reused = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
@@ -236,7 +236,7 @@ TEST(reused_cholesky_matches_a_fresh_factorization_every_step_on_a_larger_hand) 
     dr.device.enabled = de.device.enabled = true;
     double worst = 0;
     int stale = 0;
-    for (int s = 0; s < 20; ++s) {
+    for (int s = 0; s < 16; ++s) {
         const double t = s * p.dt;
         dr.device.position = de.device.position = reused.handle.rest_com + 0.04 * Vec3(std::sin(4 * t), 0.3 * t, 0);
         dr.device.quaternion = de.device.quaternion = quat_from_rotation_vector(Vec3(0, 0.5 * std::sin(3 * t), t));
@@ -251,5 +251,5 @@ TEST(reused_cholesky_matches_a_fresh_factorization_every_step_on_a_larger_hand) 
         integrate(exact, de, de.hand.s);
     }
     CHECK_LT(worst, 1e-8);
-    CHECK(stale >= 10);
+    CHECK(stale >= 8);
 }
