@@ -219,6 +219,7 @@ struct ReducedOp {
     }
     const Mat3& block(int i) const { return blocks[i]; }
     void apply(int i, const Vec3& delta) {
+        if (delta[0] == 0 && delta[1] == 0 && delta[2] == 0) return;  // an open contact staying open
         for (const auto& q : parts[i]) {
             const MatX& hb = h[q.first];
             add_three_columns(y[q.first].data(), hb.data() + hb.rows() * q.second, hb.rows(), hb.rows(), delta[0], delta[1], delta[2]);
