@@ -23,7 +23,13 @@
 #include "haptics/triple_buffer.h"
 
 // Every allocation of this test program goes through here, so a test can count them.
+// ThreadSanitizer needs its own operator new from the first instant, so its build does not
+// count (the normal and AddressSanitizer builds do).
 static std::atomic<long> g_allocations{0};
+#if defined(__SANITIZE_THREAD__)
+constexpr bool kCountsAllocations = false;
+#else
+constexpr bool kCountsAllocations = true;
 void* operator new(std::size_t n) {
     g_allocations.fetch_add(1, std::memory_order_relaxed);
     if (void* p = std::malloc(n ? n : 1)) return p;
@@ -31,6 +37,7 @@ void* operator new(std::size_t n) {
 }
 void operator delete(void* p) noexcept { std::free(p); }
 void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+#endif
 
 namespace {
 void sleep_s(double s) { std::this_thread::sleep_for(std::chrono::duration<double>(s)); }
@@ -283,5 +290,5 @@ TEST(haptic_step_never_allocates) {
     for (int i = 1; i <= 1000; ++i) ok = ok && session.haptic_step(0.1 + 1e-3 * i);
     const long during = g_allocations.load() - before;
     CHECK(ok);
-    CHECK(during == 0);
+    CHECK(!kCountsAllocations || during == 0);
 }

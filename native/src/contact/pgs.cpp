@@ -11,7 +11,8 @@ namespace {
 // decreases monotonically in nu; Newton's method from nu = 0 converges from the left).
 // y += h0 d0 + h1 d1 + h2 d2 over m entries, h_k = h + k ld: a contact's update of one body's
 // y (the sweeps' inner loop). Built for AVX2/FMA too, chosen at load time where supported.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 12
+// (Not under ThreadSanitizer: its load-time resolver would run before the sanitizer's runtime.)
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 12 && !defined(__SANITIZE_THREAD__)
 __attribute__((target_clones("arch=x86-64-v3", "default")))
 #endif
 void add_three_columns(double* __restrict y, const double* __restrict h, long m, long ld, double d0, double d1, double d2) {
