@@ -52,6 +52,119 @@ Eigen::Vector2d disk_constrained_minimum(const Disk& eig, const Eigen::Vector2d&
 }  // namespace
 
 namespace {
+// Subspace minimization between sweeps (after PGS-SM, Silcowitz, Niebe & Erleben 2010).
+// Gauss-Seidel finds which contacts push, stick or slide within a few sweeps but then converges
+// linearly, slowly where many contacts ride on few nodes (nearly dependent rows: the bunny's
+// ground contacts on a coarse tet mesh). With the contacts the sweeps hold active, this solves
+// their equality conditions at once:
+//   sticking (|lambda_t| < mu lambda_n): u_n + gap/dt = 0 and u_t = 0 (3 unknowns, 3 rows)
+//   sliding (on the rim): u_n + gap/dt = 0, its friction impulse kept (1 unknown, 1 row)
+// a symmetric system (rows and unknowns the same) on a few dozen unknowns, factored densely.
+// Nearly dependent rows (a contact whose row is implied by the others to 1e-6 of its diagonal:
+// redundant contacts on one element) take no impulse. A contact the solve would pull
+// (lambda_n < 0) leaves the set, the one pulled hardest first, and a sticking one the solve
+// would take outside its friction disk becomes sliding (friction on the rim); then solve
+// again. The caller keeps the result only when the sweep after it leaves a smaller residual.
+// Returns false when nothing was solved.
+constexpr int kSubspaceEvery = 10;     // sweeps between subspace steps
+constexpr int kSubspaceRounds = 30;    // solves per step (set changes)
+constexpr double kDependent = 1e-6;    // pivot / diagonal below which a row counts as implied
+
+template <class Op>
+bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficient, const std::vector<Vec3>& u,
+                   VecX& lambda) {
+    std::vector<int> act;
+    for (int i = 0; i < c; ++i)
+        if (lambda[3 * i] > 0 && op.block(i)(0, 0) > 0) act.push_back(i);
+    if (act.empty()) return false;
+    const int a = static_cast<int>(act.size());
+    std::vector<Mat3> blocks(static_cast<size_t>(a) * a);
+    for (int p = 0; p < a; ++p)
+        for (int q = 0; q < a; ++q) blocks[p * a + q] = op.cross_block(act[p], act[q]);
+    // per active contact: 0 out of the set, 1 sliding (normal unknown, friction kept), 3 sticking
+    std::vector<int> state(a), first(a);
+    std::vector<Eigen::Vector2d> kept(a);
+    // velocities without the active contacts' impulses, plus the bias
+    std::vector<Vec3> v0(a);
+    for (int p = 0; p < a; ++p) {
+        const int i = act[p];
+        const Eigen::Vector2d lt(lambda[3 * i + 1], lambda[3 * i + 2]);
+        state[p] = coefficient[i] > 0 && lt.norm() < coefficient[i] * lambda[3 * i] * (1 - 1e-9) ? 3 : 1;
+        kept[p] = lt;
+        v0[p] = u[i];
+        v0[p][0] += bias[i];
+        for (int q = 0; q < a; ++q) v0[p] -= blocks[p * a + q] * lambda.segment<3>(3 * act[q]);
+    }
+    VecX z, rhs;
+    MatX m;
+    bool solved = false;
+    for (int round = 0; round < kSubspaceRounds; ++round) {
+        int na = 0;
+        for (int p = 0; p < a; ++p) {
+            first[p] = na;
+            na += state[p];
+        }
+        if (na == 0) break;
+        m.resize(na, na);
+        rhs.resize(na);
+        for (int p = 0; p < a; ++p) {
+            if (!state[p]) continue;
+            Vec3 v = v0[p];
+            for (int q = 0; q < a; ++q) {
+                if (!state[q]) continue;
+                const Mat3& w = blocks[p * a + q];
+                m.block(first[p], first[q], state[p], state[q]) = w.block(0, 0, state[p], state[q]);
+                if (state[q] == 1) v += w.col(1) * kept[q][0] + w.col(2) * kept[q][1];
+            }
+            rhs.segment(first[p], state[p]) = -v.head(state[p]);
+        }
+        m = 0.5 * (m + m.transpose()).eval();  // W's symmetric part, as the sweeps use
+        // LDL^T with diagonal pivoting: dependent rows come last with pivots near zero; their
+        // unknowns stay zero (a basic solution of the consistent part)
+        const Eigen::LDLT<MatX> ldlt(m);
+        const VecX& d = ldlt.vectorD();
+        const VecX diag = ldlt.transpositionsP() * VecX(m.diagonal());
+        z = ldlt.transpositionsP() * rhs;
+        ldlt.matrixL().solveInPlace(z);
+        for (int k = 0; k < na; ++k) z[k] = d[k] > kDependent * diag[k] ? z[k] / d[k] : 0.0;
+        ldlt.matrixU().solveInPlace(z);
+        z = ldlt.transpositionsP().transpose() * z;
+        if (!z.allFinite()) return false;
+        solved = true;
+        int pulled = -1;
+        for (int p = 0; p < a; ++p)
+            if (state[p] && z[first[p]] < 0 && (pulled < 0 || z[first[p]] < z[first[pulled]])) pulled = p;
+        if (pulled >= 0) {
+            state[pulled] = 0;
+            continue;
+        }
+        bool changed = false;
+        for (int p = 0; p < a; ++p) {
+            if (state[p] != 3) continue;
+            const double limit = coefficient[act[p]] * z[first[p]];
+            const Eigen::Vector2d zt = z.segment<2>(first[p] + 1);
+            if (zt.norm() > limit) {
+                state[p] = 1;
+                kept[p] = zt * (limit / zt.norm());
+                changed = true;
+            }
+        }
+        if (!changed) break;
+    }
+    if (!solved) return false;
+    for (int p = 0; p < a; ++p) {
+        const int i = act[p];
+        const double ln = state[p] ? std::max(0.0, z[first[p]]) : 0.0;
+        Eigen::Vector2d lt = state[p] == 3 ? Eigen::Vector2d(z.segment<2>(first[p] + 1)) : (state[p] ? kept[p] : Eigen::Vector2d::Zero());
+        const double limit = coefficient[i] * ln;
+        if (lt.norm() > limit) lt *= limit / lt.norm();
+        lambda[3 * i] = ln;
+        lambda[3 * i + 1] = lt[0];
+        lambda[3 * i + 2] = lt[1];
+    }
+    return true;
+}
+
 // The sweeps, on any form of W. Op gives, per contact i, its current relative velocity
 // velocity(i) (3: normal, tangent1, tangent2), the symmetric 3x3 diagonal block block(i) of
 // W, and apply(i, delta): the impulses of contact i change by delta.
@@ -96,6 +209,9 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         const Mat3& w = op.block(i);
         disks[i] = Disk(0.5 * (w.block<2, 2>(1, 1) + w.block<2, 2>(1, 1).transpose()));
     }
+    VecX saved;
+    double saved_residual = 0;
+    bool pending = false;
     for (int it = 0, pass = 0; it < max_iterations; ++it) {
         for (int i = 0; i < c; ++i) {
             const int n = 3 * i;
@@ -124,6 +240,24 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         }
         result.iterations = it + 1;
         result.residual = residual();
+        if (pending) {
+            // a subspace step, then this sweep: kept only if the residual fell
+            pending = false;
+            if (result.residual > saved_residual) {
+                lambda = saved;
+                op.reset(lambda);
+                result.residual = residual();
+            }
+        }
+        if (result.residual > tolerance && it + 1 < max_iterations && (it + 1) % kSubspaceEvery == 0) {
+            saved = lambda;
+            saved_residual = result.residual;
+            if (subspace_step(op, c, bias, coefficient, u, lambda)) {
+                op.reset(lambda);
+                pending = true;
+                continue;
+            }
+        }
         if (result.residual > tolerance && it + 1 < max_iterations) continue;
         if (pass++ > 0) break;
         bool broke_loose = false;
@@ -149,13 +283,16 @@ struct DenseOp {
     const MatX& W;
     VecX u;
     std::vector<Mat3> blocks;
-    DenseOp(const ContactProblem& p, const VecX& lambda) : W(p.W), u(p.u_free + p.W * lambda) {
+    DenseOp(const ContactProblem& p, const VecX& lambda) : W(p.W), u(p.u_free + p.W * lambda), u_free(p.u_free) {
         const int c = static_cast<int>(p.gap.size());
         blocks.resize(c);
         for (int i = 0; i < c; ++i) blocks[i] = W.block<3, 3>(3 * i, 3 * i);
     }
     Vec3 velocity(int i) const { return u.segment<3>(3 * i); }
     const Mat3& block(int i) const { return blocks[i]; }
+    Mat3 cross_block(int i, int j) const { return W.block<3, 3>(3 * i, 3 * j); }
+    const VecX& u_free;
+    void reset(const VecX& lambda) { u.noalias() = u_free + W * lambda; }
     void apply(int i, const Vec3& delta) {
         for (int d = 0; d < 3; ++d)
             if (delta[d] != 0) u.noalias() += W.col(3 * i + d) * delta[d];
@@ -219,6 +356,15 @@ struct ReducedOp {
         return out;
     }
     const Mat3& block(int i) const { return blocks[i]; }
+    Mat3 cross_block(int i, int j) const {
+        Mat3 out = Mat3::Zero();
+        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
+            const auto& a = p.entries[e];
+            for (const auto& q : parts[j])
+                if (q.first == a.body) out += a.coefficient * h[a.body].row(a.index).segment<3>(q.second);
+        }
+        return out;
+    }
     void apply(int i, const Vec3& delta) {
         if (delta[0] == 0 && delta[1] == 0 && delta[2] == 0) return;  // an open contact staying open
         for (const auto& q : parts[i]) {
