@@ -1,5 +1,6 @@
 #include "contact/detection.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include "contact/geometry.h"
@@ -41,9 +42,6 @@ bool same_element(const CollisionSurface& s, int v, const Eigen::Vector3i& tri) 
     return false;
 }
 
-// Vertices of sa against triangles of sb. For self-collision (same surface) the vertex must
-// not belong to the triangle and the two surfaces must face each other, so neighbouring
-// points of one smooth surface never count as a contact.
 // Outward pseudo-normal of surface b at the closest point with barycentric weights w on
 // triangle t: the face normal inside the face, the mean of the two faces' normals on an edge,
 // the vertex normal at a corner. Its sign tells inside from outside even near edges, where
@@ -62,41 +60,217 @@ Vec3 pseudo_normal(const CollisionSurface& s, int t, const Vec3& w) {
     return edge_normal_at(s, s.triangle_edges[t][(k + 1) % 3]);
 }
 
-// Vertices of sa against triangles of sb: each vertex's closest triangle within reach. For
-// self-collision (same surface) the vertex must not belong to the triangle or share its
-// element, the surfaces must face each other, and the vertex must be outside, so neighbouring
-// points of one smooth surface never count as a contact.
-void vertices_against_triangles(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,
-                                bool self, const SelfExclusions* skip, double reach, std::vector<Contact>& out,
-                                SelfExclusions* record = nullptr) {
-    for (int v = 0; v < sa.n_vertices(); ++v) {
+// Per vertex of one surface, the closest triangle of the other within reach so far: the
+// smallest distance, ties going to the lowest rank (the triangle the first, one-query-per-
+// vertex detection met first). Only vertices that got a candidate are touched (stamps), so a
+// step costs nothing for the many vertices far from everything.
+struct ClosestTriangles {
+    std::vector<double> dist;
+    std::vector<int> rank;
+    std::vector<Vec3> w, q;
+    std::vector<unsigned> stamp;
+    std::vector<int> touched;
+    unsigned epoch = 0;
+
+    void start(int n_vertices) {
+        if (static_cast<int>(stamp.size()) < n_vertices) {
+            dist.resize(n_vertices);
+            rank.resize(n_vertices);
+            w.resize(n_vertices);
+            q.resize(n_vertices);
+            stamp.resize(n_vertices, 0);
+        }
+        if (++epoch == 0) {  // wrapped: forget every stamp
+            std::fill(stamp.begin(), stamp.end(), 0u);
+            epoch = 1;
+        }
+        touched.clear();
+    }
+    // d is below the reach
+    void offer(int v, int r, double d, const Vec3& wv, const Vec3& qv) {
+        if (stamp[v] != epoch) {
+            stamp[v] = epoch;
+            touched.push_back(v);
+        } else if (!(d < dist[v] || (d == dist[v] && r < rank[v]))) {
+            return;
+        }
+        dist[v] = d;
+        rank[v] = r;
+        w[v] = wv;
+        q[v] = qv;
+    }
+};
+
+// Per node of a self-colliding surface, boxes around the normals of its triangles and of the
+// vertices it carries: a pair of nodes none of whose vertex-triangle pairs face each other
+// (normals within 120 degrees, the self-collision filter) is skipped whole, so the smooth
+// neighbourhood of every vertex costs a few box tests instead of a query down to its leaves.
+struct NormalBounds {
+    std::vector<Vec3> vertex_lo, vertex_hi, triangle_lo, triangle_hi;
+
+    void compute(const CollisionSurface& s) {
+        const auto& nodes = s.bvh.nodes();
+        const size_t n = nodes.size();
+        vertex_lo.resize(n);
+        vertex_hi.resize(n);
+        triangle_lo.resize(n);
+        triangle_hi.resize(n);
+        const Vec3 big = Vec3::Constant(1e300);
+        for (int i = static_cast<int>(n) - 1; i >= 0; --i) {
+            const Bvh::Node& node = nodes[i];
+            Vec3 vlo = big, vhi = -big, tlo = big, thi = -big;
+            if (node.leaf()) {
+                for (int r = node.begin; r < node.end; ++r) {
+                    const Vec3& nt = s.triangle_normal[s.bvh.order()[r]];
+                    tlo = tlo.cwiseMin(nt);
+                    thi = thi.cwiseMax(nt);
+                }
+                for (int k = s.leaf_vertex_begin[i]; k < s.leaf_vertex_begin[i + 1]; ++k) {
+                    const Vec3& nv = s.vertex_normal[s.leaf_vertex[k]];
+                    vlo = vlo.cwiseMin(nv);
+                    vhi = vhi.cwiseMax(nv);
+                }
+            } else {
+                vlo = vertex_lo[node.left].cwiseMin(vertex_lo[node.right]);
+                vhi = vertex_hi[node.left].cwiseMax(vertex_hi[node.right]);
+                tlo = triangle_lo[node.left].cwiseMin(triangle_lo[node.right]);
+                thi = triangle_hi[node.left].cwiseMax(triangle_hi[node.right]);
+            }
+            vertex_lo[i] = vlo;
+            vertex_hi[i] = vhi;
+            triangle_lo[i] = tlo;
+            triangle_hi[i] = thi;
+        }
+    }
+    // True when no vertex of node a faces a triangle of node b: the smallest dot product of
+    // two normals in the boxes (at their corners, axis by axis) is above -0.5. The margin
+    // covers the rounding of the per-pair dot product, so no pair the filter keeps is lost.
+    bool none_facing(int a, int b) const {
+        const Vec3 &alo = vertex_lo[a], &ahi = vertex_hi[a], &blo = triangle_lo[b], &bhi = triangle_hi[b];
+        if (alo.x() > ahi.x()) return true;  // carries no vertex
+        double lowest = 0;
+        for (int k = 0; k < 3; ++k)
+            lowest += std::min(std::min(alo[k] * blo[k], alo[k] * bhi[k]), std::min(ahi[k] * blo[k], ahi[k] * bhi[k]));
+        return lowest > -0.5 + 1e-6;
+    }
+};
+
+// Reused from step to step: detection allocates only while the surfaces grow.
+struct Scratch {
+    ClosestTriangles closest[2];
+    NormalBounds normals;
+    std::vector<std::pair<int, int>> stack;
+    std::vector<std::uint64_t> edge_pairs;  // (edge of a) << 32 | (rank of a triangle of b)
+    std::vector<unsigned> edge_stamp;
+    unsigned edge_epoch = 0;
+};
+thread_local Scratch scratch;
+
+// Vertex v of sa against the triangle of rank r of sb, as the one-query-per-vertex detection
+// did: the triangle's inflated box must contain the vertex; for self-collision (same surface)
+// the vertex must not belong to the triangle or share its element, the surfaces must face
+// each other and the pair must not be excluded, so neighbouring points of one smooth surface
+// never count as a contact.
+template <bool Self>
+inline void vertex_against_triangle(const CollisionSurface& sa, int v, const CollisionSurface& sb, int r,
+                                    const SelfExclusions* skip, double reach, ClosestTriangles& closest) {
+    const Vec3& p = sa.x[v];
+    const Aabb& box = sb.bvh.rank_boxes()[r];
+    if (!sb.bvh.point_in_inflated(p, box.lo, box.hi)) return;
+    const Eigen::Vector3i& tri = sb.rank_triangles[r];
+    if (Self) {
+        if (shares_vertex(tri, v)) return;
+        const int t = sb.bvh.order()[r];
+        if (sa.vertex_normal[v].dot(sb.triangle_normal[t]) > -0.5 || same_element(sa, v, tri)) return;
+        if (skip && skip->excludes(v, t)) return;
+    }
+    const Vec3 w = closest_on_triangle(p, sb.x[tri[0]], sb.x[tri[1]], sb.x[tri[2]]);
+    const Vec3 q = w[0] * sb.x[tri[0]] + w[1] * sb.x[tri[1]] + w[2] * sb.x[tri[2]];
+    const double dist = (p - q).norm();
+    if (dist >= reach) return;
+    closest.offer(v, r, dist, w, q);
+}
+
+// Both trees descended together from their roots: a pair of nodes is opened only if the box
+// of a's node (tight: the vertices and edges it carries are inside) overlaps b's inflated
+// box; at a pair of leaves a's vertices (and, for a pair of bodies, its edges) meet b's
+// triangles. For self-collision a and b are the same tree and node pairs that cannot face
+// each other are skipped too.
+template <bool Self>
+void descend(const CollisionSurface& sa, const CollisionSurface& sb, const SelfExclusions* skip, double reach,
+             ClosestTriangles& closest, std::vector<std::uint64_t>* edge_pairs) {
+    const auto& na = sa.bvh.nodes();
+    const auto& nb = sb.bvh.nodes();
+    auto& stack = scratch.stack;
+    stack.clear();
+    stack.emplace_back(0, 0);
+    while (!stack.empty()) {
+        const auto [ia, ib] = stack.back();
+        stack.pop_back();
+        const Bvh::Node& a = na[ia];
+        const Bvh::Node& b = nb[ib];
+        if (!sb.bvh.overlaps_inflated(a.lo, a.hi, b.lo, b.hi)) continue;
+        if (Self && scratch.normals.none_facing(ia, ib)) continue;
+        if (!a.leaf() || !b.leaf()) {
+            // open the larger node (or the one that is not a leaf)
+            if (b.leaf() || (!a.leaf() && (a.hi - a.lo).sum() > (b.hi - b.lo).sum())) {
+                stack.emplace_back(a.left, ib);
+                stack.emplace_back(a.right, ib);
+            } else {
+                stack.emplace_back(ia, b.left);
+                stack.emplace_back(ia, b.right);
+            }
+            continue;
+        }
+        for (int k = sa.leaf_vertex_begin[ia]; k < sa.leaf_vertex_begin[ia + 1]; ++k) {
+            const int v = sa.leaf_vertex[k];
+            if (!sb.bvh.point_in_inflated(sa.x[v], b.lo, b.hi)) continue;
+            for (int r = b.begin; r < b.end; ++r) vertex_against_triangle<Self>(sa, v, sb, r, skip, reach, closest);
+        }
+        if (!edge_pairs) continue;
+        for (int k = sa.leaf_edge_begin[ia]; k < sa.leaf_edge_begin[ia + 1]; ++k) {
+            const int e = sa.leaf_edge[k];
+            const Vec3& p0 = sa.x[sa.edges[e][0]];
+            const Vec3& p1 = sa.x[sa.edges[e][1]];
+            const Vec3 lo = p0.cwiseMin(p1), hi = p0.cwiseMax(p1);
+            if (!sb.bvh.overlaps_inflated(lo, hi, b.lo, b.hi)) continue;
+            for (int r = b.begin; r < b.end; ++r) {
+                const Aabb& box = sb.bvh.rank_boxes()[r];
+                if (sb.bvh.overlaps_inflated(lo, hi, box.lo, box.hi))
+                    edge_pairs->push_back((static_cast<std::uint64_t>(e) << 32) | static_cast<std::uint32_t>(r));
+            }
+        }
+    }
+}
+
+// Each vertex of sa against its closest triangle of sb within reach (found by descend), in
+// vertex order. For self-collision only a vertex outside the surface it faces is a contact.
+template <bool Self>
+void closest_triangles(const CollisionSurface& sa, const CollisionSurface& sb, const SelfExclusions* skip, double reach, ClosestTriangles& closest,
+                       std::vector<std::uint64_t>* edge_pairs) {
+    closest.start(sa.n_vertices());
+    if (!sa.bvh.empty() && !sb.bvh.empty()) descend<Self>(sa, sb, skip, reach, closest, edge_pairs);
+    for (int v : sa.loose_vertices)  // on no triangle, so in no leaf: one query each
+        if (!sb.bvh.empty()) {
+            Aabb query;
+            query.grow(sa.x[v]);
+            sb.bvh.query_ranks(query, [&](int r) { vertex_against_triangle<Self>(sa, v, sb, r, skip, reach, closest); });
+        }
+}
+
+void vertex_contacts(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b, bool self,
+                     ClosestTriangles& closest, std::vector<Contact>& out) {
+    std::sort(closest.touched.begin(), closest.touched.end());
+    for (int v : closest.touched) {
         const Vec3& p = sa.x[v];
-        Aabb query;
-        query.grow(p);
-        double best = reach;
-        int best_t = -1;
-        Vec3 best_w, best_q;
-        sb.bvh.query(query, [&](int t) {
-            const auto& tri = sb.triangles[t];
-            if (self && (shares_vertex(tri, v) || sa.vertex_normal[v].dot(sb.triangle_normal[t]) > -0.5 ||
-                         same_element(sa, v, tri)))
-                return;
-            if (skip && skip->vertex_triangle.count(SelfExclusions::key(v, t))) return;
-            const Vec3 w = closest_on_triangle(p, sb.x[tri[0]], sb.x[tri[1]], sb.x[tri[2]]);
-            const Vec3 q = w[0] * sb.x[tri[0]] + w[1] * sb.x[tri[1]] + w[2] * sb.x[tri[2]];
-            const double dist = (p - q).norm();
-            if (dist >= best) return;
-            best = dist;
-            best_t = t;
-            best_w = w;
-            best_q = q;
-        });
-        if (best_t < 0) continue;
+        const double best = closest.dist[v];
+        const int best_t = sb.bvh.order()[closest.rank[v]];
+        const Vec3& best_w = closest.w[v];
+        const Vec3& best_q = closest.q[v];
         const Vec3 d = p - best_q;
         const Vec3 outward = pseudo_normal(sb, best_t, best_w);
         const bool outside = d.dot(outward) >= 0;
         if (self && !outside) continue;
-        if (record) record->vertex_triangle.insert(SelfExclusions::key(v, best_t));
         // outside: separate along p - q; inside: move p back out through q
         Vec3 n = best > 1e-12 ? Vec3((outside ? d : Vec3(-d)) / best) : outward.normalized();
         Contact c = make_contact(body_a, body_b, n, outside ? best : -best, best_q);
@@ -112,59 +286,96 @@ void vertices_against_triangles(const CollisionSurface& sa, int body_a, const Co
     }
 }
 
+// Edge ea of sa against edge eb of sb: a contact when the closest points are inside both
+// edges (the other configurations are vertex-triangle contacts), within reach, and the edges
+// face each other.
+void edge_against_edge(const CollisionSurface& sa, int body_a, int ea, const Vec3& na, const CollisionSurface& sb,
+                       int body_b, int eb, double reach, std::vector<Contact>& out) {
+    const Vec3& p0 = sa.x[sa.edges[ea][0]];
+    const Vec3& p1 = sa.x[sa.edges[ea][1]];
+    const Vec3& q0 = sb.x[sb.edges[eb][0]];
+    const Vec3& q1 = sb.x[sb.edges[eb][1]];
+    double s, u;
+    closest_between_segments(p0, p1, q0, q1, s, u);
+    if (s <= 1e-6 || s >= 1 - 1e-6 || u <= 1e-6 || u >= 1 - 1e-6) return;
+    const Vec3 pa = p0 + s * (p1 - p0), pb = q0 + u * (q1 - q0);
+    const Vec3 d = pa - pb;
+    const double dist = d.norm();
+    if (dist >= reach || dist < 1e-12) return;
+    const Vec3 n = d / dist;
+    // separated edges face each other: a's surface looks along -n, b's along +n
+    if (na.dot(n) >= 0 || edge_normal_at(sb, eb).dot(n) <= 0) return;
+    Contact c = make_contact(body_a, body_b, n, dist, pb);
+    c.a.count = 2;
+    c.a.vertex[0] = sa.edges[ea][0];
+    c.a.vertex[1] = sa.edges[ea][1];
+    c.a.weight[0] = 1 - s;
+    c.a.weight[1] = s;
+    c.b.count = 2;
+    c.b.vertex[0] = sb.edges[eb][0];
+    c.b.vertex[1] = sb.edges[eb][1];
+    c.b.weight[0] = 1 - u;
+    c.b.weight[1] = u;
+    out.push_back(c);
+}
 
-// Edges of sa against edges of sb whose closest points are inside both edges (the other
-// configurations are vertex-triangle contacts).
-void edges_against_edges(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b, bool self,
-                         const SelfExclusions* skip, double reach, std::vector<Contact>& out,
-                         SelfExclusions* record = nullptr) {
-    std::vector<int> stamp(sb.edges.size(), -1);
-    for (size_t ea = 0; ea < sa.edges.size(); ++ea) {
-        const Vec3& p0 = sa.x[sa.edges[ea][0]];
-        const Vec3& p1 = sa.x[sa.edges[ea][1]];
+// The (edge of sa, triangle of sb) pairs whose boxes overlap, in the order the one-query-per-
+// edge detection met them: by edge, then by triangle rank, each edge of sb once per edge of
+// sa (the first triangle that brings it).
+void edge_contacts(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b, double reach,
+                   std::vector<std::uint64_t>& pairs, std::vector<Contact>& out) {
+    std::sort(pairs.begin(), pairs.end());
+    auto& stamp = scratch.edge_stamp;
+    if (stamp.size() < sb.edges.size()) stamp.resize(sb.edges.size(), 0);
+    int current = -1;
+    Vec3 na;
+    for (const std::uint64_t key : pairs) {
+        const int ea = static_cast<int>(key >> 32), r = static_cast<int>(key & 0xffffffffu);
+        if (ea != current) {
+            current = ea;
+            na = edge_normal_at(sa, ea);
+            if (++scratch.edge_epoch == 0) {
+                std::fill(stamp.begin(), stamp.end(), 0u);
+                scratch.edge_epoch = 1;
+            }
+        }
+        const int t = sb.bvh.order()[r];
+        for (int k = 0; k < 3; ++k) {
+            const int eb = sb.triangle_edges[t][k];
+            if (stamp[eb] == scratch.edge_epoch) continue;
+            stamp[eb] = scratch.edge_epoch;
+            edge_against_edge(sa, body_a, ea, na, sb, body_b, eb, reach, out);
+        }
+    }
+}
+
+// Edges against edges within one surface, one query per edge, recording the pairs found:
+// only for the exclusions at rest (once per body), so kept simple.
+void rest_edge_pairs(const CollisionSurface& s, double reach, SelfExclusions& record) {
+    std::vector<int> stamp(s.edges.size(), -1);
+    std::vector<Contact> found;
+    for (size_t ea = 0; ea < s.edges.size(); ++ea) {
+        const Vec3& p0 = s.x[s.edges[ea][0]];
+        const Vec3& p1 = s.x[s.edges[ea][1]];
         Aabb query;
         query.grow(p0);
         query.grow(p1);
-        const Vec3 na = edge_normal_at(sa, static_cast<int>(ea));
-        sb.bvh.query(query, [&](int t) {
-            // self: the edge's own neighbourhood, and surfaces not facing each other, are no contact
-            if (self && (shares_vertex(sb.triangles[t], sa.edges[ea][0]) || shares_vertex(sb.triangles[t], sa.edges[ea][1]) ||
-                         na.dot(sb.triangle_normal[t]) > -0.5 * na.norm()))
+        const Vec3 na = edge_normal_at(s, static_cast<int>(ea));
+        s.bvh.query(query, [&](int t) {
+            // the edge's own neighbourhood, and surfaces not facing each other, are no contact
+            if (shares_vertex(s.triangles[t], s.edges[ea][0]) || shares_vertex(s.triangles[t], s.edges[ea][1]) ||
+                na.dot(s.triangle_normal[t]) > -0.5 * na.norm())
                 return;
             for (int k = 0; k < 3; ++k) {
-                const int eb = sb.triangle_edges[t][k];
+                const int eb = s.triangle_edges[t][k];
                 if (stamp[eb] == static_cast<int>(ea)) continue;
                 stamp[eb] = static_cast<int>(ea);
-                if (self && (static_cast<int>(ea) >= eb || sa.edges[ea][0] == sb.edges[eb][0] ||
-                             sa.edges[ea][0] == sb.edges[eb][1] || sa.edges[ea][1] == sb.edges[eb][0] ||
-                             sa.edges[ea][1] == sb.edges[eb][1]))
+                if (static_cast<int>(ea) >= eb || s.edges[ea][0] == s.edges[eb][0] || s.edges[ea][0] == s.edges[eb][1] ||
+                    s.edges[ea][1] == s.edges[eb][0] || s.edges[ea][1] == s.edges[eb][1])
                     continue;
-                if (skip && skip->edge_edge.count(SelfExclusions::key(static_cast<int>(ea), eb))) continue;
-                const Vec3& q0 = sb.x[sb.edges[eb][0]];
-                const Vec3& q1 = sb.x[sb.edges[eb][1]];
-                double s, u;
-                closest_between_segments(p0, p1, q0, q1, s, u);
-                if (s <= 1e-6 || s >= 1 - 1e-6 || u <= 1e-6 || u >= 1 - 1e-6) continue;
-                const Vec3 pa = p0 + s * (p1 - p0), pb = q0 + u * (q1 - q0);
-                const Vec3 d = pa - pb;
-                const double dist = d.norm();
-                if (dist >= reach || dist < 1e-12) continue;
-                const Vec3 n = d / dist;
-                // separated edges face each other: a's surface looks along -n, b's along +n
-                if (na.dot(n) >= 0 || edge_normal_at(sb, eb).dot(n) <= 0) continue;
-                if (record) record->edge_edge.insert(SelfExclusions::key(static_cast<int>(ea), eb));
-                Contact c = make_contact(body_a, body_b, n, dist, pb);
-                c.a.count = 2;
-                c.a.vertex[0] = sa.edges[ea][0];
-                c.a.vertex[1] = sa.edges[ea][1];
-                c.a.weight[0] = 1 - s;
-                c.a.weight[1] = s;
-                c.b.count = 2;
-                c.b.vertex[0] = sb.edges[eb][0];
-                c.b.vertex[1] = sb.edges[eb][1];
-                c.b.weight[0] = 1 - u;
-                c.b.weight[1] = u;
-                out.push_back(c);
+                found.clear();
+                edge_against_edge(s, -1, static_cast<int>(ea), na, s, -1, eb, reach, found);
+                if (!found.empty()) record.edge_edge.insert(SelfExclusions::key(static_cast<int>(ea), eb));
             }
         });
     }
@@ -172,12 +383,39 @@ void edges_against_edges(const CollisionSurface& sa, int body_a, const Collision
 
 }  // namespace
 
+void SelfExclusions::compile(int n_vertices) {
+    begin.assign(n_vertices + 1, 0);
+    for (std::uint64_t k : vertex_triangle) {
+        const int v = static_cast<int>(k >> 32);
+        if (v >= 0 && v < n_vertices) ++begin[v + 1];
+    }
+    for (int v = 0; v < n_vertices; ++v) begin[v + 1] += begin[v];
+    triangles.assign(begin[n_vertices], 0);
+    std::vector<int> fill(begin.begin(), begin.end() - 1);
+    for (std::uint64_t k : vertex_triangle) {
+        const int v = static_cast<int>(k >> 32);
+        if (v >= 0 && v < n_vertices) triangles[fill[v]++] = static_cast<int>(k & 0xffffffffu);
+    }
+    for (int v = 0; v < n_vertices; ++v) std::sort(triangles.begin() + begin[v], triangles.begin() + begin[v + 1]);
+}
+
+bool SelfExclusions::excludes(int v, int t) const {
+    if (v < 0 || v + 1 >= static_cast<int>(begin.size())) return vertex_triangle.count(key(v, t)) > 0;
+    return std::binary_search(triangles.begin() + begin[v], triangles.begin() + begin[v + 1], t);
+}
+
 void detect_pair(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,
                  const DetectionSettings& settings, std::vector<Contact>& out) {
     if (!sa.bvh.empty() && !sb.bvh.empty() && !sa.bvh.bounds().overlaps(sb.bvh.bounds())) return;
-    vertices_against_triangles(sa, body_a, sb, body_b, false, nullptr, settings.distance, out);
-    vertices_against_triangles(sb, body_b, sa, body_a, false, nullptr, settings.distance, out);
-    edges_against_edges(sa, body_a, sb, body_b, false, nullptr, settings.distance, out);
+    const double reach = settings.distance;
+    // a's vertices and edges against b's triangles in one descent, then b's vertices against a's
+    auto& pairs = scratch.edge_pairs;
+    pairs.clear();
+    closest_triangles<false>(sa, sb, nullptr, reach, scratch.closest[0], &pairs);
+    closest_triangles<false>(sb, sa, nullptr, reach, scratch.closest[1], nullptr);
+    vertex_contacts(sa, body_a, sb, body_b, false, scratch.closest[0], out);
+    vertex_contacts(sb, body_b, sa, body_a, false, scratch.closest[1], out);
+    edge_contacts(sa, body_a, sb, body_b, reach, pairs, out);
 }
 
 void detect_self(const CollisionSurface& s, int body, const DetectionSettings& settings, const SelfExclusions* skip,
@@ -186,12 +424,13 @@ void detect_self(const CollisionSurface& s, int body, const DetectionSettings& s
     // between fingers and palm, whose relative motion is that of a few shared elements, and
     // made the contact problem ill-conditioned (measured: squeezed fingers blew up). Between a
     // vertex and a facing triangle, both directions are found, which covers finger contact.
-    vertices_against_triangles(s, body, s, body, true, skip, settings.distance, out);
+    if (!s.bvh.empty()) scratch.normals.compute(s);
+    closest_triangles<true>(s, s, skip, settings.distance, scratch.closest[0], nullptr);
+    vertex_contacts(s, body, s, body, true, scratch.closest[0], out);
 }
 
 SelfExclusions rest_exclusions(const CollisionSurface& s, const DetectionSettings& settings) {
     SelfExclusions found;
-    std::vector<Contact> ignored;
     // every pair within reach, not only each vertex's closest triangle
     for (int v = 0; v < s.n_vertices(); ++v) {
         Aabb query;
@@ -204,7 +443,8 @@ SelfExclusions rest_exclusions(const CollisionSurface& s, const DetectionSetting
             if ((s.x[v] - q).norm() < settings.distance) found.vertex_triangle.insert(SelfExclusions::key(v, t));
         });
     }
-    edges_against_edges(s, -1, s, -1, true, nullptr, settings.distance, ignored, &found);
+    rest_edge_pairs(s, settings.distance, found);
+    found.compile(s.n_vertices());
     return found;
 }
 

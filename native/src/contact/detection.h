@@ -36,10 +36,15 @@ struct DetectionSettings {
 };
 
 // Self-collision pairs to ignore: those already closer than the thickness at rest (folds of
-// the same flesh, such as the crease at the root of the thumb), found once by detect_self.
+// the same flesh, such as the crease at the root of the thumb), found once by rest_exclusions.
 struct SelfExclusions {
     std::unordered_set<std::uint64_t> vertex_triangle, edge_edge;
     static std::uint64_t key(int a, int b) { return (static_cast<std::uint64_t>(a) << 32) | static_cast<std::uint32_t>(b); }
+    // vertex_triangle as a sorted list of triangles per vertex (triangles[begin[v] ..
+    // begin[v + 1])): a hash look-up per candidate pair cost more than the distance itself
+    std::vector<int> begin, triangles;
+    void compile(int n_vertices);
+    bool excludes(int v, int t) const;
 };
 
 void detect_pair(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,

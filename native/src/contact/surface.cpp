@@ -42,8 +42,46 @@ void init_surface(CollisionSurface& s, int n_points) {
     s.x.assign(nv, Vec3::Zero());
     s.vertex_normal.assign(nv, Vec3::Zero());
     s.triangle_normal.assign(s.triangles.size(), Vec3::Zero());
-    s.triangle_box.assign(s.triangles.size(), Aabb{});
+    s.bvh = Bvh{};  // built at the first update
 }
+
+namespace {
+
+// Which leaf carries each vertex and each edge (see CollisionSurface), once the tree is built.
+void assign_to_leaves(CollisionSurface& s) {
+    const auto& nodes = s.bvh.nodes();
+    const int n_nodes = static_cast<int>(nodes.size());
+    std::vector<int> leaf_of_rank(s.triangles.size(), -1);
+    for (int i = 0; i < n_nodes; ++i)
+        if (nodes[i].leaf())
+            for (int r = nodes[i].begin; r < nodes[i].end; ++r) leaf_of_rank[r] = i;
+    auto bucket = [&](int n_items, auto triangle_of, std::vector<int>& begin, std::vector<int>& items) {
+        std::vector<int> owner(n_items, -1);
+        begin.assign(n_nodes + 1, 0);
+        for (int k = 0; k < n_items; ++k) {
+            const int t = triangle_of(k);
+            if (t < 0) continue;
+            owner[k] = leaf_of_rank[s.bvh.rank_of(t)];
+            ++begin[owner[k] + 1];
+        }
+        for (int i = 0; i < n_nodes; ++i) begin[i + 1] += begin[i];
+        items.assign(begin[n_nodes], -1);
+        std::vector<int> fill(begin.begin(), begin.end() - 1);
+        for (int k = 0; k < n_items; ++k)
+            if (owner[k] >= 0) items[fill[owner[k]]++] = k;
+    };
+    bucket(s.n_vertices(), [&](int v) { return s.vertex_triangles[v].empty() ? -1 : s.vertex_triangles[v][0]; },
+           s.leaf_vertex_begin, s.leaf_vertex);
+    bucket(static_cast<int>(s.edges.size()), [&](int e) { return s.edge_triangles[e][0]; }, s.leaf_edge_begin,
+           s.leaf_edge);
+    s.loose_vertices.clear();
+    for (int v = 0; v < s.n_vertices(); ++v)
+        if (s.vertex_triangles[v].empty()) s.loose_vertices.push_back(v);
+    s.rank_triangles.resize(s.triangles.size());
+    for (int r = 0; r < s.bvh.n_items(); ++r) s.rank_triangles[r] = s.triangles[s.bvh.order()[r]];
+}
+
+}  // namespace
 
 void update_surface(CollisionSurface& s, const std::vector<Vec3>& points, double margin) {
     const int nv = s.n_vertices();
@@ -54,6 +92,11 @@ void update_surface(CollisionSurface& s, const std::vector<Vec3>& points, double
         s.x[v] = p;
         s.vertex_normal[v].setZero();
     }
+    const bool build = s.bvh.empty() && !s.triangles.empty();
+    std::vector<Aabb> first_boxes;  // by triangle, only to build the tree
+    if (build) first_boxes.resize(s.triangles.size());
+    std::vector<Aabb>& rank_boxes = s.bvh.rank_boxes();
+    // in triangle order: the vertex normals are sums over their triangles in this order
     for (size_t t = 0; t < s.triangles.size(); ++t) {
         const auto& tri = s.triangles[t];
         const Vec3 area2 = (s.x[tri[1]] - s.x[tri[0]]).cross(s.x[tri[2]] - s.x[tri[0]]);
@@ -62,17 +105,21 @@ void update_surface(CollisionSurface& s, const std::vector<Vec3>& points, double
         for (int k = 0; k < 3; ++k) s.vertex_normal[tri[k]] += area2;
         Aabb box;
         for (int k = 0; k < 3; ++k) box.grow(s.x[tri[k]]);
-        box.inflate(margin);
-        s.triangle_box[t] = box;
+        if (build)
+            first_boxes[t] = box;
+        else
+            rank_boxes[s.bvh.rank_of(static_cast<int>(t))] = box;
     }
     for (auto& n : s.vertex_normal) {
         const double len = n.norm();
         if (len > 0) n /= len;
     }
-    if (s.bvh.empty())
-        s.bvh.build(s.triangle_box);
-    else
-        s.bvh.refit(s.triangle_box);
+    if (build) {
+        s.bvh.build(first_boxes, margin);
+        assign_to_leaves(s);
+    } else if (!s.bvh.empty()) {
+        s.bvh.refit_nodes(margin);
+    }
 }
 
 }  // namespace hh

@@ -22,8 +22,16 @@ struct CollisionSurface {
     std::vector<Vec3> x;               // vertex positions
     std::vector<Vec3> vertex_normal;   // area-weighted, outward
     std::vector<Vec3> triangle_normal; // unit, outward
-    std::vector<Aabb> triangle_box;    // inflated by the detection distance
-    Bvh bvh;
+    Bvh bvh;                           // over the triangles, boxes inflated by the detection distance
+
+    // Fixed once the BVH is built (first update): the triangles by rank (Bvh), and which leaf
+    // carries each vertex and each edge in a traversal of the tree against another one. A
+    // vertex or an edge belongs to the leaf of one of its triangles, so the leaf's (tight)
+    // box contains it; node i's own vertices are leaf_vertex[leaf_vertex_begin[i] ..
+    // leaf_vertex_begin[i + 1]) (none for inner nodes), likewise edges.
+    std::vector<Eigen::Vector3i> rank_triangles;
+    std::vector<int> leaf_vertex_begin, leaf_vertex, leaf_edge_begin, leaf_edge;
+    std::vector<int> loose_vertices;  // on no triangle: queried one by one
 
     int n_vertices() const { return static_cast<int>(nodes.size()); }
 };
