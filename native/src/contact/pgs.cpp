@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <unordered_map>
 
 namespace hh {
 
@@ -67,20 +69,28 @@ namespace {
 // again. The caller keeps the result only when the sweep after it leaves a smaller residual.
 // Returns false when nothing was solved.
 constexpr int kSubspaceEvery = 10;     // sweeps between subspace steps
-constexpr int kSubspaceRounds = 30;    // solves per step (set changes)
+constexpr int kSubspaceRounds = 10;    // solves per step (set changes)
 constexpr double kDependent = 1e-6;    // pivot / diagonal below which a row counts as implied
 
 template <class Op>
 bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficient, const std::vector<Vec3>& u,
-                   VecX& lambda) {
+                   std::unordered_map<std::uint64_t, Mat3>& cache, VecX& lambda) {
     std::vector<int> act;
     for (int i = 0; i < c; ++i)
         if (lambda[3 * i] > 0 && op.block(i)(0, 0) > 0) act.push_back(i);
     if (act.empty()) return false;
     const int a = static_cast<int>(act.size());
+    // W's blocks between active contacts: constant through the solve, so kept from the
+    // previous steps (the active sets of successive steps mostly overlap)
     std::vector<Mat3> blocks(static_cast<size_t>(a) * a);
     for (int p = 0; p < a; ++p)
-        for (int q = 0; q < a; ++q) blocks[p * a + q] = op.cross_block(act[p], act[q]);
+        for (int q = p; q < a; ++q) {
+            const std::uint64_t key = static_cast<std::uint64_t>(act[p]) * static_cast<std::uint64_t>(c) + act[q];
+            auto it = cache.find(key);
+            if (it == cache.end()) it = cache.emplace(key, op.cross_block(act[p], act[q])).first;
+            blocks[p * a + q] = it->second;
+            blocks[q * a + p] = it->second.transpose();  // W symmetric (the sweeps' symmetric part)
+        }
     // per active contact: 0 out of the set, 1 sliding (normal unknown, friction kept), 3 sticking
     std::vector<int> state(a), first(a);
     std::vector<Eigen::Vector2d> kept(a);
@@ -210,6 +220,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         disks[i] = Disk(0.5 * (w.block<2, 2>(1, 1) + w.block<2, 2>(1, 1).transpose()));
     }
     VecX saved;
+    std::unordered_map<std::uint64_t, Mat3> blocks_cache;
     double saved_residual = 0;
     bool pending = false;
     for (int it = 0, pass = 0; it < max_iterations; ++it) {
@@ -252,7 +263,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         if (result.residual > tolerance && it + 1 < max_iterations && (it + 1) % kSubspaceEvery == 0) {
             saved = lambda;
             saved_residual = result.residual;
-            if (subspace_step(op, c, bias, coefficient, u, lambda)) {
+            if (subspace_step(op, c, bias, coefficient, u, blocks_cache, lambda)) {
                 op.reset(lambda);
                 pending = true;
                 continue;
