@@ -1,5 +1,7 @@
 #include "sim/model.h"
 
+#include "fem/element_order.h"
+
 #include <cmath>
 #include <sstream>
 
@@ -90,8 +92,9 @@ Flesh build_flesh(const double* rest_positions, int n_nodes, const int* tets, in
     for (int i = 0; i < n_nodes; ++i)
         require(use[i] > 0, "node " + std::to_string(i) +
                                 " belongs to no tetrahedron, so it has no mass: remove unreferenced nodes");
-    f.elements = precompute_elements(f.mesh, material);
+    f.elements = precompute_elements(f.mesh, material);  // validates, naming tets in the user's order
     f.masses = lumped_masses(f.mesh, f.elements, material.density);
+    order_elements_spatially(f.mesh, f.elements);
     f.pattern = build_stiffness_pattern(f.mesh);
     return f;
 }

@@ -458,33 +458,10 @@ __attribute__((target("avx512f,avx512vl,avx2,fma"))) void multiply_avx512(int n,
                                                                          const double* x, double* y) {
     multiply_blocks<L, N>(n, o, i, v, x, y);
 }
-int simd_level() {  // 0: baseline, 1: AVX2 + FMA, 2: AVX-512
-    if (simd_level_override() >= 0) return std::min(simd_level_override(), detected_simd_level());
-    return detected_simd_level();
-}
+int simd_level() { return active_simd_level(); }  // 0: baseline, 1: AVX2 + FMA, 2: AVX-512
 #endif
 
 }  // namespace
-
-int& simd_level_override() {
-    static int level = -1;
-    return level;
-}
-
-int detected_simd_level() {
-#if defined(__GNUC__) && defined(__x86_64__)
-    static const int level = []() {
-        if (std::getenv("HH_NO_SIMD")) return 0;
-        const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-        const bool avx512 = avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
-        if (avx512 && !std::getenv("HH_NO_AVX512")) return 2;
-        return avx2 ? 1 : 0;
-    }();
-    return level;
-#else
-    return 0;
-#endif
-}
 
 namespace {
 

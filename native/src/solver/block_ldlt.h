@@ -9,6 +9,7 @@
 #pragma once
 #include <vector>
 
+#include "common/simd.h"
 #include "common/types.h"
 
 namespace hh {
@@ -97,11 +98,5 @@ private:
 // of whole 3x3 blocks (has_node_block_pattern). AVX2 / AVX-512 kernels chosen at run time.
 void multiply_node_major(const SpMat& a, const double* x, double* y, int w);
 bool has_node_block_pattern(const SpMat& a);
-
-// The SIMD kernels used: 0 baseline x86-64, 1 AVX2 + FMA, 2 AVX-512 (detected at run time;
-// HH_NO_AVX512 or HH_NO_SIMD in the environment lower it). Tests set the override (>= 0) to
-// run every level the CPU has; -1: automatic.
-int detected_simd_level();
-int& simd_level_override();
 
 }  // namespace hh
