@@ -608,7 +608,8 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
         std::copy(xj, xj + static_cast<size_t>(W) * m, y);
         for (int t = m / 3; t < nr; ++t) {
             const double* from = x + static_cast<size_t>(W) * 3 * rows[t];
-            std::copy(from, from + 3 * W, y + static_cast<size_t>(W) * 3 * t);
+            double* to = y + static_cast<size_t>(W) * 3 * t;
+            for (int e = 0; e < 3 * W; ++e) to[e] = from[e];  // inline: a call per row costs more
         }
         for (int c = ((m - 1) / G) * G; c >= 0; c -= G) {
             const int g = std::min(G, m - c);
@@ -657,11 +658,14 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
             }
             for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
                 double* yk = y + static_cast<size_t>(W) * (c + k);
-                for (int e = 0; e < W; ++e) {
-                    double v = yk[e] - acc[k][e];
-                    for (int k2 = k + 1; k2 < g; ++k2) v -= col[k][c + k2] * y[static_cast<size_t>(W) * (c + k2) + e];
-                    yk[e] = v * dinv[c + k];
+                double v[W];  // lanes innermost, so the loops vectorize (same order of operations per lane)
+                for (int e = 0; e < W; ++e) v[e] = yk[e] - acc[k][e];
+                for (int k2 = k + 1; k2 < g; ++k2) {
+                    const double l = col[k][c + k2];
+                    const double* y2 = y + static_cast<size_t>(W) * (c + k2);
+                    for (int e = 0; e < W; ++e) v[e] -= l * y2[e];
                 }
+                for (int e = 0; e < W; ++e) yk[e] = v[e] * dinv[c + k];
             }
         }
         std::copy(y, y + static_cast<size_t>(W) * m, xj);
@@ -750,22 +754,48 @@ bool has_node_block_pattern(const SpMat& a) {
     return true;
 }
 
-void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, bool single) const {
-    if (w != 1 && w != 4 && w != 8) throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8");
-    work_.resize(static_cast<size_t>(3) * n_ * w);
-    double* x = work_.data();
-    for (int node = 0; node < n_; ++node) {  // x = P W^T b
-        const int old = order_[node];
-        const double* bn = b + 3 * w * old;
-        double* xn = x + 3 * w * node;
+namespace {
+// x = P W^T b and back, b = W P^T x, for W lanes per row known at compile time (the loops
+// vectorize over the lanes; W: a 3x3 rotation per node, or none).
+template <int W>
+void warp_in(int n, const int* order, const std::vector<Mat3>* warp, const double* b, double* x) {
+    for (int node = 0; node < n; ++node) {
+        const int old = order[node];
+        const double* bn = b + 3 * W * old;
+        double* xn = x + 3 * W * node;
         if (!warp) {
-            std::copy(bn, bn + 3 * w, xn);
+            for (int e = 0; e < 3 * W; ++e) xn[e] = bn[e];
             continue;
         }
         const double* m = (*warp)[old].data();  // column-major: W^T(r, c) = m[3 r + c]
         for (int r = 0; r < 3; ++r)
-            for (int j = 0; j < w; ++j) xn[r * w + j] = m[3 * r] * bn[j] + m[3 * r + 1] * bn[w + j] + m[3 * r + 2] * bn[2 * w + j];
+            for (int j = 0; j < W; ++j) xn[r * W + j] = m[3 * r] * bn[j] + m[3 * r + 1] * bn[W + j] + m[3 * r + 2] * bn[2 * W + j];
     }
+}
+template <int W>
+void warp_out(int n, const int* order, const std::vector<Mat3>* warp, const double* x, double* b) {
+    for (int node = 0; node < n; ++node) {
+        const int old = order[node];
+        const double* xn = x + 3 * W * node;
+        double* bn = b + 3 * W * old;
+        if (!warp) {
+            for (int e = 0; e < 3 * W; ++e) bn[e] = xn[e];
+            continue;
+        }
+        const double* m = (*warp)[old].data();  // W(r, c) = m[r + 3 c]
+        for (int r = 0; r < 3; ++r)
+            for (int j = 0; j < W; ++j) bn[r * W + j] = m[r] * xn[j] + m[r + 3] * xn[W + j] + m[r + 6] * xn[2 * W + j];
+    }
+}
+}  // namespace
+
+void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, bool single) const {
+    if (w != 1 && w != 4 && w != 8) throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8");
+    work_.resize(static_cast<size_t>(3) * n_ * w);
+    double* x = work_.data();
+    if (w == 1) warp_in<1>(n_, order_.data(), warp, b, x);
+    else if (w == 4) warp_in<4>(n_, order_.data(), warp, b, x);
+    else warp_in<8>(n_, order_.data(), warp, b, x);
     if (supernodal_) {
         if (single && !single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
         solve_supernodal(x, w, single);
@@ -777,18 +807,9 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
         const Factor<double> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data()};
         solve_dispatch(f, x, w);
     }
-    for (int node = 0; node < n_; ++node) {  // b = W P^T x
-        const int old = order_[node];
-        const double* xn = x + 3 * w * node;
-        double* bn = b + 3 * w * old;
-        if (!warp) {
-            std::copy(xn, xn + 3 * w, bn);
-            continue;
-        }
-        const double* m = (*warp)[old].data();  // W(r, c) = m[r + 3 c]
-        for (int r = 0; r < 3; ++r)
-            for (int j = 0; j < w; ++j) bn[r * w + j] = m[r] * xn[j] + m[r + 3] * xn[w + j] + m[r + 6] * xn[2 * w + j];
-    }
+    if (w == 1) warp_out<1>(n_, order_.data(), warp, x, b);
+    else if (w == 4) warp_out<4>(n_, order_.data(), warp, x, b);
+    else warp_out<8>(n_, order_.data(), warp, x, b);
 }
 
 VecX BlockLDLT::solve(const VecX& b) const {
