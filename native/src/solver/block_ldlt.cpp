@@ -755,36 +755,24 @@ bool has_node_block_pattern(const SpMat& a) {
 }
 
 namespace {
-// x = P W^T b and back, b = W P^T x, for W lanes per row known at compile time (the loops
-// vectorize over the lanes; W: a 3x3 rotation per node, or none).
-template <int W>
-void warp_in(int n, const int* order, const std::vector<Mat3>* warp, const double* b, double* x) {
+// x = P W^T b (in) and back, b = W P^T x (out), for W lanes per row known at compile time
+// (the loops vectorize over the lanes; the warp: a 3x3 rotation per node, or none).
+template <int W, bool In>
+void warp_permute(int n, const int* order, const std::vector<Mat3>* warp, const double* from, double* to) {
     for (int node = 0; node < n; ++node) {
         const int old = order[node];
-        const double* bn = b + 3 * W * old;
-        double* xn = x + 3 * W * node;
+        const double* src = from + 3 * W * (In ? old : node);
+        double* dst = to + 3 * W * (In ? node : old);
         if (!warp) {
-            for (int e = 0; e < 3 * W; ++e) xn[e] = bn[e];
+            for (int e = 0; e < 3 * W; ++e) dst[e] = src[e];
             continue;
         }
-        const double* m = (*warp)[old].data();  // column-major: W^T(r, c) = m[3 r + c]
-        for (int r = 0; r < 3; ++r)
-            for (int j = 0; j < W; ++j) xn[r * W + j] = m[3 * r] * bn[j] + m[3 * r + 1] * bn[W + j] + m[3 * r + 2] * bn[2 * W + j];
-    }
-}
-template <int W>
-void warp_out(int n, const int* order, const std::vector<Mat3>* warp, const double* x, double* b) {
-    for (int node = 0; node < n; ++node) {
-        const int old = order[node];
-        const double* xn = x + 3 * W * node;
-        double* bn = b + 3 * W * old;
-        if (!warp) {
-            for (int e = 0; e < 3 * W; ++e) bn[e] = xn[e];
-            continue;
+        const double* m = (*warp)[old].data();  // column-major: W(r, c) = m[r + 3 c]
+        for (int r = 0; r < 3; ++r) {
+            // row r of W^T (in) or of W (out)
+            const double m0 = In ? m[3 * r] : m[r], m1 = In ? m[3 * r + 1] : m[r + 3], m2 = In ? m[3 * r + 2] : m[r + 6];
+            for (int j = 0; j < W; ++j) dst[r * W + j] = m0 * src[j] + m1 * src[W + j] + m2 * src[2 * W + j];
         }
-        const double* m = (*warp)[old].data();  // W(r, c) = m[r + 3 c]
-        for (int r = 0; r < 3; ++r)
-            for (int j = 0; j < W; ++j) bn[r * W + j] = m[r] * xn[j] + m[r + 3] * xn[W + j] + m[r + 6] * xn[2 * W + j];
     }
 }
 }  // namespace
@@ -793,9 +781,9 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
     if (w != 1 && w != 4 && w != 8) throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8");
     work_.resize(static_cast<size_t>(3) * n_ * w);
     double* x = work_.data();
-    if (w == 1) warp_in<1>(n_, order_.data(), warp, b, x);
-    else if (w == 4) warp_in<4>(n_, order_.data(), warp, b, x);
-    else warp_in<8>(n_, order_.data(), warp, b, x);
+    if (w == 1) warp_permute<1, true>(n_, order_.data(), warp, b, x);
+    else if (w == 4) warp_permute<4, true>(n_, order_.data(), warp, b, x);
+    else warp_permute<8, true>(n_, order_.data(), warp, b, x);
     if (supernodal_) {
         if (single && !single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
         solve_supernodal(x, w, single);
@@ -807,9 +795,9 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
         const Factor<double> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data()};
         solve_dispatch(f, x, w);
     }
-    if (w == 1) warp_out<1>(n_, order_.data(), warp, x, b);
-    else if (w == 4) warp_out<4>(n_, order_.data(), warp, x, b);
-    else warp_out<8>(n_, order_.data(), warp, x, b);
+    if (w == 1) warp_permute<1, false>(n_, order_.data(), warp, x, b);
+    else if (w == 4) warp_permute<4, false>(n_, order_.data(), warp, x, b);
+    else warp_permute<8, false>(n_, order_.data(), warp, x, b);
 }
 
 VecX BlockLDLT::solve(const VecX& b) const {
