@@ -153,13 +153,25 @@ struct NormalBounds {
             lowest += std::min(std::min(alo[k] * blo[k], alo[k] * bhi[k]), std::min(ahi[k] * blo[k], ahi[k] * bhi[k]));
         return lowest > -0.5 + 1e-6;
     }
+    // The same for one vertex normal against node b's triangles.
+    bool none_facing(const Vec3& n, int b) const {
+        const Vec3 &blo = triangle_lo[b], &bhi = triangle_hi[b];
+        double lowest = 0;
+        for (int k = 0; k < 3; ++k) lowest += std::min(n[k] * blo[k], n[k] * bhi[k]);
+        return lowest > -0.5 + 1e-6;
+    }
+};
+
+// A pair of nodes to visit, and which directions are still open (descend_self).
+struct Visit {
+    int a, b, dirs;
 };
 
 // Reused from step to step: detection allocates only while the surfaces grow.
 struct Scratch {
     ClosestTriangles closest[2];
     NormalBounds normals;
-    std::vector<std::pair<int, int>> stack;
+    std::vector<Visit> stack;
     std::vector<std::uint64_t> edge_pairs;  // (edge of a) << 32 | (rank of a triangle of b)
     std::vector<unsigned> edge_stamp;
     unsigned edge_epoch = 0;
@@ -191,44 +203,49 @@ inline void vertex_against_triangle(const CollisionSurface& sa, int v, const Col
     closest.offer(v, r, dist, w, q);
 }
 
+// A's vertices in leaf ia against b's triangles in leaf ib.
+template <bool Self>
+inline void leaf_vertices(const CollisionSurface& sa, int ia, const CollisionSurface& sb, int ib,
+                          const SelfExclusions* skip, double reach, ClosestTriangles& closest) {
+    const Bvh::Node& b = sb.bvh.nodes()[ib];
+    for (int k = sa.leaf_vertex_begin[ia]; k < sa.leaf_vertex_begin[ia + 1]; ++k) {
+        const int v = sa.leaf_vertex[k];
+        if (!sb.bvh.point_in_inflated(sa.x[v], b.lo, b.hi)) continue;
+        if (Self && scratch.normals.none_facing(sa.vertex_normal[v], ib)) continue;
+        for (int r = b.begin; r < b.end; ++r) vertex_against_triangle<Self>(sa, v, sb, r, skip, reach, closest);
+    }
+}
+
 // Both trees descended together from their roots: a pair of nodes is opened only if the box
 // of a's node (tight: the vertices and edges it carries are inside) overlaps b's inflated
-// box; at a pair of leaves a's vertices (and, for a pair of bodies, its edges) meet b's
-// triangles. For self-collision a and b are the same tree and node pairs that cannot face
-// each other are skipped too.
-template <bool Self>
-void descend(const CollisionSurface& sa, const CollisionSurface& sb, const SelfExclusions* skip, double reach,
-             ClosestTriangles& closest, std::vector<std::uint64_t>* edge_pairs) {
+// box; at a pair of leaves a's vertices and edges meet b's triangles.
+void descend(const CollisionSurface& sa, const CollisionSurface& sb, double reach, ClosestTriangles& closest,
+             std::vector<std::uint64_t>* edge_pairs) {
     const auto& na = sa.bvh.nodes();
     const auto& nb = sb.bvh.nodes();
     auto& stack = scratch.stack;
     stack.clear();
-    stack.emplace_back(0, 0);
+    stack.push_back({0, 0, 0});
     while (!stack.empty()) {
-        const auto [ia, ib] = stack.back();
+        const Visit top = stack.back();
         stack.pop_back();
-        const Bvh::Node& a = na[ia];
-        const Bvh::Node& b = nb[ib];
+        const Bvh::Node& a = na[top.a];
+        const Bvh::Node& b = nb[top.b];
         if (!sb.bvh.overlaps_inflated(a.lo, a.hi, b.lo, b.hi)) continue;
-        if (Self && scratch.normals.none_facing(ia, ib)) continue;
         if (!a.leaf() || !b.leaf()) {
             // open the larger node (or the one that is not a leaf)
             if (b.leaf() || (!a.leaf() && (a.hi - a.lo).sum() > (b.hi - b.lo).sum())) {
-                stack.emplace_back(a.left, ib);
-                stack.emplace_back(a.right, ib);
+                stack.push_back({a.left, top.b, 0});
+                stack.push_back({a.right, top.b, 0});
             } else {
-                stack.emplace_back(ia, b.left);
-                stack.emplace_back(ia, b.right);
+                stack.push_back({top.a, b.left, 0});
+                stack.push_back({top.a, b.right, 0});
             }
             continue;
         }
-        for (int k = sa.leaf_vertex_begin[ia]; k < sa.leaf_vertex_begin[ia + 1]; ++k) {
-            const int v = sa.leaf_vertex[k];
-            if (!sb.bvh.point_in_inflated(sa.x[v], b.lo, b.hi)) continue;
-            for (int r = b.begin; r < b.end; ++r) vertex_against_triangle<Self>(sa, v, sb, r, skip, reach, closest);
-        }
+        leaf_vertices<false>(sa, top.a, sb, top.b, nullptr, reach, closest);
         if (!edge_pairs) continue;
-        for (int k = sa.leaf_edge_begin[ia]; k < sa.leaf_edge_begin[ia + 1]; ++k) {
+        for (int k = sa.leaf_edge_begin[top.a]; k < sa.leaf_edge_begin[top.a + 1]; ++k) {
             const int e = sa.leaf_edge[k];
             const Vec3& p0 = sa.x[sa.edges[e][0]];
             const Vec3& p1 = sa.x[sa.edges[e][1]];
@@ -243,13 +260,64 @@ void descend(const CollisionSurface& sa, const CollisionSurface& sb, const SelfE
     }
 }
 
+// Self-collision: the tree against itself, each unordered pair of nodes once with the two
+// directions (a's vertices against b's triangles, b's against a's) tracked apart, and each
+// node against itself. A direction is dropped as soon as the boxes are apart or no vertex
+// faces a triangle (normal bounds); its descendants inherit that.
+void descend_self(const CollisionSurface& s, const SelfExclusions* skip, double reach, ClosestTriangles& closest) {
+    enum { kAB = 1, kBA = 2, kSelf = 4 };
+    const auto& nodes = s.bvh.nodes();
+    const NormalBounds& normals = scratch.normals;
+    auto& stack = scratch.stack;
+    stack.clear();
+    stack.push_back({0, 0, kSelf});
+    while (!stack.empty()) {
+        const Visit top = stack.back();
+        stack.pop_back();
+        const Bvh::Node& a = nodes[top.a];
+        if (top.dirs == kSelf) {
+            if (normals.none_facing(top.a, top.a)) continue;
+            if (a.leaf()) {
+                leaf_vertices<true>(s, top.a, s, top.a, skip, reach, closest);
+            } else {
+                stack.push_back({a.left, a.right, kAB | kBA});
+                stack.push_back({a.left, a.left, kSelf});
+                stack.push_back({a.right, a.right, kSelf});
+            }
+            continue;
+        }
+        const Bvh::Node& b = nodes[top.b];
+        int dirs = 0;
+        if ((top.dirs & kAB) && s.bvh.overlaps_inflated(a.lo, a.hi, b.lo, b.hi) && !normals.none_facing(top.a, top.b))
+            dirs |= kAB;
+        if ((top.dirs & kBA) && s.bvh.overlaps_inflated(b.lo, b.hi, a.lo, a.hi) && !normals.none_facing(top.b, top.a))
+            dirs |= kBA;
+        if (!dirs) continue;
+        if (a.leaf() && b.leaf()) {
+            if (dirs & kAB) leaf_vertices<true>(s, top.a, s, top.b, skip, reach, closest);
+            if (dirs & kBA) leaf_vertices<true>(s, top.b, s, top.a, skip, reach, closest);
+        } else if (b.leaf() || (!a.leaf() && (a.hi - a.lo).sum() > (b.hi - b.lo).sum())) {
+            stack.push_back({a.left, top.b, dirs});
+            stack.push_back({a.right, top.b, dirs});
+        } else {
+            stack.push_back({top.a, b.left, dirs});
+            stack.push_back({top.a, b.right, dirs});
+        }
+    }
+}
+
 // Each vertex of sa against its closest triangle of sb within reach (found by descend), in
 // vertex order. For self-collision only a vertex outside the surface it faces is a contact.
 template <bool Self>
 void closest_triangles(const CollisionSurface& sa, const CollisionSurface& sb, const SelfExclusions* skip, double reach, ClosestTriangles& closest,
                        std::vector<std::uint64_t>* edge_pairs) {
     closest.start(sa.n_vertices());
-    if (!sa.bvh.empty() && !sb.bvh.empty()) descend<Self>(sa, sb, skip, reach, closest, edge_pairs);
+    if (!sa.bvh.empty() && !sb.bvh.empty()) {
+        if (Self)
+            descend_self(sa, skip, reach, closest);
+        else
+            descend(sa, sb, reach, closest, edge_pairs);
+    }
     for (int v : sa.loose_vertices)  // on no triangle, so in no leaf: one query each
         if (!sb.bvh.empty()) {
             Aabb query;
@@ -295,6 +363,13 @@ void edge_against_edge(const CollisionSurface& sa, int body_a, int ea, const Vec
     const Vec3& p1 = sa.x[sa.edges[ea][1]];
     const Vec3& q0 = sb.x[sb.edges[eb][0]];
     const Vec3& q1 = sb.x[sb.edges[eb][1]];
+    // Edges whose boxes are apart by more than the reach on some axis are too far: most of
+    // the edges of a triangle near ea are. The slack (1e-9 m, far above rounding) keeps every
+    // pair whose rounded distance could still fall below the reach.
+    const double gap = reach + 1e-9;
+    for (int k = 0; k < 3; ++k)
+        if (std::min(p0[k], p1[k]) - std::max(q0[k], q1[k]) > gap || std::min(q0[k], q1[k]) - std::max(p0[k], p1[k]) > gap)
+            return;
     double s, u;
     closest_between_segments(p0, p1, q0, q1, s, u);
     if (s <= 1e-6 || s >= 1 - 1e-6 || u <= 1e-6 || u >= 1 - 1e-6) return;
