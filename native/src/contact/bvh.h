@@ -37,6 +37,29 @@ public:
     std::vector<Aabb>& rank_boxes() { return rank_boxes_; }
     const std::vector<Aabb>& rank_boxes() const { return rank_boxes_; }
     void refit_nodes(double margin);
+    // Refit with the tight box of the item of rank r given by box_of_rank(r), computed leaf by
+    // leaf as the sweep reaches it: the boxes are written in order, never scattered.
+    template <class BoxOfRank>
+    void refit_ranks(double margin, BoxOfRank&& box_of_rank) {
+        margin_ = margin;
+        for (int i = static_cast<int>(nodes_.size()) - 1; i >= 0; --i) {
+            Node& n = nodes_[i];
+            if (n.leaf()) {
+                Vec3 lo = Vec3::Constant(1e300), hi = Vec3::Constant(-1e300);
+                for (int r = n.begin; r < n.end; ++r) {
+                    const Aabb box = box_of_rank(r);
+                    rank_boxes_[r] = box;
+                    lo = lo.cwiseMin(box.lo);
+                    hi = hi.cwiseMax(box.hi);
+                }
+                n.lo = lo;
+                n.hi = hi;
+            } else {
+                n.lo = nodes_[n.left].lo.cwiseMin(nodes_[n.right].lo);
+                n.hi = nodes_[n.left].hi.cwiseMax(nodes_[n.right].hi);
+            }
+        }
+    }
 
     // Calls visit(item) for every item whose inflated box overlaps query, in rank order.
     template <class Visit>

@@ -92,10 +92,6 @@ void update_surface(CollisionSurface& s, const std::vector<Vec3>& points, double
         s.x[v] = p;
         s.vertex_normal[v].setZero();
     }
-    const bool build = s.bvh.empty() && !s.triangles.empty();
-    std::vector<Aabb> first_boxes;  // by triangle, only to build the tree
-    if (build) first_boxes.resize(s.triangles.size());
-    std::vector<Aabb>& rank_boxes = s.bvh.rank_boxes();
     // in triangle order: the vertex normals are sums over their triangles in this order
     for (size_t t = 0; t < s.triangles.size(); ++t) {
         const auto& tri = s.triangles[t];
@@ -103,22 +99,23 @@ void update_surface(CollisionSurface& s, const std::vector<Vec3>& points, double
         const double len = area2.norm();
         s.triangle_normal[t] = len > 0 ? Vec3(area2 / len) : Vec3::Zero();
         for (int k = 0; k < 3; ++k) s.vertex_normal[tri[k]] += area2;
-        Aabb box;
-        for (int k = 0; k < 3; ++k) box.grow(s.x[tri[k]]);
-        if (build)
-            first_boxes[t] = box;
-        else
-            rank_boxes[s.bvh.rank_of(static_cast<int>(t))] = box;
     }
     for (auto& n : s.vertex_normal) {
         const double len = n.norm();
         if (len > 0) n /= len;
     }
-    if (build) {
-        s.bvh.build(first_boxes, margin);
+    auto triangle_box = [&](const Eigen::Vector3i& tri) {
+        Aabb box;
+        for (int k = 0; k < 3; ++k) box.grow(s.x[tri[k]]);
+        return box;
+    };
+    if (!s.bvh.empty()) {
+        s.bvh.refit_ranks(margin, [&](int r) { return triangle_box(s.rank_triangles[r]); });
+    } else if (!s.triangles.empty()) {
+        std::vector<Aabb> boxes(s.triangles.size());
+        for (size_t t = 0; t < s.triangles.size(); ++t) boxes[t] = triangle_box(s.triangles[t]);
+        s.bvh.build(boxes, margin);
         assign_to_leaves(s);
-    } else if (!s.bvh.empty()) {
-        s.bvh.refit_nodes(margin);
     }
 }
 
