@@ -15,6 +15,8 @@ Usage:
   .venv/bin/python bench/bench_detection.py --old build/h_detect_old/libhaptic_hand.so \\
       --new build/h_detect/libhaptic_hand.so [--cases paper_bunny_1700,10x_bunny] [--frames N] [--rounds R]
 
+  .venv/bin/python bench/bench_detection.py --samples   # the stored sample scenes, bit for bit
+
 Cases: paper_bunny_350, paper_bunny_1700, paper_letters_350, paper_letters_1700, 10x_bunny,
 10x_letters (default: paper_bunny_1700, paper_letters_1700, 10x_bunny, 10x_letters).
 """
@@ -32,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+SCENES = REPO / "addon" / "engine" / "sample_scenes"
 WARMUP = 2  # frames left out of the timings (first contacts, caches)
 DEFAULT_CASES = "paper_bunny_1700,paper_letters_1700,10x_bunny,10x_letters"
 DEFAULT_FRAMES = {"paper": 150, "10x": 20}
@@ -153,6 +156,40 @@ def dump(case: str, frames: int, path: str) -> None:
     print(f"wrote {path}: {len(surfaces)} surfaces, {len(snaps)} frames")
 
 
+def compare_samples(old: str, new: str, names: list[str]) -> bool:
+    """The stored sample scenes through `python -m haptic_hand simulate` with both libraries:
+    every recorded array (hand and body positions, handle and device poses, coupling wrench,
+    contact statistics, iterations) must be bit-identical; only timings and the haptic thread's
+    log (real time) may differ."""
+    import tempfile
+
+    ok = True
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in names:
+            out = {}
+            for which, lib in (("old", old), ("new", new)):
+                path = Path(tmp) / f"{which}_{name}.npz"
+                env = dict(os.environ, HAPTIC_HAND_LIB=str(Path(lib).resolve()))
+                res = subprocess.run([sys.executable, "-m", "haptic_hand", "simulate", str(SCENES / f"{name}.json"),
+                                      "--out", str(path), "--quiet"], env=env, capture_output=True, text=True)
+                if res.returncode != 0:
+                    sys.exit(f"{name} with {lib} failed:\n{res.stderr}")
+                out[which] = np.load(path)
+            a, b = out["old"], out["new"]
+            keys = [k for k in a.files if a[k].dtype.kind in "fiub" and not k.startswith("haptic")
+                    and "timing" not in k]
+            differ = [k for k in keys if k not in b.files or a[k].shape != b[k].shape
+                      or not np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f")]
+            stats = a["contact_stats"]
+            fields = list(a["contact_fields"])
+            print(f"{name:15} {len(keys):3d} arrays compared, {len(a['time']) - 1} frames, up to "
+                  f"{int(stats[:, fields.index('contacts')].max())} contacts "
+                  f"({int(stats[:, fields.index('self_contacts')].max())} self): "
+                  f"{'identical' if not differ else 'DIFFERENT: ' + ', '.join(differ)}", flush=True)
+            ok = ok and not differ
+    return ok
+
+
 def run(lib: str, case: str, frames: int) -> dict:
     env = dict(os.environ, HAPTIC_HAND_LIB=str(Path(lib).resolve()))
     res = subprocess.run([sys.executable, __file__, "--child", case, "--frames", str(frames)], env=env,
@@ -188,7 +225,12 @@ def main() -> None:
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--dump", default=None, metavar="FILE",
                     help="only write the first case's surfaces and points for native/tests/test_contact_detection")
+    ap.add_argument("--samples", nargs="?", const="bunny_press,finger_squeeze,hand_wave,letters_push", default=None,
+                    help="only compare the stored sample scenes run by `haptic_hand simulate` with both libraries "
+                         "(default: all four)")
     args = ap.parse_args()
+    if args.samples:
+        sys.exit(0 if compare_samples(args.old, args.new, args.samples.split(",")) else 1)
     if args.dump:
         dump(args.cases.split(",")[0], args.frames or DEFAULT_FRAMES[parse_case(args.cases.split(",")[0])[1]],
              args.dump)
