@@ -162,6 +162,16 @@ struct NormalBounds {
     }
 };
 
+// Where the one-query-per-edge detection met an edge-edge contact: edge ea of a, then the
+// rank of the first triangle of b (in rank order) overlapping ea's box that has edge eb,
+// then eb's place in that triangle. Contacts are sorted by it.
+struct EdgeKey {
+    int ea, rank, k;
+    bool operator<(const EdgeKey& o) const {
+        return ea != o.ea ? ea < o.ea : rank != o.rank ? rank < o.rank : k < o.k;
+    }
+};
+
 // A pair of nodes to visit, and which directions are still open (descend_self).
 struct Visit {
     int a, b, dirs;
@@ -172,9 +182,7 @@ struct Scratch {
     ClosestTriangles closest[2];
     NormalBounds normals;
     std::vector<Visit> stack;
-    std::vector<std::uint64_t> edge_pairs;  // (edge of a) << 32 | (rank of a triangle of b)
-    std::vector<unsigned> edge_stamp;
-    unsigned edge_epoch = 0;
+    std::vector<std::pair<EdgeKey, Contact>> edge_found;
 };
 thread_local Scratch scratch;
 
@@ -203,6 +211,46 @@ inline void vertex_against_triangle(const CollisionSurface& sa, int v, const Col
     closest.offer(v, r, dist, w, q);
 }
 
+// Edge ea of sa against edge eb of sb: a contact when the closest points are inside both
+// edges (the other configurations are vertex-triangle contacts), within reach, and the edges
+// face each other.
+bool edge_against_edge(const CollisionSurface& sa, int body_a, int ea, const Vec3& na, const CollisionSurface& sb,
+                       int body_b, int eb, double reach, Contact& c) {
+    const Vec3& p0 = sa.x[sa.edges[ea][0]];
+    const Vec3& p1 = sa.x[sa.edges[ea][1]];
+    const Vec3& q0 = sb.x[sb.edges[eb][0]];
+    const Vec3& q1 = sb.x[sb.edges[eb][1]];
+    // Edges whose boxes are apart by more than the reach on some axis are too far: most of
+    // the edges of a triangle near ea are. The slack (1e-9 m, far above rounding) keeps every
+    // pair whose rounded distance could still fall below the reach.
+    const double gap = reach + 1e-9;
+    for (int k = 0; k < 3; ++k)
+        if (std::min(p0[k], p1[k]) - std::max(q0[k], q1[k]) > gap || std::min(q0[k], q1[k]) - std::max(p0[k], p1[k]) > gap)
+            return false;
+    double s, u;
+    closest_between_segments(p0, p1, q0, q1, s, u);
+    if (s <= 1e-6 || s >= 1 - 1e-6 || u <= 1e-6 || u >= 1 - 1e-6) return false;
+    const Vec3 pa = p0 + s * (p1 - p0), pb = q0 + u * (q1 - q0);
+    const Vec3 d = pa - pb;
+    const double dist = d.norm();
+    if (dist >= reach || dist < 1e-12) return false;
+    const Vec3 n = d / dist;
+    // separated edges face each other: a's surface looks along -n, b's along +n
+    if (na.dot(n) >= 0 || edge_normal_at(sb, eb).dot(n) <= 0) return false;
+    c = make_contact(body_a, body_b, n, dist, pb);
+    c.a.count = 2;
+    c.a.vertex[0] = sa.edges[ea][0];
+    c.a.vertex[1] = sa.edges[ea][1];
+    c.a.weight[0] = 1 - s;
+    c.a.weight[1] = s;
+    c.b.count = 2;
+    c.b.vertex[0] = sb.edges[eb][0];
+    c.b.vertex[1] = sb.edges[eb][1];
+    c.b.weight[0] = 1 - u;
+    c.b.weight[1] = u;
+    return true;
+}
+
 // A's vertices in leaf ia against b's triangles in leaf ib.
 template <bool Self>
 inline void leaf_vertices(const CollisionSurface& sa, int ia, const CollisionSurface& sb, int ib,
@@ -216,11 +264,45 @@ inline void leaf_vertices(const CollisionSurface& sa, int ia, const CollisionSur
     }
 }
 
+// a's edges in leaf ia against the edges of b's triangles in leaf ib. The one-query-per-edge
+// detection tested each edge eb of b once per edge ea of a, when it met the first triangle
+// (by rank) having eb whose box overlaps ea's: here too, through that triangle only, so a
+// contact comes out once and with the key that puts it where it was.
+void leaf_edges(const CollisionSurface& sa, int body_a, int ia, const CollisionSurface& sb, int body_b, int ib,
+                double reach) {
+    const Bvh::Node& b = sb.bvh.nodes()[ib];
+    const auto& boxes = sb.bvh.rank_boxes();
+    Contact c;
+    for (int k = sa.leaf_edge_begin[ia]; k < sa.leaf_edge_begin[ia + 1]; ++k) {
+        const int ea = sa.leaf_edge[k];
+        const Vec3& p0 = sa.x[sa.edges[ea][0]];
+        const Vec3& p1 = sa.x[sa.edges[ea][1]];
+        const Vec3 lo = p0.cwiseMin(p1), hi = p0.cwiseMax(p1);
+        if (!sb.bvh.overlaps_inflated(lo, hi, b.lo, b.hi)) continue;
+        for (int r = b.begin; r < b.end; ++r) {
+            if (!sb.bvh.overlaps_inflated(lo, hi, boxes[r].lo, boxes[r].hi)) continue;
+            const int t = sb.bvh.order()[r];
+            for (int j = 0; j < 3; ++j) {
+                const int eb = sb.triangle_edges[t][j];
+                bool first = true;  // no lower-ranked triangle of eb overlaps ea's box
+                for (int m = sb.edge_rank_begin[eb]; m < sb.edge_rank_begin[eb + 1] && sb.edge_ranks[m] < r; ++m)
+                    if (sb.bvh.overlaps_inflated(lo, hi, boxes[sb.edge_ranks[m]].lo, boxes[sb.edge_ranks[m]].hi)) {
+                        first = false;
+                        break;
+                    }
+                if (!first) continue;
+                if (edge_against_edge(sa, body_a, ea, edge_normal_at(sa, ea), sb, body_b, eb, reach, c))
+                    scratch.edge_found.emplace_back(EdgeKey{ea, r, j}, c);
+            }
+        }
+    }
+}
+
 // Both trees descended together from their roots: a pair of nodes is opened only if the box
 // of a's node (tight: the vertices and edges it carries are inside) overlaps b's inflated
 // box; at a pair of leaves a's vertices and edges meet b's triangles.
-void descend(const CollisionSurface& sa, const CollisionSurface& sb, double reach, ClosestTriangles& closest,
-             std::vector<std::uint64_t>* edge_pairs) {
+void descend(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b, double reach,
+             ClosestTriangles& closest, bool edges) {
     const auto& na = sa.bvh.nodes();
     const auto& nb = sb.bvh.nodes();
     auto& stack = scratch.stack;
@@ -244,19 +326,7 @@ void descend(const CollisionSurface& sa, const CollisionSurface& sb, double reac
             continue;
         }
         leaf_vertices<false>(sa, top.a, sb, top.b, nullptr, reach, closest);
-        if (!edge_pairs) continue;
-        for (int k = sa.leaf_edge_begin[top.a]; k < sa.leaf_edge_begin[top.a + 1]; ++k) {
-            const int e = sa.leaf_edge[k];
-            const Vec3& p0 = sa.x[sa.edges[e][0]];
-            const Vec3& p1 = sa.x[sa.edges[e][1]];
-            const Vec3 lo = p0.cwiseMin(p1), hi = p0.cwiseMax(p1);
-            if (!sb.bvh.overlaps_inflated(lo, hi, b.lo, b.hi)) continue;
-            for (int r = b.begin; r < b.end; ++r) {
-                const Aabb& box = sb.bvh.rank_boxes()[r];
-                if (sb.bvh.overlaps_inflated(lo, hi, box.lo, box.hi))
-                    edge_pairs->push_back((static_cast<std::uint64_t>(e) << 32) | static_cast<std::uint32_t>(r));
-            }
-        }
+        if (edges) leaf_edges(sa, body_a, top.a, sb, body_b, top.b, reach);
     }
 }
 
@@ -309,14 +379,14 @@ void descend_self(const CollisionSurface& s, const SelfExclusions* skip, double 
 // Each vertex of sa against its closest triangle of sb within reach (found by descend), in
 // vertex order. For self-collision only a vertex outside the surface it faces is a contact.
 template <bool Self>
-void closest_triangles(const CollisionSurface& sa, const CollisionSurface& sb, const SelfExclusions* skip, double reach, ClosestTriangles& closest,
-                       std::vector<std::uint64_t>* edge_pairs) {
+void closest_triangles(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,
+                       const SelfExclusions* skip, double reach, ClosestTriangles& closest, bool edges) {
     closest.start(sa.n_vertices());
     if (!sa.bvh.empty() && !sb.bvh.empty()) {
         if (Self)
             descend_self(sa, skip, reach, closest);
         else
-            descend(sa, sb, reach, closest, edge_pairs);
+            descend(sa, body_a, sb, body_b, reach, closest, edges);
     }
     for (int v : sa.loose_vertices)  // on no triangle, so in no leaf: one query each
         if (!sb.bvh.empty()) {
@@ -354,81 +424,11 @@ void vertex_contacts(const CollisionSurface& sa, int body_a, const CollisionSurf
     }
 }
 
-// Edge ea of sa against edge eb of sb: a contact when the closest points are inside both
-// edges (the other configurations are vertex-triangle contacts), within reach, and the edges
-// face each other.
-void edge_against_edge(const CollisionSurface& sa, int body_a, int ea, const Vec3& na, const CollisionSurface& sb,
-                       int body_b, int eb, double reach, std::vector<Contact>& out) {
-    const Vec3& p0 = sa.x[sa.edges[ea][0]];
-    const Vec3& p1 = sa.x[sa.edges[ea][1]];
-    const Vec3& q0 = sb.x[sb.edges[eb][0]];
-    const Vec3& q1 = sb.x[sb.edges[eb][1]];
-    // Edges whose boxes are apart by more than the reach on some axis are too far: most of
-    // the edges of a triangle near ea are. The slack (1e-9 m, far above rounding) keeps every
-    // pair whose rounded distance could still fall below the reach.
-    const double gap = reach + 1e-9;
-    for (int k = 0; k < 3; ++k)
-        if (std::min(p0[k], p1[k]) - std::max(q0[k], q1[k]) > gap || std::min(q0[k], q1[k]) - std::max(p0[k], p1[k]) > gap)
-            return;
-    double s, u;
-    closest_between_segments(p0, p1, q0, q1, s, u);
-    if (s <= 1e-6 || s >= 1 - 1e-6 || u <= 1e-6 || u >= 1 - 1e-6) return;
-    const Vec3 pa = p0 + s * (p1 - p0), pb = q0 + u * (q1 - q0);
-    const Vec3 d = pa - pb;
-    const double dist = d.norm();
-    if (dist >= reach || dist < 1e-12) return;
-    const Vec3 n = d / dist;
-    // separated edges face each other: a's surface looks along -n, b's along +n
-    if (na.dot(n) >= 0 || edge_normal_at(sb, eb).dot(n) <= 0) return;
-    Contact c = make_contact(body_a, body_b, n, dist, pb);
-    c.a.count = 2;
-    c.a.vertex[0] = sa.edges[ea][0];
-    c.a.vertex[1] = sa.edges[ea][1];
-    c.a.weight[0] = 1 - s;
-    c.a.weight[1] = s;
-    c.b.count = 2;
-    c.b.vertex[0] = sb.edges[eb][0];
-    c.b.vertex[1] = sb.edges[eb][1];
-    c.b.weight[0] = 1 - u;
-    c.b.weight[1] = u;
-    out.push_back(c);
-}
-
-// The (edge of sa, triangle of sb) pairs whose boxes overlap, in the order the one-query-per-
-// edge detection met them: by edge, then by triangle rank, each edge of sb once per edge of
-// sa (the first triangle that brings it).
-void edge_contacts(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b, double reach,
-                   std::vector<std::uint64_t>& pairs, std::vector<Contact>& out) {
-    std::sort(pairs.begin(), pairs.end());
-    auto& stamp = scratch.edge_stamp;
-    if (stamp.size() < sb.edges.size()) stamp.resize(sb.edges.size(), 0);
-    int current = -1;
-    Vec3 na;
-    for (const std::uint64_t key : pairs) {
-        const int ea = static_cast<int>(key >> 32), r = static_cast<int>(key & 0xffffffffu);
-        if (ea != current) {
-            current = ea;
-            na = edge_normal_at(sa, ea);
-            if (++scratch.edge_epoch == 0) {
-                std::fill(stamp.begin(), stamp.end(), 0u);
-                scratch.edge_epoch = 1;
-            }
-        }
-        const int t = sb.bvh.order()[r];
-        for (int k = 0; k < 3; ++k) {
-            const int eb = sb.triangle_edges[t][k];
-            if (stamp[eb] == scratch.edge_epoch) continue;
-            stamp[eb] = scratch.edge_epoch;
-            edge_against_edge(sa, body_a, ea, na, sb, body_b, eb, reach, out);
-        }
-    }
-}
-
 // Edges against edges within one surface, one query per edge, recording the pairs found:
 // only for the exclusions at rest (once per body), so kept simple.
 void rest_edge_pairs(const CollisionSurface& s, double reach, SelfExclusions& record) {
     std::vector<int> stamp(s.edges.size(), -1);
-    std::vector<Contact> found;
+    Contact found;
     for (size_t ea = 0; ea < s.edges.size(); ++ea) {
         const Vec3& p0 = s.x[s.edges[ea][0]];
         const Vec3& p1 = s.x[s.edges[ea][1]];
@@ -448,9 +448,7 @@ void rest_edge_pairs(const CollisionSurface& s, double reach, SelfExclusions& re
                 if (static_cast<int>(ea) >= eb || s.edges[ea][0] == s.edges[eb][0] || s.edges[ea][0] == s.edges[eb][1] ||
                     s.edges[ea][1] == s.edges[eb][0] || s.edges[ea][1] == s.edges[eb][1])
                     continue;
-                found.clear();
-                edge_against_edge(s, -1, static_cast<int>(ea), na, s, -1, eb, reach, found);
-                if (!found.empty()) record.edge_edge.insert(SelfExclusions::key(static_cast<int>(ea), eb));
+                if (edge_against_edge(s, -1, static_cast<int>(ea), na, s, -1, eb, reach, found)) record.edge_edge.insert(SelfExclusions::key(static_cast<int>(ea), eb));
             }
         });
     }
@@ -484,13 +482,14 @@ void detect_pair(const CollisionSurface& sa, int body_a, const CollisionSurface&
     if (!sa.bvh.empty() && !sb.bvh.empty() && !sa.bvh.bounds().overlaps(sb.bvh.bounds())) return;
     const double reach = settings.distance;
     // a's vertices and edges against b's triangles in one descent, then b's vertices against a's
-    auto& pairs = scratch.edge_pairs;
-    pairs.clear();
-    closest_triangles<false>(sa, sb, nullptr, reach, scratch.closest[0], &pairs);
-    closest_triangles<false>(sb, sa, nullptr, reach, scratch.closest[1], nullptr);
+    auto& edges = scratch.edge_found;
+    edges.clear();
+    closest_triangles<false>(sa, body_a, sb, body_b, nullptr, reach, scratch.closest[0], true);
+    closest_triangles<false>(sb, body_b, sa, body_a, nullptr, reach, scratch.closest[1], false);
     vertex_contacts(sa, body_a, sb, body_b, false, scratch.closest[0], out);
     vertex_contacts(sb, body_b, sa, body_a, false, scratch.closest[1], out);
-    edge_contacts(sa, body_a, sb, body_b, reach, pairs, out);
+    std::sort(edges.begin(), edges.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+    for (const auto& e : edges) out.push_back(e.second);
 }
 
 void detect_self(const CollisionSurface& s, int body, const DetectionSettings& settings, const SelfExclusions* skip,
@@ -500,7 +499,7 @@ void detect_self(const CollisionSurface& s, int body, const DetectionSettings& s
     // made the contact problem ill-conditioned (measured: squeezed fingers blew up). Between a
     // vertex and a facing triangle, both directions are found, which covers finger contact.
     if (!s.bvh.empty()) scratch.normals.compute(s);
-    closest_triangles<true>(s, s, skip, settings.distance, scratch.closest[0], nullptr);
+    closest_triangles<true>(s, body, s, body, skip, settings.distance, scratch.closest[0], false);
     vertex_contacts(s, body, s, body, true, scratch.closest[0], out);
 }
 

@@ -79,6 +79,15 @@ void assign_to_leaves(CollisionSurface& s) {
         if (s.vertex_triangles[v].empty()) s.loose_vertices.push_back(v);
     s.rank_triangles.resize(s.triangles.size());
     for (int r = 0; r < s.bvh.n_items(); ++r) s.rank_triangles[r] = s.triangles[s.bvh.order()[r]];
+    const int n_edges = static_cast<int>(s.edges.size());
+    s.edge_rank_begin.assign(n_edges + 1, 0);
+    for (int r = 0; r < s.bvh.n_items(); ++r)
+        for (int k = 0; k < 3; ++k) ++s.edge_rank_begin[s.triangle_edges[s.bvh.order()[r]][k] + 1];
+    for (int e = 0; e < n_edges; ++e) s.edge_rank_begin[e + 1] += s.edge_rank_begin[e];
+    s.edge_ranks.assign(s.edge_rank_begin[n_edges], 0);
+    std::vector<int> fill(s.edge_rank_begin.begin(), s.edge_rank_begin.end() - 1);
+    for (int r = 0; r < s.bvh.n_items(); ++r)  // ranks ascending, so each list is sorted
+        for (int k = 0; k < 3; ++k) s.edge_ranks[fill[s.triangle_edges[s.bvh.order()[r]][k]]++] = r;
 }
 
 }  // namespace

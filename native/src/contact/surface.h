@@ -32,6 +32,9 @@ struct CollisionSurface {
     std::vector<Eigen::Vector3i> rank_triangles;
     std::vector<int> leaf_vertex_begin, leaf_vertex, leaf_edge_begin, leaf_edge;
     std::vector<int> loose_vertices;  // on no triangle: queried one by one
+    // the ranks of the triangles having each edge, ascending: edge_ranks[edge_rank_begin[e] ..
+    // edge_rank_begin[e + 1])
+    std::vector<int> edge_rank_begin, edge_ranks;
 
     int n_vertices() const { return static_cast<int>(nodes.size()); }
 };
