@@ -258,6 +258,7 @@ def main() -> None:
             t = np.min([[r["t_detection"] for r in run_["records"][WARMUP:]] for run_ in rs], axis=0)
             stats[which] = {"mean": t.mean(), "median": np.median(t), "p95": np.percentile(t, 95)}
         diffs = [d for r in runs["old"] + runs["new"][1:] for d in same_physics(runs["new"][0], r)]
+        frames = len(runs["new"][0]["records"])
         results[case] = {"frames": frames, "stats": stats, "diffs": diffs[:20],
                          "contacts_mean": float(np.mean([r["contacts"] for r in runs["new"][0]["records"]]))}
         fmt = lambda s: f"{1e3 * s['mean']:6.2f}/{1e3 * s['median']:6.2f}/{1e3 * s['p95']:6.2f}"  # noqa: E731
