@@ -46,11 +46,12 @@ def parse_case(case: str) -> tuple[str, str, int]:
     return scene, scale, int(size[0]) if size else 17000
 
 
-def child(case: str, frames: int) -> None:
-    """Runs in a fresh process with HAPTIC_HAND_LIB set: the case's loop, records as JSON."""
+def build_case(case: str):
+    """The benchmark scene of a case (bench_visual's meshes and settings), its World and its
+    scripted inputs."""
     sys.path.insert(0, str(Path(__file__).parent))
     import bench_visual as bv
-    from haptic_hand.engine import native_world, simulate
+    from haptic_hand.engine import simulate
 
     scene_name, scale, n = parse_case(case)
     hand = bv.hand_mesh(n, False)
@@ -58,7 +59,14 @@ def child(case: str, frames: int) -> None:
     letters = {ch: bv.letter_10x_mesh(ch, False) for ch in "HAPTIC"} if scale == "10x" and bunny is None else None
     scene, _, _ = bv.prepare_scene(scene_name, scale, hand, letters, bunny)
     world, hand_id, model, others, _ = simulate.build_world(scene)
-    inputs = simulate.ScriptedInputs(scene, world, hand_id, model, others)
+    return scene, world, hand_id, others, simulate.ScriptedInputs(scene, world, hand_id, model, others)
+
+
+def child(case: str, frames: int) -> None:
+    """Runs in a fresh process with HAPTIC_HAND_LIB set: the case's loop, records as JSON."""
+    from haptic_hand.engine import native_world
+
+    scene, world, hand_id, others, inputs = build_case(case)
     records = []
     for k in range(min(frames, scene.frames)):
         inputs.apply((k + 1) * scene.dt, scene.dt)
@@ -83,9 +91,7 @@ def dump(case: str, frames: int, path: str) -> None:
     per body int32 vertices, triangles, points, dynamic, self_collision, then int32 nodes[v][4],
     float64 weights[v][4], int32 triangles[t][3]; int32 thickness-free frame count, per frame
     float64 reach and per body float64 points[p][3]. Frame 0 is the rest configuration."""
-    sys.path.insert(0, str(Path(__file__).parent))
-    import bench_visual as bv
-    from haptic_hand.engine import native_world, simulate
+    from haptic_hand.engine import native_world
 
     surfaces = []  # (body index, nodes, weights, faces, dynamic, self_collision) in the order added
     W = native_world.World
@@ -112,13 +118,7 @@ def dump(case: str, frames: int, path: str) -> None:
         return i
 
     W.add_hand, W.add_soft_body, W.add_mesh_body = hand_, soft_, mesh_
-    scene_name, scale, n = parse_case(case)
-    hand = bv.hand_mesh(n, False)
-    bunny = bv.bunny_mesh(271 if scale == "paper" else 2710, False) if scene_name == "bunny_press" else None
-    letters = {ch: bv.letter_10x_mesh(ch, False) for ch in "HAPTIC"} if scale == "10x" and bunny is None else None
-    scene, _, _ = bv.prepare_scene(scene_name, scale, hand, letters, bunny)
-    world, hand_id, model, others, _ = simulate.build_world(scene)
-    inputs = simulate.ScriptedInputs(scene, world, hand_id, model, others)
+    scene, world, hand_id, others, inputs = build_case(case)
     thickness = float(scene.data["contact"]["thickness"])
 
     def points():
