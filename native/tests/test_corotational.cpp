@@ -1,11 +1,15 @@
 // Co-rotational elasticity: invariance to rigid motion, agreement with linear FEM for small
 // strains, symmetric element stiffness, lumped masses that add up to the body's mass.
+#include <algorithm>
+#include <array>
+#include <map>
 #include <random>
 
 #include "box_mesh.h"
 #include "check.h"
 #include "common/simd.h"
 #include "fem/corotational.h"
+#include "fem/element_order.h"
 #include "rigid/quaternion.h"
 
 using namespace hh;
@@ -165,6 +169,64 @@ TEST(fused_assembly_equals_forces_plus_warped_stiffness) {
     }
     }
     simd_level_override() = -1;
+}
+
+TEST(spatial_element_order_keeps_every_element_and_the_forces) {
+    // order_elements_spatially permutes the elements with their data: the same tets (as node
+    // sets) with the same volumes and rest inverses, consecutive elements mostly sharing nodes,
+    // and the assembled forces and matrix equal to the user's order up to summation round-off
+    // the user's order: the box's tets shuffled (a tetrahedralizer's order is far from local)
+    TetMesh user = to_mesh(make_box(6, 4, 3, 0.01));
+    std::mt19937 shuffle_rng(7);
+    std::shuffle(user.tets.begin(), user.tets.end(), shuffle_rng);
+    const CorotationalElements user_el = precompute_elements(user, flesh);
+    TetMesh sorted = user;
+    CorotationalElements sorted_el = user_el;
+    order_elements_spatially(sorted, sorted_el);
+    CHECK(sorted.tets.size() == user.tets.size());
+    std::map<std::array<int, 4>, size_t> where;
+    for (size_t e = 0; e < user.tets.size(); ++e) {
+        std::array<int, 4> key{user.tets[e][0], user.tets[e][1], user.tets[e][2], user.tets[e][3]};
+        where[key] = e;
+    }
+    int shared = 0;
+    for (size_t e = 0; e < sorted.tets.size(); ++e) {
+        std::array<int, 4> key{sorted.tets[e][0], sorted.tets[e][1], sorted.tets[e][2], sorted.tets[e][3]};
+        const auto it = where.find(key);
+        CHECK(it != where.end());
+        if (it == where.end()) continue;
+        CHECK(sorted_el.volume[e] == user_el.volume[it->second]);
+        CHECK((sorted_el.rest_inverse[e] - user_el.rest_inverse[it->second]).cwiseAbs().maxCoeff() == 0);
+        where.erase(it);  // each user element used once
+        if (e > 0) {
+            bool any = false;
+            for (int a = 0; a < 4; ++a)
+                for (int b = 0; b < 4; ++b) any = any || sorted.tets[e][a] == sorted.tets[e - 1][b];
+            shared += any;
+        }
+    }
+    CHECK(where.empty());
+    int shared_user = 0;  // the same count in the shuffled order
+    for (size_t e = 1; e < user.tets.size(); ++e) {
+        bool any = false;
+        for (int a = 0; a < 4; ++a)
+            for (int b = 0; b < 4; ++b) any = any || user.tets[e][a] == user.tets[e - 1][b];
+        shared_user += any;
+    }
+    // along the Morton curve most neighbours in the order are neighbours in space
+    CHECK_LT(0.75 * (sorted.tets.size() - 1), static_cast<double>(shared));
+    CHECK_LT(2.0 * shared_user, static_cast<double>(shared));
+    const StiffnessPattern pu = build_stiffness_pattern(user), ps = build_stiffness_pattern(sorted);
+    const Mat3 r = quat_to_matrix(quat_from_rotation_vector(Vec3(0.4, -0.2, 0.3)));
+    VecX x(user.rest.size());
+    for (int i = 0; i < user.n_nodes; ++i) x.segment<3>(3 * i) = r * (1.1 * user.rest.segment<3>(3 * i));
+    VecX fu = VecX::Zero(x.size()), fs = VecX::Zero(x.size());
+    SpMat ku = pu.matrix, ks = ps.matrix;
+    ElementRotations ru, rs;
+    assemble_corotational(user, user_el, x, fu, ru, pu, 0.5, ku.valuePtr());
+    assemble_corotational(sorted, sorted_el, x, fs, rs, ps, 0.5, ks.valuePtr());
+    CHECK_LT((fu - fs).cwiseAbs().maxCoeff() / fu.cwiseAbs().maxCoeff(), 1e-12);
+    CHECK_LT((MatX(ku) - MatX(ks)).cwiseAbs().maxCoeff() / MatX(ku).cwiseAbs().maxCoeff(), 1e-12);
 }
 
 TEST(polar_rotation_is_the_rotation_of_the_polar_decomposition) {
