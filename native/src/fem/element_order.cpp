@@ -44,7 +44,8 @@ void order_elements_spatially(TetMesh& mesh, CorotationalElements& elements) {
     for (size_t e = 0; e < m; ++e) key[e] = morton((centroid[e] - lo).cwiseQuotient(extent));
     std::vector<size_t> order(m);
     std::iota(order.begin(), order.end(), 0);
-    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) { return key[a] < key[b]; });
+    // ties (elements in one cell) keep the user's order: a deterministic order on any platform
+    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return key[a] < key[b] || (key[a] == key[b] && a < b); });
     permute(mesh.tets, order);
     permute(elements.rest_inverse, order);
     permute(elements.volume, order);
