@@ -29,8 +29,8 @@ extern "C" {
 #define HH_SOLVER_CHOLESKY 0 /* sparse Cholesky of At, factored once per step, 8 solves */
 #define HH_SOLVER_CG 1       /* Jacobi-preconditioned conjugate gradient, warm started */
 /* The factor of an earlier step's At, rotated by each node's rotation since, preconditions CG
- * (warm started, relative residual min(cg_tolerance, 1e-10)); renewed when that lowers the
- * mean cost per step. For large meshes (docs/maths.md, "Schur-complement solve"). */
+ * (warm started, to the relative residual cg_tolerance); renewed when that lowers the mean cost
+ * per step. For large meshes (docs/maths.md, "Schur-complement solve"). */
 #define HH_SOLVER_REUSED_CHOLESKY 2
 
 #define HH_API_VERSION 1

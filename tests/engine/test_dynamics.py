@@ -45,7 +45,7 @@ def test_schur_equals_monolithic(rig_name, solver, tol, request):
 def test_schur_step_equals_monolithic_step(procedural_rig, solver):
     """Whole steps, not only one solve: ten Schur steps and ten monolithic steps from the same
     state end in the same state (reused_cholesky: steps on an earlier step's factor, CG to 1e-10)."""
-    model, a = make_sim(procedural_rig, solver=solver)
+    model, a = make_sim(procedural_rig, solver=solver, cg_tolerance=1e-10)
     b = native.HandSimulation(model)
     for sim in (a, b):
         perturb(sim, model, np.random.default_rng(5))

@@ -289,7 +289,7 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
     auto tol_of = [&](int col) {
         const int slot = first_slot + col;
         const double scale = slot < static_cast<int>(tolerance_scale.size()) ? tolerance_scale[slot] : 1.0;
-        return std::min(cg_tolerance, 1e-10) * scale;
+        return cg_tolerance * scale;
     };
     const std::vector<Mat3>* w = current_warp();
     bool single = cholesky.has_single();  // for one-lane passes (memory bound: half the traffic)

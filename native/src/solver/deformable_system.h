@@ -5,8 +5,8 @@
 // - ConjugateGradient: Jacobi-preconditioned CG, warm started from the previous solution of
 //   the same right-hand-side slot.
 // - ReusedCholesky: the block LDL^T factor of an earlier step's At, "warped" by each node's
-//   rotation since then, preconditions CG warm started per slot, to a relative residual of
-//   min(cg_tolerance, 1e-10) (the hand's Schur columns tighter, see set_tolerance_scale). The
+//   rotation since then, preconditions CG warm started per slot, to the relative residual
+//   cg_tolerance (the hand's Schur columns tighter, see set_tolerance_scale). The
 //   factor is renewed when a step's solves start to cost more than the average step since the
 //   last factorization (so the mean cost per step is close to its minimum), or at once when a
 //   solve needs reuse_iteration_limit iterations. Costs are counted in passes over the factor
@@ -38,7 +38,7 @@ public:
     DeformableSolver solver() const;
     // Warm-start slot for CG: the Schur solve uses slots 0-6 (b_t and the 6 columns of Ath).
     void select_slot(int slot);
-    // ReusedCholesky: the tolerance of a slot's solves is min(cg_tolerance, 1e-10) * scale
+    // ReusedCholesky: the tolerance of a slot's solves is cg_tolerance * scale
     // (default scale 1). The hand asks 1e-3 for the columns A_t^-1 Ath that form the Schur
     // complement, whose conditioning amplifies their error.
     void set_tolerance_scale(int slot, double scale);
