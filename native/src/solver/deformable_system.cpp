@@ -308,15 +308,18 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
     auto lane_norm_b = [&](int l) { return bnorm[lanes[l] - first]; };
     const size_t size = static_cast<size_t>(n3) * 8;
     for (std::vector<double>* v : {&nb, &nx, &nr, &nz, &np, &nq}) v->resize(size);
-    auto load = [&](int l, const double* from, std::vector<double>& to) {
-        for (int e = 0; e < n3; ++e) to[static_cast<size_t>(wd) * e + l] = from ? from[e] : 0.0;
+    // node-major loads, a whole row of lanes at a time (lane-by-lane strided writes touched a
+    // cache line per entry and lane)
+    auto load = [&](auto column_of, std::vector<double>& to) {
+        const double* from[8] = {};
+        for (int l = 0; l < wd; ++l)
+            if (lanes[l] >= 0) from[l] = column_of(lanes[l]);
+        for (int e = 0; e < n3; ++e)
+            for (int l = 0; l < wd; ++l) to[static_cast<size_t>(wd) * e + l] = from[l] ? from[l][e] : 0.0;
     };
-    for (int l = 0; l < wd; ++l) {
-        const int col = lanes[l];
-        load(l, col < 0 ? nullptr : b.col(col).data(), nb);
-        load(l, col < 0 ? nullptr : warm[first_slot + col].data(), nx);
-        load(l, col < 0 ? nullptr : warm2[first_slot + col].data(), np);
-    }
+    load([&](int col) { return b.col(col).data(); }, nb);
+    load([&](int col) { return warm[first_slot + col].data(); }, nx);
+    load([&](int col) { return warm2[first_slot + col].data(); }, np);
     // per-lane sums over node-major blocks
     auto lane_dot = [&](const std::vector<double>& u, const std::vector<double>& v, double* out) {
         hh::lane_dot(wd, u.data(), v.data(), static_cast<size_t>(n3), out);
@@ -326,13 +329,15 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         const size_t total = static_cast<size_t>(n3) * wd;
         for (size_t e = 0; e < total; ++e) nr[e] = nb[e] - nq[e];
     };
+    // A finished lane is left as it is: its alpha and beta stay 0 from then on, so its x and r
+    // no longer change and p = M^-1 r stays finite; the lanes never mix, so it cannot disturb
+    // the others, and compact() drops it when the block narrows. (Zeroing it touched a cache
+    // line per entry in four vectors.)
     auto finish_lane = [&](int l, double rel) {
         const int col = lanes[l];
         for (int e = 0; e < n3; ++e) x(e, col) = nx[static_cast<size_t>(wd) * e + l];
         sys.max_residual = std::max(sys.max_residual, rel);
         lanes[l] = -1;
-        for (std::vector<double>* v : {&nb, &nx, &nr, &np})
-            for (int e = 0; e < n3; ++e) (*v)[static_cast<size_t>(wd) * e + l] = 0.0;
     };
     // narrow the block when the live lanes fit in a smaller width
     auto compact = [&]() {
