@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <unordered_map>
 
+
 namespace hh {
 
 namespace {
@@ -60,15 +61,28 @@ namespace {
 // ground contacts on a coarse tet mesh). With the contacts the sweeps hold active, this solves
 // their equality conditions at once:
 //   sticking (|lambda_t| < mu lambda_n): u_n + gap/dt = 0 and u_t = 0 (3 unknowns, 3 rows)
-//   sliding (on the rim): u_n + gap/dt = 0, its friction impulse kept (1 unknown, 1 row)
-// a symmetric system (rows and unknowns the same) on a few dozen unknowns, factored densely.
-// Nearly dependent rows (a contact whose row is implied by the others to 1e-6 of its diagonal:
-// redundant contacts on one element) take no impulse. A contact the solve would pull
-// (lambda_n < 0) leaves the set, the one pulled hardest first, and a sticking one the solve
-// would take outside its friction disk becomes sliding (friction on the rim); then solve
+//   sliding (on the rim): u_n + gap/dt = 0 with lambda_t = mu lambda_n d, d the direction of
+//     its friction impulse now (1 unknown, 1 row; PGS-SM's sliding contacts)
+// on a few dozen unknowns, factored densely. The sliding contacts' friction follows their
+// normal impulse: keeping the friction impulse itself instead (as first done here) left it
+// outside the disk whenever the solve lowered lambda_n, and cutting it back to the rim
+// afterwards undid the solve (velocities of cm/s on the bunny's hand contacts, so every step
+// was rejected). With sliding contacts the system is not symmetric; it is eliminated with
+// diagonal pivoting (basic_solve). Nearly dependent rows (a contact whose row is implied by the
+// others to 1e-6 of its diagonal: redundant contacts on one element) take no impulse. A
+// contact the solve would pull (lambda_n < 0) leaves the set, the one pulled hardest first, and
+// a sticking one the solve would take outside its friction disk becomes sliding; then solve
 // again. The caller keeps the result only when the sweep after it leaves a smaller residual.
 // Returns false when nothing was solved.
-constexpr int kSubspaceEvery = 10;     // sweeps between subspace steps
+//
+// The direction d of a sliding contact stays as the sweeps left it. Also tried, measured on
+// recorded bunny frames and not kept: moving d after each solve to the solved friction (Newton
+// on the rim's tangent line) or against the solved sliding velocity, switching a sliding
+// contact whose friction would drive it to sticking: strongly coupled hand contacts cycled
+// between sticking and sliding and the steps were rejected; removing all pulled contacts at
+// once (more sweeps).
+constexpr int kSubspaceEvery = 10;     // sweeps between subspace steps while they help
+constexpr int kSubspaceMaxInterval = 80;  // ... and at most, after steps that did not
 constexpr int kSubspaceRounds = 10;    // solves per step (set changes)
 constexpr double kDependent = 1e-6;    // pivot / diagonal below which a row counts as implied
 // Largest active set the step takes on: its cost grows as a^2 blocks of W and (3a)^3 / 3 per
@@ -76,6 +90,52 @@ constexpr double kDependent = 1e-6;    // pivot / diagonal below which a row cou
 // contacts are active; in the 10x bunny scene several hundred, where the dense step made a
 // frame cost seconds (4 s against 0.15 s of plain sweeps): there the sweeps go on alone.
 constexpr int kSubspaceMaxActive = 64;
+
+// A basic solution of m z = rhs (m square, nearly symmetric, possibly singular): Gaussian
+// elimination with diagonal pivoting, each step taking the row least implied by those taken
+// before (the largest remaining pivot relative to its own diagonal, `scale`); once every
+// remaining pivot is below kDependent of its diagonal, the remaining rows count as implied and
+// their unknowns are 0. m is overwritten.
+bool basic_solve(MatX& m, VecX rhs, VecX scale, VecX& z) {
+    const int n = static_cast<int>(m.rows());
+    std::vector<int> perm(n);
+    for (int k = 0; k < n; ++k) perm[k] = k;
+    int rank = n;
+    for (int k = 0; k < n; ++k) {
+        int best = -1;
+        double ratio = kDependent;
+        for (int j = k; j < n; ++j) {
+            const double r = std::abs(m(j, j)) / scale[j];
+            if (r > ratio) {
+                ratio = r;
+                best = j;
+            }
+        }
+        if (best < 0) {
+            rank = k;
+            break;
+        }
+        if (best != k) {
+            m.row(k).swap(m.row(best));
+            m.col(k).swap(m.col(best));
+            std::swap(rhs[k], rhs[best]);
+            std::swap(scale[k], scale[best]);
+            std::swap(perm[k], perm[best]);
+        }
+        const int r = n - k - 1;
+        if (r > 0) {
+            m.col(k).tail(r) /= m(k, k);
+            m.bottomRightCorner(r, r).noalias() -= m.col(k).tail(r) * m.row(k).tail(r);
+            rhs.tail(r) -= m.col(k).tail(r) * rhs[k];
+        }
+    }
+    VecX x = VecX::Zero(n);
+    for (int k = rank - 1; k >= 0; --k)
+        x[k] = (rhs[k] - m.row(k).segment(k + 1, rank - k - 1).dot(x.segment(k + 1, rank - k - 1))) / m(k, k);
+    z.resize(n);
+    for (int k = 0; k < n; ++k) z[perm[k]] = x[k];
+    return z.allFinite();
+}
 
 template <class Op>
 bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficient, const std::vector<Vec3>& u,
@@ -96,23 +156,24 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
             blocks[p * a + q] = it->second;
             blocks[q * a + p] = it->second.transpose();  // W symmetric (the sweeps' symmetric part)
         }
-    // per active contact: 0 out of the set, 1 sliding (normal unknown, friction kept), 3 sticking
+    // per active contact: 0 out of the set, 1 sliding (normal unknown, lambda_t = lambda_n
+    // slope), 3 sticking
     std::vector<int> state(a), first(a);
-    std::vector<Eigen::Vector2d> kept(a);
+    std::vector<Eigen::Vector2d> slope(a);  // sliding: mu d (zero without friction)
     // velocities without the active contacts' impulses, plus the bias
     std::vector<Vec3> v0(a);
     for (int p = 0; p < a; ++p) {
         const int i = act[p];
         const Eigen::Vector2d lt(lambda[3 * i + 1], lambda[3 * i + 2]);
         state[p] = coefficient[i] > 0 && lt.norm() < coefficient[i] * lambda[3 * i] * (1 - 1e-9) ? 3 : 1;
-        kept[p] = lt;
+        slope[p] = lt.norm() > 0 ? Eigen::Vector2d(lt * (coefficient[i] / lt.norm())) : Eigen::Vector2d::Zero();
         v0[p] = u[i];
         v0[p][0] += bias[i];
         for (int q = 0; q < a; ++q) v0[p] -= blocks[p * a + q] * lambda.segment<3>(3 * act[q]);
     }
-    VecX z, rhs;
+    VecX z, rhs, scale;
     MatX m;
-    bool solved = false;
+    std::vector<int> z_state, z_first;  // the states z was solved with
     for (int round = 0; round < kSubspaceRounds; ++round) {
         int na = 0;
         for (int p = 0; p < a; ++p) {
@@ -122,30 +183,23 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
         if (na == 0) break;
         m.resize(na, na);
         rhs.resize(na);
+        scale.resize(na);
         for (int p = 0; p < a; ++p) {
             if (!state[p]) continue;
-            Vec3 v = v0[p];
             for (int q = 0; q < a; ++q) {
                 if (!state[q]) continue;
                 const Mat3& w = blocks[p * a + q];
-                m.block(first[p], first[q], state[p], state[q]) = w.block(0, 0, state[p], state[q]);
-                if (state[q] == 1) v += w.col(1) * kept[q][0] + w.col(2) * kept[q][1];
+                if (state[q] == 3)
+                    m.block(first[p], first[q], state[p], 3) = w.topRows(state[p]);
+                else  // the column of lambda_n with its friction lambda_n slope
+                    m.block(first[p], first[q], state[p], 1) = w.block(0, 0, state[p], 1) + w.block(0, 1, state[p], 2) * slope[q];
             }
-            rhs.segment(first[p], state[p]) = -v.head(state[p]);
+            rhs.segment(first[p], state[p]) = -v0[p].head(state[p]);
+            scale.segment(first[p], state[p]) = blocks[p * a + p].diagonal().head(state[p]);
         }
-        m = 0.5 * (m + m.transpose()).eval();  // W's symmetric part, as the sweeps use
-        // LDL^T with diagonal pivoting: dependent rows come last with pivots near zero; their
-        // unknowns stay zero (a basic solution of the consistent part)
-        const Eigen::LDLT<MatX> ldlt(m);
-        const VecX& d = ldlt.vectorD();
-        const VecX diag = ldlt.transpositionsP() * VecX(m.diagonal());
-        z = ldlt.transpositionsP() * rhs;
-        ldlt.matrixL().solveInPlace(z);
-        for (int k = 0; k < na; ++k) z[k] = d[k] > kDependent * diag[k] ? z[k] / d[k] : 0.0;
-        ldlt.matrixU().solveInPlace(z);
-        z = ldlt.transpositionsP().transpose() * z;
-        if (!z.allFinite()) return false;
-        solved = true;
+        if (!basic_solve(m, rhs, scale, z)) return false;
+        z_state = state;
+        z_first = first;
         int pulled = -1;
         for (int p = 0; p < a; ++p)
             if (state[p] && z[first[p]] < 0 && (pulled < 0 || z[first[p]] < z[first[pulled]])) pulled = p;
@@ -160,17 +214,19 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
             const Eigen::Vector2d zt = z.segment<2>(first[p] + 1);
             if (zt.norm() > limit) {
                 state[p] = 1;
-                kept[p] = zt * (limit / zt.norm());
+                slope[p] = zt * (coefficient[act[p]] / zt.norm());
                 changed = true;
             }
         }
         if (!changed) break;
     }
-    if (!solved) return false;
+    if (z_state.empty()) return false;
+    // the impulses of the last solve (when the rounds ran out, with the states it was made for)
     for (int p = 0; p < a; ++p) {
         const int i = act[p];
-        const double ln = state[p] ? std::max(0.0, z[first[p]]) : 0.0;
-        Eigen::Vector2d lt = state[p] == 3 ? Eigen::Vector2d(z.segment<2>(first[p] + 1)) : (state[p] ? kept[p] : Eigen::Vector2d::Zero());
+        const int s = z_state[p];
+        const double ln = s ? std::max(0.0, z[z_first[p]]) : 0.0;
+        Eigen::Vector2d lt = s == 3 ? Eigen::Vector2d(z.segment<2>(z_first[p] + 1)) : Eigen::Vector2d(slope[p] * ln);
         const double limit = coefficient[i] * ln;
         if (lt.norm() > limit) lt *= limit / lt.norm();
         lambda[3 * i] = ln;
@@ -228,6 +284,11 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
     std::unordered_map<std::uint64_t, Mat3> blocks_cache;
     double saved_residual = 0;
     bool pending = false;
+    // Sweeps until the next subspace step: kSubspaceEvery while the steps are kept, doubled
+    // (up to kSubspaceMaxInterval) after each rejected one. A rejected step costs its dense
+    // solves and the sweep after it; on the benchmark's bunny frames most were rejected and
+    // the steps took a third of the solve's time.
+    int interval = kSubspaceEvery, next_step = kSubspaceEvery;
     for (int it = 0, pass = 0; it < max_iterations; ++it) {
         for (int i = 0; i < c; ++i) {
             const int n = 3 * i;
@@ -259,13 +320,15 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         if (pending) {
             // a subspace step, then this sweep: kept only if the residual fell
             pending = false;
+            interval = result.residual > saved_residual ? std::min(kSubspaceMaxInterval, 2 * interval) : kSubspaceEvery;
+            next_step = it + 1 + interval;
             if (result.residual > saved_residual) {
                 lambda = saved;
                 op.reset(lambda);
                 result.residual = residual();
             }
         }
-        if (result.residual > tolerance && it + 1 < max_iterations && (it + 1) % kSubspaceEvery == 0) {
+        if (result.residual > tolerance && it + 1 < max_iterations && it + 1 >= next_step) {
             saved = lambda;
             saved_residual = result.residual;
             if (subspace_step(op, c, bias, coefficient, u, blocks_cache, lambda)) {
