@@ -327,12 +327,16 @@ def fit_line(x, y) -> dict:
 # ------------------------------------------------------------------------------------------
 
 
+def print_header(header: str) -> None:
+    print(header)
+    print("-" * len(header))
+
+
 def print_solver_table(results: list[dict]) -> None:
     print("\n== Per-step time, Schur-complement step (ms; mean / min over the measured steps)")
     header = (f"{'tets':>6} {'nodes':>6} {'hnodes':>6} {'solver':>8} {'steps':>5} | {'assembly':>15} "
               f"{'deformable':>15} {'schur':>15} {'other':>15} {'total':>15} | {'CG it/step':>10}")
-    print(header)
-    print("-" * len(header))
+    print_header(header)
     for r in results:
         for solver in SOLVERS:
             s = r[solver]
@@ -356,8 +360,7 @@ def print_old_vs_new(results: list[dict]) -> None:
     header = (f"{'tets':>6} {'new':>8} | {'old deformable':>14} {'new deformable':>14} {'ratio':>6} | {'old total':>9} "
               f"{'new total':>9} {'ratio':>6} | {'old max':>8} {'new max':>8} | {'refactor steps':>14} "
               f"{'new max resid.':>14} {'|dx| rel':>10}")
-    print(header)
-    print("-" * len(header))
+    print_header(header)
     for r, variant in ((r, v) for r in results for v in ("reused_cholesky", "reused_tight")):
         o, n = r["cholesky"], r[variant]
         print(f"{r['n_tets']:>6} {SOLVER_LABELS[variant]:>8} | {ms(o['t_deformable']['mean']):>14} {ms(n['t_deformable']['mean']):>14} "
@@ -375,8 +378,7 @@ def print_moving_table(results: list[dict]) -> None:
           "goes stale), ms per step")
     header = (f"{'tets':>6} {'solver':>8} {'steps':>5} | {'mean':>8} {'median':>8} {'min':>8} {'max':>8} | "
               f"{'CG it/step':>10} {'refactor steps':>14} {'max resid.':>10} {'|dx| rel':>9}")
-    print(header)
-    print("-" * len(header))
+    print_header(header)
     for r in results:
         for variant in MOVING_SOLVERS:
             m = r["moving"][variant]
@@ -394,8 +396,7 @@ def print_monolithic_table(results: list[dict]) -> None:
     print("\n== Schur (Cholesky) vs monolithic sparse-LU step, interleaved in one run (ms per step, mean / min)")
     header = (f"{'tets':>6} {'steps':>5} | {'Schur total':>17} {'monolithic total':>17} | "
               f"{'Schur/mono':>10} {'speed-up':>8} | {'|dx| rel':>8}")
-    print(header)
-    print("-" * len(header))
+    print_header(header)
     for r in results:
         p = r["side_by_side"]
         s, m = p["schur"]["t_total"], p["monolithic"]["t_total"]
@@ -411,8 +412,7 @@ def print_sweep(sweep: dict) -> None:
           f"{sweep['steps']} steps x 2 passes;\n   one recorded trajectory replayed for every radius, radii run ascending then descending)")
     header = (f"{'radius':>7} {'hnodes':>6} | {'assembly':>9} {'deformable':>10} {'schur':>9} {'other':>9} "
               f"{'schur+coupling':>14} {'total':>9}")
-    print(header)
-    print("-" * len(header))
+    print_header(header)
     for p in sweep["points"]:
         print(f"{p['radius']:>7.3f} {p['n_handle_nodes']:>6} | {ms(p['t_assembly']):>9} {ms(p['t_deformable']):>10} "
               f"{ms(p['t_schur']):>9} {ms(p['t_other']):>9} {ms(p['t_schur_coupling']):>14} {ms(p['t_total']):>9}")
