@@ -301,3 +301,50 @@ TEST(frictionless_redundant_contacts_match_plain_gauss_seidel) {
         CHECK_LT((u - u_ref).cwiseAbs().maxCoeff(), 1e-8);
     }
 }
+
+TEST(an_open_contact_left_out_of_the_sweeps_is_taken_back_when_it_closes) {
+    // The sweeps leave out contacts without impulse that are open by more than the tolerance,
+    // visiting every contact again every 10 sweeps and after a subspace step. Contacts 1 and 2
+    // are the nearly dependent pair of the test above (theta = 0.05); contact 3 is open (u_n =
+    // 2 mm/s) and its row leans against contact 2's (W_32 = -sin theta): while Gauss-Seidel
+    // crawls, contact 2's impulse stays small and contact 3 stays open, so it is left out; the
+    // subspace step then gives contact 2 its full impulse, which closes contact 3. The solve must
+    // still end with every condition met, contact 3 pushing, and the velocities of plain
+    // Gauss-Seidel run to convergence (frictionless: u is unique).
+    const double theta = 0.05, c = std::cos(theta);
+    using V8 = Eigen::Matrix<double, 8, 1>;
+    ReducedContactProblem p;
+    p.dt = 0.01;
+    p.bodies.push_back({MatX::Identity(8, 8)});
+    p.begin.assign(1, 0);
+    const V8 normal[3] = {V8::Unit(0), c * V8::Unit(0) + std::sin(theta) * V8::Unit(1), V8::Unit(2) - V8::Unit(1)};
+    for (int i = 0; i < 3; ++i) {
+        for (int k = 0; k < 8; ++k)
+            if (normal[i][k] != 0) p.entries.push_back({0, k, Vec3(normal[i][k], 0, 0)});
+        p.begin.push_back(static_cast<int>(p.entries.size()));
+    }
+    p.u_free = VecX::Zero(9);
+    p.u_free[0] = -0.1;
+    p.u_free[3] = -0.1001;
+    p.u_free[6] = 0.002;
+    p.gap = VecX::Zero(3);
+    p.friction = VecX::Zero(3);
+    p.kinetic = VecX::Zero(3);
+    const MatX w = p.delassus();
+    {
+        // after the first sweep contact 3 has no impulse and is open: it is left out
+        VecX lambda;
+        solve_pgs(p, lambda, 1, 1e-9);
+        CHECK(lambda[6] == 0);
+        CHECK(p.u_free[6] + w.row(6).dot(lambda) > 1e-3);
+    }
+    VecX lambda;
+    const PgsResult res = solve_pgs(p, lambda, 300, 1e-9);
+    CHECK(res.residual <= 1e-9);
+    CHECK(res.iterations < 300);
+    CHECK_LT(dense_residual(p, lambda), 1e-9);
+    CHECK(lambda[6] > 1e-3);  // contact 3 closed and pushes
+    const VecX reference = reference_pgs(p, 100000, 1e-14);
+    CHECK(reference[6] > 1e-3);
+    CHECK_LT(((w * lambda) - (w * reference)).cwiseAbs().maxCoeff(), 1e-8);
+}

@@ -90,6 +90,8 @@ constexpr double kDependent = 1e-6;    // pivot / diagonal below which a row cou
 // contacts are active; in the 10x bunny scene several hundred, where the dense step made a
 // frame cost seconds (4 s against 0.15 s of plain sweeps): there the sweeps go on alone.
 constexpr int kSubspaceMaxActive = 64;
+// Sweeps between full ones, with the open contacts left out in between (see sweep)
+constexpr int kFullEvery = 10;
 
 // A basic solution of m z = rhs (m square, nearly symmetric, possibly singular): Gaussian
 // elimination with diagonal pivoting, each step taking the row least implied by those taken
@@ -256,9 +258,12 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
     std::vector<Vec3> u(c);
     // How far the current impulses are from satisfying every condition, in m/s: normal
     // complementarity, sticking contacts at rest, sliding ones sliding against their friction.
-    auto residual = [&]() {
+    // `all` the contacts, `live` those the sweeps visit (see below)
+    std::vector<int> all(c), live;
+    for (int i = 0; i < c; ++i) all[i] = i;
+    auto residual = [&](const std::vector<int>& contacts) {
         double worst = 0;
-        for (int i = 0; i < c; ++i) {
+        for (const int i : contacts) {
             const int n = 3 * i;
             const Vec3 ui = op.velocity(i);
             u[i] = ui;
@@ -289,8 +294,24 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
     // solves and the sweep after it; on the benchmark's bunny frames most were rejected and
     // the steps took a third of the solve's time.
     int interval = kSubspaceEvery, next_step = kSubspaceEvery;
+    // Open contacts left out of the sweeps. A contact without impulse whose gap stays open
+    // (u_n + gap/dt > 0) is a no-op in a sweep: its update leaves lambda = 0. Most contacts of
+    // the paper's bunny are such (about 20 of 250 push), yet each cost a velocity in every sweep
+    // and in every residual: about half of the solve's time. A full sweep (every contact, and
+    // the residual on every contact) every kFullEvery sweeps marks those without impulse that
+    // are open by more than the tolerance; the sweeps in between visit the others only. A
+    // contact that closes in between is caught at the next full sweep, and every decision (to
+    // stop, to take or keep a subspace step) is made on the residual of every contact, so the
+    // stopping criterion is unchanged; while the left-out contacts stay open the sweeps are
+    // exactly the full ones. (Measured on recorded bunny frames, the margin mattered: open by
+    // 1e-3 m/s left 4.4 ms of 6.1, by the tolerance 3.2 ms; a full sweep every 5 or 20 sweeps
+    // made little difference.)
+    const double open_margin = tolerance;
+    int next_full = 0;
     for (int it = 0, pass = 0; it < max_iterations; ++it) {
-        for (int i = 0; i < c; ++i) {
+        const bool full = it >= next_full;
+        const std::vector<int>& visit = full ? all : live;
+        for (const int i : visit) {
             const int n = 3 * i;
             const Mat3& w = op.block(i);
             if (w(0, 0) <= 0) continue;  // both sides immovable
@@ -316,7 +337,20 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             op.apply(i, delta);
         }
         result.iterations = it + 1;
-        result.residual = residual();
+        result.residual = residual(visit);
+        if (full) {
+            live.clear();
+            for (int i = 0; i < c; ++i)
+                if (lambda[3 * i] > 0 || lambda[3 * i + 1] != 0 || lambda[3 * i + 2] != 0 || !(u[i][0] + bias[i] > open_margin))
+                    live.push_back(i);
+            next_full = it + kFullEvery;
+        }
+        // every decision below (stop, subspace step, keep a step) on the residual of every contact
+        const bool deciding = pending || result.residual <= tolerance || it + 1 >= max_iterations || it + 1 >= next_step;
+        if (!full && deciding) {
+            result.residual = residual(all);
+            next_full = it + 1;  // the next sweep visits every contact again
+        }
         if (pending) {
             // a subspace step, then this sweep: kept only if the residual fell
             pending = false;
@@ -325,7 +359,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             if (result.residual > saved_residual) {
                 lambda = saved;
                 op.reset(lambda);
-                result.residual = residual();
+                result.residual = residual(all);
             }
         }
         if (result.residual > tolerance && it + 1 < max_iterations && it + 1 >= next_step) {
@@ -334,8 +368,10 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             if (subspace_step(op, c, bias, coefficient, u, blocks_cache, lambda)) {
                 op.reset(lambda);
                 pending = true;
+                next_full = it + 1;  // the step may close left-out contacts: the sweep after it visits all
                 continue;
             }
+            next_step = it + 1 + interval;  // no step (no active contact, or too many): not before then
         }
         if (result.residual > tolerance && it + 1 < max_iterations) continue;
         if (pass++ > 0) break;
@@ -352,7 +388,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             }
         }
         if (!broke_loose) break;
-
+        next_full = it + 1;
     }
     return result;
 }
