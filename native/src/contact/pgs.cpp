@@ -70,9 +70,13 @@ namespace {
 // was rejected). With sliding contacts the system is not symmetric; it is eliminated with
 // diagonal pivoting (basic_solve). Nearly dependent rows (a contact whose row is implied by the
 // others to 1e-6 of its diagonal: redundant contacts on one element) take no impulse. A
-// contact the solve would pull (lambda_n < 0) leaves the set, the one pulled hardest first, and
-// a sticking one the solve would take outside its friction disk becomes sliding; then solve
-// again. The caller keeps the result only when the sweep after it leaves a smaller residual.
+// contact the solve would pull (lambda_n < 0) leaves the set, the one pulled hardest first, a
+// sticking one the solve would take outside its friction disk becomes sliding, and once neither
+// happens, a contact out of the set that the solve would push through comes back (the worst
+// first, once each); then solve again. Contacts the previous step took out start out (the
+// sweeps between two steps tend to give them an impulse again; starting them in cost a solve
+// per contact each time). The caller keeps the result only when the sweep after it leaves a
+// smaller residual.
 // Returns false when nothing was solved.
 //
 // The direction d of a sliding contact stays as the sweeps left it. Also tried, measured on
@@ -141,7 +145,7 @@ bool basic_solve(MatX& m, VecX rhs, VecX scale, VecX& z) {
 
 template <class Op>
 bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficient, const std::vector<Vec3>& u,
-                   std::unordered_map<std::uint64_t, Mat3>& cache, VecX& lambda) {
+                   std::unordered_map<std::uint64_t, Mat3>& cache, std::vector<int>& last_state, VecX& lambda) {
     std::vector<int> act;
     for (int i = 0; i < c; ++i)
         if (lambda[3 * i] > 0 && op.block(i)(0, 0) > 0) act.push_back(i);
@@ -159,15 +163,18 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
             blocks[q * a + p] = it->second.transpose();  // W symmetric (the sweeps' symmetric part)
         }
     // per active contact: 0 out of the set, 1 sliding (normal unknown, lambda_t = lambda_n
-    // slope), 3 sticking
-    std::vector<int> state(a), first(a);
+    // slope), 3 sticking; `natural` as its impulse says
+    std::vector<int> state(a), first(a), natural(a), added(a, 0);
     std::vector<Eigen::Vector2d> slope(a);  // sliding: mu d (zero without friction)
     // velocities without the active contacts' impulses, plus the bias
     std::vector<Vec3> v0(a);
     for (int p = 0; p < a; ++p) {
         const int i = act[p];
         const Eigen::Vector2d lt(lambda[3 * i + 1], lambda[3 * i + 2]);
-        state[p] = coefficient[i] > 0 && lt.norm() < coefficient[i] * lambda[3 * i] * (1 - 1e-9) ? 3 : 1;
+        natural[p] = coefficient[i] > 0 && lt.norm() < coefficient[i] * lambda[3 * i] * (1 - 1e-9) ? 3 : 1;
+        // a contact the last step took out (the sweeps gave it an impulse again since) starts
+        // out: successive steps mostly remove the same contacts, one solve each
+        state[p] = last_state[i] == 0 ? 0 : natural[p];
         slope[p] = lt.norm() > 0 ? Eigen::Vector2d(lt * (coefficient[i] / lt.norm())) : Eigen::Vector2d::Zero();
         v0[p] = u[i];
         v0[p][0] += bias[i];
@@ -220,9 +227,35 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
                 changed = true;
             }
         }
+        if (!changed) {
+            // a contact out of the set whose gap the solve would close faster than allowed
+            // (u_n + gap/dt < 0): back in, the worst first, each at most once (no cycling)
+            int worst = -1;
+            double worst_un = 0;
+            for (int p = 0; p < a; ++p) {
+                if (state[p] || added[p]) continue;
+                double un = v0[p][0];
+                for (int q = 0; q < a; ++q) {
+                    if (!state[q]) continue;
+                    const double ln = z[first[q]];
+                    const Eigen::Vector2d lt = state[q] == 3 ? Eigen::Vector2d(z.segment<2>(first[q] + 1)) : Eigen::Vector2d(slope[q] * ln);
+                    un += blocks[p * a + q](0, 0) * ln + blocks[p * a + q].block<1, 2>(0, 1).dot(lt);
+                }
+                if (un < worst_un) {
+                    worst_un = un;
+                    worst = p;
+                }
+            }
+            if (worst >= 0) {
+                state[worst] = natural[worst];
+                added[worst] = 1;
+                changed = true;
+            }
+        }
         if (!changed) break;
     }
     if (z_state.empty()) return false;
+    for (int p = 0; p < a; ++p) last_state[act[p]] = z_state[p];
     // the impulses of the last solve (when the rounds ran out, with the states it was made for)
     for (int p = 0; p < a; ++p) {
         const int i = act[p];
@@ -287,6 +320,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
     }
     VecX saved;
     std::unordered_map<std::uint64_t, Mat3> blocks_cache;
+    std::vector<int> last_state(c, -1);  // per contact, its state at the end of the last subspace step
     double saved_residual = 0;
     bool pending = false;
     // Sweeps until the next subspace step: kSubspaceEvery while the steps are kept, doubled
@@ -365,7 +399,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         if (result.residual > tolerance && it + 1 < max_iterations && it + 1 >= next_step) {
             saved = lambda;
             saved_residual = result.residual;
-            if (subspace_step(op, c, bias, coefficient, u, blocks_cache, lambda)) {
+            if (subspace_step(op, c, bias, coefficient, u, blocks_cache, last_state, lambda)) {
                 op.reset(lambda);
                 pending = true;
                 next_full = it + 1;  // the step may close left-out contacts: the sweep after it visits all
