@@ -813,12 +813,23 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp) const {
     for (Eigen::Index first = 0; first < b.cols(); first += 8) {
         const int k = static_cast<int>(std::min<Eigen::Index>(8, b.cols() - first));
         const int w = k == 1 ? 1 : (k <= 4 ? 4 : 8);  // 2-3 and 5-7 right-hand sides are padded
-        packed_.assign(static_cast<size_t>(3) * n_ * w, 0.0);
-        for (int j = 0; j < k; ++j)
-            for (int e = 0; e < 3 * n_; ++e) packed_[w * e + j] = b(e, first + j);
+        // row by row (k column streams in, one contiguous stream out): a column at a time would
+        // write with stride w, a cache line per entry
+        packed_.resize(static_cast<size_t>(3) * n_ * w);
+        const double* in[8];
+        for (int j = 0; j < k; ++j) in[j] = b.col(first + j).data();
+        for (int e = 0; e < 3 * n_; ++e) {
+            double* row = packed_.data() + static_cast<size_t>(w) * e;
+            for (int j = 0; j < k; ++j) row[j] = in[j][e];
+            for (int j = k; j < w; ++j) row[j] = 0.0;
+        }
         solve_node_major(packed_.data(), w, warp);
-        for (int j = 0; j < k; ++j)
-            for (int e = 0; e < 3 * n_; ++e) b(e, first + j) = packed_[w * e + j];
+        double* out[8];
+        for (int j = 0; j < k; ++j) out[j] = b.col(first + j).data();
+        for (int e = 0; e < 3 * n_; ++e) {
+            const double* row = packed_.data() + static_cast<size_t>(w) * e;
+            for (int j = 0; j < k; ++j) out[j][e] = row[j];
+        }
     }
 }
 

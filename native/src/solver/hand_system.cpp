@@ -91,17 +91,16 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out) {
     const Eigen::Index k = rhs.cols();
     out.resize(6 + n3, k);
     Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
-    MatX flesh;
+    MatX flesh, response(n3, 6);  // response: the columns A_t^-1 Ath(i) side by side
+    for (int i = 0; i < 6; ++i) response.col(i) = temp_[i];
     for (Eigen::Index first = 0; first < k; first += 8) {
         const Eigen::Index w = std::min<Eigen::Index>(8, k - first);
         tool.solve_many(rhs.block(6, first, n3, w), flesh, 8);
-        for (Eigen::Index j = 0; j < w; ++j) {
-            const Vec6 vh = schur.solve(Vec6(rhs.col(first + j).head<6>() - aht_times(flesh.col(j))));
-            out.col(first + j).head<6>() = vh;
-            auto ft = out.col(first + j).tail(n3);
-            ft = flesh.col(j);
-            for (int i = 0; i < 6; ++i) ft -= temp_[i] * vh[i];
-        }
+        Eigen::Matrix<double, 6, Eigen::Dynamic> vh(6, w);
+        for (Eigen::Index j = 0; j < w; ++j)
+            vh.col(j) = schur.solve(Vec6(rhs.col(first + j).head<6>() - aht_times(flesh.col(j))));
+        out.block(0, first, 6, w) = vh;
+        out.block(6, first, n3, w).noalias() = flesh - response * vh;  // Eq. 12 for every column
     }
 }
 
