@@ -80,8 +80,7 @@ ReducedContactProblem element_on_plane(std::mt19937& rng, int c, double side = 0
 }
 
 // Every condition of the contact problem, checked on the dense W independently of the solver.
-double dense_residual(const ReducedContactProblem& p, const VecX& lambda) {
-    const MatX w = p.delassus();
+double dense_residual(const ReducedContactProblem& p, const MatX& w, const VecX& lambda) {
     const VecX u = p.u_free + w * lambda;
     double worst = 0;
     for (int i = 0; i < static_cast<int>(p.gap.size()); ++i) {
@@ -94,12 +93,12 @@ double dense_residual(const ReducedContactProblem& p, const VecX& lambda) {
     }
     return worst;
 }
+double dense_residual(const ReducedContactProblem& p, const VecX& lambda) { return dense_residual(p, p.delassus(), lambda); }
 
 // Plain projected Gauss-Seidel on the dense W, written apart from pgs.cpp (no subspace steps,
 // the friction disk by bisection on the multiplier), run until no impulse changes by more than
 // `change`: the reference the solver's results are compared with.
-VecX reference_pgs(const ReducedContactProblem& p, int sweeps, double change) {
-    const MatX w = p.delassus();
+VecX reference_pgs(const ReducedContactProblem& p, const MatX& w, int sweeps, double change) {
     const int c = static_cast<int>(p.gap.size());
     VecX lambda = VecX::Zero(3 * c);
     VecX u = p.u_free;
@@ -256,10 +255,10 @@ TEST(sliding_contacts_keep_their_friction_on_the_rim_in_the_subspace_step) {
     // contact's friction with its normal impulse (lambda_t = mu lambda_n d): when it kept the
     // friction impulse while lowering lambda_n, the friction ended outside the disk, was cut
     // back to the rim, the velocities no longer solved the step's equations and the step was
-    // rejected; the sweeps alone took 14 to over 300 sweeps on these problems. Solved, each
+    // rejected; the former step took 14 sweeps to the cap of 300 on these problems. Now each
     // meets the tolerance within 40 sweeps, on the dense W too.
     std::mt19937 rng(11);
-    for (int trial = 0; trial < 8; ++trial) {
+    for (int trial = 0; trial < 4; ++trial) {
         const ReducedContactProblem p = element_on_plane(rng, 60, 0.5);
         VecX lambda;
         const PgsResult res = solve_pgs(p, lambda, 300, 1e-6);
@@ -283,20 +282,20 @@ TEST(sliding_contacts_keep_their_friction_on_the_rim_in_the_subspace_step) {
 
 TEST(frictionless_redundant_contacts_match_plain_gauss_seidel) {
     // Without friction the problem is a convex QP in lambda (min 1/2 l^T W l + b^T l, l_n >= 0),
-    // whose velocities u = u_free + W l are unique even where the impulses are not (60 contacts
+    // whose velocities u = u_free + W l are unique even where the impulses are not (40 contacts
     // on 12 unknowns). The solver with its subspace steps (a basic solution: dependent contacts
     // take no impulse) and plain Gauss-Seidel run to convergence must give the same u.
     std::mt19937 rng(5);
-    for (int trial = 0; trial < 4; ++trial) {
-        ReducedContactProblem p = element_on_plane(rng, 60);
+    for (int trial = 0; trial < 3; ++trial) {
+        ReducedContactProblem p = element_on_plane(rng, 40);
         p.friction.setZero();
         p.kinetic.setZero();
         VecX lambda;
         const PgsResult res = solve_pgs(p, lambda, 300, 1e-9);
         CHECK(res.residual <= 1e-9);
-        const VecX reference = reference_pgs(p, 100000, 1e-14);
-        CHECK_LT(dense_residual(p, reference), 1e-9);
         const MatX w = p.delassus();
+        const VecX reference = reference_pgs(p, w, 100000, 1e-14);
+        CHECK_LT(dense_residual(p, w, reference), 1e-9);
         const VecX u = p.u_free + w * lambda, u_ref = p.u_free + w * reference;
         CHECK_LT((u - u_ref).cwiseAbs().maxCoeff(), 1e-8);
     }
@@ -342,9 +341,9 @@ TEST(an_open_contact_left_out_of_the_sweeps_is_taken_back_when_it_closes) {
     const PgsResult res = solve_pgs(p, lambda, 300, 1e-9);
     CHECK(res.residual <= 1e-9);
     CHECK(res.iterations < 300);
-    CHECK_LT(dense_residual(p, lambda), 1e-9);
+    CHECK_LT(dense_residual(p, w, lambda), 1e-9);
     CHECK(lambda[6] > 1e-3);  // contact 3 closed and pushes
-    const VecX reference = reference_pgs(p, 100000, 1e-14);
+    const VecX reference = reference_pgs(p, w, 100000, 1e-14);
     CHECK(reference[6] > 1e-3);
     CHECK_LT(((w * lambda) - (w * reference)).cwiseAbs().maxCoeff(), 1e-8);
 }
