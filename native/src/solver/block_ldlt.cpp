@@ -208,6 +208,13 @@ void BlockLDLT::factorize(const SpMat& a) {
         if (keep_single_) make_single();
         return;
     }
+    factorize_up_looking(a);
+}
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 12 && !defined(__SANITIZE_THREAD__)
+__attribute__((target_clones("arch=x86-64-v3", "default")))
+#endif
+void BlockLDLT::factorize_up_looking(const SpMat& a) {
     const double* values = a.valuePtr();
     std::fill(flag_.begin(), flag_.end(), -1);
     std::fill(lnz_.begin(), lnz_.end(), 0);

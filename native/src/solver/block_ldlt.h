@@ -83,6 +83,7 @@ private:
     mutable std::vector<double> gather_;
     void analyze_supernodes();
     void factorize_supernodal(const SpMat& a);
+    void factorize_up_looking(const SpMat& a);
     void solve_supernodal(double* x, int w, bool single) const;
     bool keep_single_ = false, single_valid_ = false, factored_ = false;
     void make_single();
