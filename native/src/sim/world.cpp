@@ -395,7 +395,10 @@ void World::solve_contacts() {
                 }
             }
             switch (b.kind) {
-                case BodyKind::Hand: b.hand->hand.apply_inverse_many(rhs, x); break;
+                case BodyKind::Hand:  // only the watched rows, straight into K
+                    b.hand->hand.apply_inverse_many(rhs, x, &cb.watched);
+                    cb.K.middleCols(first, w) = x;
+                    continue;
                 case BodyKind::Soft: b.tool->solve_many(rhs, x, 1); break;
                 default: x = Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
             }

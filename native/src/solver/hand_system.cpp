@@ -86,10 +86,10 @@ VecX HandSystem::apply_inverse(const VecX& rhs) {
     return out;
 }
 
-void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out) {
+void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vector<int>* rows) {
     const Eigen::Index n3 = tool.A.rows();
     const Eigen::Index k = rhs.cols();
-    out.resize(6 + n3, k);
+    out.resize(rows ? static_cast<Eigen::Index>(rows->size()) : 6 + n3, k);
     Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
     MatX flesh, response(n3, 6);  // response: the columns A_t^-1 Ath(i) side by side
     for (int i = 0; i < 6; ++i) response.col(i) = temp_[i];
@@ -99,8 +99,16 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out) {
         Eigen::Matrix<double, 6, Eigen::Dynamic> vh(6, w);
         for (Eigen::Index j = 0; j < w; ++j)
             vh.col(j) = schur.solve(Vec6(rhs.col(first + j).head<6>() - aht_times(flesh.col(j))));
-        out.block(0, first, 6, w) = vh;
-        out.block(6, first, n3, w).noalias() = flesh - response * vh;  // Eq. 12 for every column
+        if (!rows) {
+            out.block(0, first, 6, w) = vh;
+            out.block(6, first, n3, w).noalias() = flesh - response * vh;  // Eq. 12 for every column
+            continue;
+        }
+        for (size_t i = 0; i < rows->size(); ++i) {  // Eq. 12 on the asked rows only
+            const int row = (*rows)[i];
+            if (row < 6) out.block(i, first, 1, w) = vh.row(row);
+            else out.block(i, first, 1, w) = flesh.row(row - 6) - response.row(row - 6) * vh;
+        }
     }
 }
 

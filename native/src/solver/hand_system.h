@@ -28,8 +28,9 @@ public:
     VecX apply_inverse(const VecX& rhs);
     // After solve(): out = A^-1 rhs for every column of rhs at once (the At solves batched 8
     // columns per pass through the tool's solve_many, warm-start slots 8-15). Added for the
-    // contact solver's Delassus operator.
-    void apply_inverse_many(const MatX& rhs, MatX& out);
+    // contact solver's Delassus operator. rows: only these rows of A^-1 rhs (indices into
+    // (v_h, v_t)), in that order; the contact solver needs a few hundred of thousands.
+    void apply_inverse_many(const MatX& rhs, MatX& out, const std::vector<int>* rows = nullptr);
     double t_deformable = 0;  // s spent in tool solves during the last solve()
     double t_schur = 0;       // s spent forming and solving the Schur complement
 
