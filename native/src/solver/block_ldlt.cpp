@@ -378,6 +378,13 @@ __attribute__((always_inline)) inline void solve_permuted(const Factor<LT>& f, d
     typedef typename Lanes<L>::V V;
     V* xv = reinterpret_cast<V*>(x);
     for (int i = 0; i < f.n; ++i) {  // L z = b
+        // A node whose values are all still zero adds nothing below it: skipped. With sparse
+        // right-hand sides (the contact responses' unit columns) only the elimination-tree
+        // paths above their nodes are touched; a dense one leaves at its first value.
+        const double* xs = x + static_cast<size_t>(3 * N * L) * i;
+        int e0 = 0;
+        while (e0 < 3 * N * L && xs[e0] == 0) ++e0;
+        if (e0 == 3 * N * L) continue;
         V xi[3 * N];
         for (int e = 0; e < 3 * N; ++e) xi[e] = xv[3 * N * i + e];
         for (int p = f.lp[i], end = f.lp[i] + f.lnz[i]; p < end; ++p) {
