@@ -568,6 +568,12 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
         const PT* p = val + f.val_ptr[j];
         const double* dinv = dinv_all + f.diag_ptr[j];
         double* xj = x + static_cast<size_t>(W) * 3 * c0;
+        {  // all of the supernode's values still zero: nothing to add below (see solve_permuted)
+            const size_t total = static_cast<size_t>(W) * m;
+            size_t e = 0;
+            while (e < total && xj[e] == 0) ++e;
+            if (e == total) continue;
+        }
         std::copy(xj, xj + static_cast<size_t>(W) * m, y);
         std::fill(y + static_cast<size_t>(W) * m, y + static_cast<size_t>(W) * ld, 0.0);
         for (int c = 0; c < m; c += G) {
