@@ -31,6 +31,13 @@ void perturb(Data& d, std::mt19937& rng) {
     d.device.position = d.h.x_com + Vec3(0.01, 0, 0);
     d.device.quaternion = quat_from_rotation_vector(Vec3(0.2, 0, 0));
 }
+// perturb, then the Schur step's system formed and solved
+void solve_perturbed(const Model& m, Data& d, unsigned seed) {
+    std::mt19937 rng(seed);
+    perturb(d, rng);
+    formulate(m, d);
+    d.hand.solve();
+}
 double schur_vs_monolithic(int solver, double cg_tol) {
     const BoxMesh b = make_box(4, 3, 2, 0.01);
     hh_params p = box_params();
@@ -38,10 +45,7 @@ double schur_vs_monolithic(int solver, double cg_tol) {
     p.cg_tolerance = cg_tol;
     const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
     Data d(m);
-    std::mt19937 rng(21);
-    perturb(d, rng);
-    formulate(m, d);
-    d.hand.solve();
+    solve_perturbed(m, d, 21);
     const VecX schur = d.hand.s;
     const VecX mono = solve_monolithic(d.hand, d.hand.r);
     return (schur - mono).cwiseAbs().maxCoeff() / mono.cwiseAbs().maxCoeff();
@@ -217,10 +221,7 @@ TEST(cholesky_schur_batched_solves_match_single_solves) {
     hh_params p = box_params();
     const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
     Data d(m);
-    std::mt19937 rng(33);
-    perturb(d, rng);
-    formulate(m, d);
-    d.hand.solve();
+    solve_perturbed(m, d, 33);
     const Eigen::Index n3 = d.tool.A.rows();
     Eigen::SimplicialLDLT<SpMat> ref(d.tool.A);
     const VecX y0 = ref.solve(VecX(d.hand.r.tail(n3)));
@@ -245,10 +246,7 @@ TEST(hand_apply_inverse_many_on_chosen_rows_equals_the_full_solve) {
     const hh_params p = box_params();
     const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
     Data d(m);
-    std::mt19937 rng(8);
-    perturb(d, rng);
-    formulate(m, d);
-    d.hand.solve();
+    solve_perturbed(m, d, 8);
     const Eigen::Index n = d.hand.r.size();
     const MatX rhs = MatX::Random(n, 11);  // 11 columns: a full batch of 8 and a partial one
     MatX full, some;
