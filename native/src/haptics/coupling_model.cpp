@@ -33,7 +33,7 @@ CouplingModel linearize_coupling(const World& world, int hand) {
     const double dt = world.settings.dt;
     const CouplingBlocks& cb = d.coupling;
     const std::vector<int>& nodes = m.handle.nodes;
-    const std::vector<VecX>& response = d.hand.flesh_response();  // At^-1 Ath(i)
+    const MatX& response = d.hand.flesh_response();  // At^-1 Ath, a column per handle velocity
     auto aht_times = [&](const VecX& flesh) {
         Vec6 out = Vec6::Zero();
         for (std::size_t j = 0; j < nodes.size(); ++j) out += cb.aht[j] * flesh.segment<3>(3 * nodes[j]);
@@ -41,7 +41,7 @@ CouplingModel linearize_coupling(const World& world, int hand) {
     };
     // A_s - Aht At^-1 Ath with the true Aht (the step zeroed it in the system it solved)
     Mat6 schur = cb.ah;
-    for (int i = 0; i < 6; ++i) schur.col(i) -= aht_times(response[i]);
+    for (int i = 0; i < 6; ++i) schur.col(i) -= aht_times(response.col(i));
 
     CouplingModel out;
     // Held rows: the normal of every contact that pushed, and the tangents of those that stuck

@@ -48,12 +48,9 @@ void HandSystem::solve() {
 
     t0 = clock::now();
     handle.r = bh - aht_times(solved_.col(0));
-    temp_.resize(6);
+    response_ = solved_.rightCols<6>();
     Mat6 aht_temp;
-    for (int i = 0; i < 6; ++i) {
-        temp_[i] = solved_.col(1 + i);
-        aht_temp.col(i) = aht_times(temp_[i]);
-    }
+    for (int i = 0; i < 6; ++i) aht_temp.col(i) = aht_times(response_.col(i));
     aht_inverse_ath = aht_temp;
     handle.A = Ah - aht_temp;
     if (tool.solver() != DeformableSolver::Cholesky) {
@@ -82,7 +79,7 @@ VecX HandSystem::apply_inverse(const VecX& rhs) {
     VecX out(6 + n3);
     out.head<6>() = handle.s;
     out.tail(n3) = s0;
-    for (int i = 0; i < 6; ++i) out.tail(n3) -= temp_[i] * handle.s[i];
+    out.tail(n3) -= response_ * handle.s;
     return out;
 }
 
@@ -91,8 +88,7 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
     const Eigen::Index k = rhs.cols();
     out.resize(rows ? static_cast<Eigen::Index>(rows->size()) : 6 + n3, k);
     Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
-    MatX flesh, response(n3, 6);  // response: the columns A_t^-1 Ath(i) side by side
-    for (int i = 0; i < 6; ++i) response.col(i) = temp_[i];
+    MatX flesh;
     for (Eigen::Index first = 0; first < k; first += 8) {
         const Eigen::Index w = std::min<Eigen::Index>(8, k - first);
         tool.solve_many(rhs.block(6, first, n3, w), flesh, 8);
@@ -101,13 +97,13 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
             vh.col(j) = schur.solve(Vec6(rhs.col(first + j).head<6>() - aht_times(flesh.col(j))));
         if (!rows) {
             out.block(0, first, 6, w) = vh;
-            out.block(6, first, n3, w).noalias() = flesh - response * vh;  // Eq. 12 for every column
+            out.block(6, first, n3, w).noalias() = flesh - response_ * vh;  // Eq. 12 for every column
             continue;
         }
         for (size_t i = 0; i < rows->size(); ++i) {  // Eq. 12 on the asked rows only
             const int row = (*rows)[i];
             if (row < 6) out.block(i, first, 1, w) = vh.row(row);
-            else out.block(i, first, 1, w) = flesh.row(row - 6) - response.row(row - 6) * vh;
+            else out.block(i, first, 1, w) = flesh.row(row - 6) - response_.row(row - 6) * vh;
         }
     }
 }

@@ -37,14 +37,14 @@ public:
 private:
     Vec6 aht_times(const VecX& vt) const;  // Aht * vt, touching only coupled nodes
     MatX rhs_, solved_;                   // the 7 batched right-hand sides and solutions
-    std::vector<VecX> temp_;              // A_t^-1 Ath(i), i = 1..6
+    MatX response_;                       // A_t^-1 Ath: its 6 columns side by side
     double schur_condition_ = 0;          // of the last step's Schur complement (0: none yet)
 
 public:
     // After solve(): Aht A_t^-1 Ath, the flesh's part of the Schur complement (Eq. 13).
     Mat6 aht_inverse_ath;
-    // After solve(): A_t^-1 Ath(i), the flesh's velocity response to a handle velocity.
-    const std::vector<VecX>& flesh_response() const { return temp_; }
+    // After solve(): A_t^-1 Ath (3n x 6), the flesh's velocity response to a handle velocity.
+    const MatX& flesh_response() const { return response_; }
 };
 
 // The reference: Eq. 7 assembled as one sparse (6 + 3n)^2 matrix and solved by sparse LU.
