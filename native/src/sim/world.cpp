@@ -382,6 +382,11 @@ void World::solve_contacts() {
         const int m = cb.row_basis ? nr : nt;
         cb.K.resize(cb.watched.size(), m);
         const Eigen::SparseMatrix<double> gt = cb.G.transpose();  // touched x rows, column-major
+        // the nodes of the watched unknowns: the solves need only their rows (BlockLDLT::solve)
+        std::vector<int> watched_nodes;
+        if (b.kind == BodyKind::Soft)
+            for (int k : cb.watched)
+                if (watched_nodes.empty() || watched_nodes.back() != k / 3) watched_nodes.push_back(k / 3);
         MatX rhs, x;
         for (int first = 0; first < m; first += 8) {
             const int w = std::min(8, m - first);
@@ -399,7 +404,7 @@ void World::solve_contacts() {
                     b.hand->hand.apply_inverse_many(rhs, x, &cb.watched);
                     cb.K.middleCols(first, w) = x;
                     continue;
-                case BodyKind::Soft: b.tool->solve_many(rhs, x, 1); break;
+                case BodyKind::Soft: b.tool->solve_many(rhs, x, 1, &watched_nodes); break;
                 default: x = Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
             }
             for (size_t k = 0; k < cb.watched.size(); ++k) cb.K.block(k, first, 1, w) = x.block(cb.watched[k], 0, 1, w);
@@ -411,6 +416,7 @@ void World::solve_contacts() {
         for (int l = 0; l < nr; ++l) u_free[cb.rows[l]] += u_b[l];
         MatX c_b = cb.row_basis ? MatX(cb.G * cb.K.topRows(nt)) : MatX(cb.K.topRows(nt));
         response[bi] = 0.5 * (c_b + c_b.transpose());
+        if (std::getenv("HH_CONTACT_TRACE")) std::fprintf(stderr, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(t_start));
     }
     const auto t_built = clock::now();
     stats.t_contact_build = std::chrono::duration<double>(t_built - t_start).count();

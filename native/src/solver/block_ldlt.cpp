@@ -358,6 +358,9 @@ struct Factor {
     int n;
     const int *lp, *lnz, *li;
     const LT *lx, *d_inverse;  // 3x3 blocks, column-major, 9 values each
+    // Null, or per permuted node: whether its values are wanted. Closed under elimination-tree
+    // ancestors, so the backward pass can skip the rest (see BlockLDLT::solve).
+    const unsigned char* wanted;
 };
 
 // Four and eight doubles as one value (GCC/Clang vector extension): explicit SIMD the compiler
@@ -397,6 +400,7 @@ __attribute__((always_inline)) inline void solve_permuted(const Factor<LT>& f, d
         }
     }
     for (int i = 0; i < f.n; ++i) {  // z <- D^-1 z
+        if (f.wanted && !f.wanted[i]) continue;
         V* xi = xv + 3 * N * i;
         const LT* d = f.d_inverse + 9 * i;
         V t[3 * N];
@@ -407,6 +411,9 @@ __attribute__((always_inline)) inline void solve_permuted(const Factor<LT>& f, d
         for (int e = 0; e < 3 * N; ++e) xi[e] = t[e];
     }
     for (int i = f.n - 1; i >= 0; --i) {  // L^T x = z
+        // x_i needs x only at i's elimination-tree ancestors (L(r, i) != 0 means r is one), so
+        // for a set of wanted nodes closed under ancestors the others can be left out.
+        if (f.wanted && !f.wanted[i]) continue;
         V t[3 * N];
         V* xi = xv + 3 * N * i;
         for (int e = 0; e < 3 * N; ++e) t[e] = xi[e];
@@ -516,6 +523,7 @@ struct SupernodalFactor {
     const double* diag_inverse;  // 1 / L(c, c), per scalar column
     const int* diag_ptr;
     const double* diag_inverse_single;  // the same (set when val_single is)
+    const unsigned char* wanted;  // null, or per supernode (as Factor::wanted)
 };
 
 template <typename PT> struct PanelVec;
@@ -619,6 +627,7 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
         }
     }
     for (int j = f.ns - 1; j >= 0; --j) {  // L^T x = z
+        if (f.wanted && !f.wanted[j]) continue;  // (see solve_permuted)
         const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
         const int* rows = f.rows + f.rows_ptr[j];
         const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
@@ -798,6 +807,11 @@ void warp_permute(int n, const int* order, const std::vector<Mat3>* warp, const 
 }  // namespace
 
 void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, bool single) const {
+    solve_node_major(b, w, warp, single, nullptr);
+}
+
+void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, bool single,
+                                 const unsigned char* wanted) const {
     if (w != 1 && w != 4 && w != 8) throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8");
     work_.resize(static_cast<size_t>(3) * n_ * w);
     double* x = work_.data();
@@ -806,13 +820,13 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
     else warp_permute<8, true>(n_, order_.data(), warp, b, x);
     if (supernodal_) {
         if (single && !single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
-        solve_supernodal(x, w, single);
+        solve_supernodal(x, w, single, wanted);
     } else if (single) {
         if (!single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
-        const Factor<float> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_single_.data(), d_inverse_single_.data()};
+        const Factor<float> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_single_.data(), d_inverse_single_.data(), wanted};
         solve_dispatch(f, x, w);
     } else {
-        const Factor<double> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data()};
+        const Factor<double> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data(), wanted};
         solve_dispatch(f, x, w);
     }
     if (w == 1) warp_permute<1, false>(n_, order_.data(), warp, x, b);
@@ -828,8 +842,28 @@ VecX BlockLDLT::solve(const VecX& b) const {
 
 void BlockLDLT::solve(MatX& b) const { solve(b, nullptr); }
 
-void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp) const {
+void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp) const { solve(b, warp, nullptr); }
+
+// The wanted nodes and all their elimination-tree ancestors, as a mask over permuted nodes
+// (and, for the supernodal form, over supernodes: a supernode's rows below are ancestors of
+// all of its nodes, so a supernode holding a wanted node only reads wanted ones).
+const unsigned char* BlockLDLT::wanted_mask(const std::vector<int>& nodes) const {
+    wanted_node_.assign(n_, 0);
+    for (int old : nodes) {
+        if (old < 0 || old >= n_) throw std::logic_error("BlockLDLT::solve: a wanted node out of range");
+        for (int i = inverse_[old]; i >= 0 && !wanted_node_[i]; i = parent_[i]) wanted_node_[i] = 1;
+    }
+    if (!supernodal_) return wanted_node_.data();
+    const int ns = supernodes();
+    wanted_sn_.assign(ns, 0);
+    for (int j = 0; j < ns; ++j)
+        for (int i = sn_start_[j]; i < sn_start_[j + 1] && !wanted_sn_[j]; ++i) wanted_sn_[j] = wanted_node_[i];
+    return wanted_sn_.data();
+}
+
+void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes) const {
     if (b.rows() != 3 * n_) throw std::logic_error("BlockLDLT::solve: right-hand side of the wrong size");
+    const unsigned char* wanted = wanted_nodes ? wanted_mask(*wanted_nodes) : nullptr;
     for (Eigen::Index first = 0; first < b.cols(); first += 8) {
         const int k = static_cast<int>(std::min<Eigen::Index>(8, b.cols() - first));
         const int w = k == 1 ? 1 : (k <= 4 ? 4 : 8);  // 2-3 and 5-7 right-hand sides are padded
@@ -843,7 +877,7 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp) const {
             for (int j = 0; j < k; ++j) row[j] = in[j][e];
             for (int j = k; j < w; ++j) row[j] = 0.0;
         }
-        solve_node_major(packed_.data(), w, warp);
+        solve_node_major(packed_.data(), w, warp, false, wanted);
         double* out[8];
         for (int j = 0; j < k; ++j) out[j] = b.col(first + j).data();
         for (int e = 0; e < 3 * n_; ++e) {
@@ -853,7 +887,7 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp) const {
     }
 }
 
-void BlockLDLT::solve_supernodal(double* x, int w, bool single) const {
+void BlockLDLT::solve_supernodal(double* x, int w, bool single, const unsigned char* wanted) const {
     const int ns = supernodes();
     size_t most = 0;
     for (int j = 0; j < ns; ++j) most = std::max<size_t>(most, sn_rows_ptr_[j + 1] - sn_rows_ptr_[j]);
@@ -867,7 +901,8 @@ void BlockLDLT::solve_supernodal(double* x, int w, bool single) const {
                              single ? sn_val_single_.data() : nullptr,
                              single ? nullptr : sn_diag_inverse_.data(),
                              sn_diag_ptr_.data(),
-                             single ? sn_diag_inverse_.data() : nullptr};
+                             single ? sn_diag_inverse_.data() : nullptr,
+                             wanted};
     supernodal_solve_dispatch(f, x, w, gather_.data());
 }
 

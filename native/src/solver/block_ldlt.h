@@ -34,6 +34,12 @@ public:
     // Solves with the warped matrix W A W^T (W block-diagonal, a 3x3 block per node, e.g. the
     // rotation of each node since the factorization): x = W A^-1 W^T b. warp null: W = I.
     void solve(MatX& b, const std::vector<Mat3>* warp) const;
+    // The same, but only the rows of the wanted nodes (original numbering) are asked for: the
+    // backward pass runs over them and their elimination-tree ancestors only, and every other
+    // row of b is left holding unspecified values. For the contact responses, which need the
+    // inverse at a few touched nodes: with unit right-hand sides the forward pass already skips
+    // all but the paths above them, so a column costs its paths instead of all of L.
+    void solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes) const;
     // The same on node-major storage: x holds n nodes x 3 x w values (w = 1, 4 or 8; node i's
     // 3 x w block at x + 3 w i, row-major), in the matrix's own node order. single: with the
     // single-precision copy of the factor (half the memory traffic; the arithmetic stays
@@ -84,7 +90,10 @@ private:
     void analyze_supernodes();
     void factorize_supernodal(const SpMat& a);
     void factorize_up_looking(const SpMat& a);
-    void solve_supernodal(double* x, int w, bool single) const;
+    void solve_supernodal(double* x, int w, bool single, const unsigned char* wanted) const;
+    void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, bool single, const unsigned char* wanted) const;
+    const unsigned char* wanted_mask(const std::vector<int>& nodes) const;
+    mutable std::vector<unsigned char> wanted_node_, wanted_sn_;
     bool keep_single_ = false, single_valid_ = false, factored_ = false;
     void make_single();
     double factor_flops_ = 0;

@@ -236,7 +236,7 @@ void DeformableSystem::solve() {
     s = x.col(0);
 }
 
-void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot) {
+void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes) {
     Impl& m = *impl_;
     if (m.solver == DeformableSolver::Cholesky) {
         if (!factor_valid_) {
@@ -246,7 +246,7 @@ void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot) {
             factor_valid_ = true;
         }
         x = b;
-        m.cholesky.solve(x);
+        m.cholesky.solve(x, nullptr, wanted_nodes);
     } else if (m.solver == DeformableSolver::ConjugateGradient) {
         if (!factor_valid_) {
             m.cg.setTolerance(m.cg_tolerance);
@@ -269,7 +269,7 @@ void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot) {
     } else {
         m.pcg(*this, b, x, first_slot);
     }
-    if (!x.allFinite())
+    if (!wanted_nodes && !x.allFinite())  // (with wanted nodes the caller checks its rows)
         throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 

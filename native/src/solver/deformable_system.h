@@ -45,7 +45,9 @@ public:
     void solve() override;
     // X = A^-1 B, column j of B in warm-start slot first_slot + j: one factorization and
     // batched passes over it serve all the columns.
-    void solve_many(const MatX& b, MatX& x, int first_slot);
+    // wanted_nodes (Cholesky only; ignored by the other solvers): only the rows of these nodes
+    // of X are asked for, the others are left unspecified (BlockLDLT::solve).
+    void solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes = nullptr);
     // Element rotations of the step (the co-rotation), for ReusedCholesky's warp: each node's
     // rotation (the rotation of the sum of its elements' rotations) relative to its rotation
     // when the factor was made. Ignored by the other solvers.

@@ -88,10 +88,18 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
     const Eigen::Index k = rhs.cols();
     out.resize(rows ? static_cast<Eigen::Index>(rows->size()) : 6 + n3, k);
     Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
+    // With asked rows, the tool solves only need the flesh at their nodes and at the coupled
+    // nodes (Aht reads those): the factor's backward pass skips the rest.
+    std::vector<int> wanted;
+    if (rows) {
+        for (int row : *rows)
+            if (row >= 6) wanted.push_back((row - 6) / 3);
+        wanted.insert(wanted.end(), coupled_nodes.begin(), coupled_nodes.end());
+    }
     MatX flesh;
     for (Eigen::Index first = 0; first < k; first += 8) {
         const Eigen::Index w = std::min<Eigen::Index>(8, k - first);
-        tool.solve_many(rhs.block(6, first, n3, w), flesh, 8);
+        tool.solve_many(rhs.block(6, first, n3, w), flesh, 8, rows ? &wanted : nullptr);
         Eigen::Matrix<double, 6, Eigen::Dynamic> vh(6, w);
         for (Eigen::Index j = 0; j < w; ++j)
             vh.col(j) = schur.solve(Vec6(rhs.col(first + j).head<6>() - aht_times(flesh.col(j))));
@@ -106,6 +114,8 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
             else out.block(i, first, 1, w) = flesh.row(row - 6) - response_.row(row - 6) * vh;
         }
     }
+    if (rows && !out.allFinite())
+        throw NumericalError("the contact response of the hand is not finite: reduce the time step");
 }
 
 VecX solve_monolithic(const HandSystem& system, const VecX& rhs) {
