@@ -325,3 +325,45 @@ TEST(reused_cholesky_matches_a_fresh_factorization_every_step_on_a_larger_hand) 
     CHECK_LT(worst, 1e-8);
     CHECK(stale >= 8);
 }
+
+TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inverse) {
+    // With a lagged factor the contact responses come from the warped factor itself, not CG:
+    // apply_inverse (the impulses' velocities) and apply_inverse_many (the Delassus operator)
+    // must apply the same operator, so that the impulses solved with one are those the
+    // velocities receive; with the factor of this very step they are the exact inverse.
+    const BoxMesh b = make_box(6, 4, 3, 0.01);
+    hh_params p = box_params();
+    p.solver = HH_SOLVER_REUSED_CHOLESKY;
+    p.cg_tolerance = 1e-10;
+    const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
+    Data d(m);
+    d.device.enabled = true;
+    int stale = 0;
+    for (int s = 0; s < 12; ++s) {
+        const double t = s * p.dt;
+        d.device.position = m.handle.rest_com + 0.03 * Vec3(std::sin(4 * t), 0.3 * t, 0);
+        d.device.quaternion = quat_from_rotation_vector(Vec3(0, 0.5 * std::sin(3 * t), t));
+        formulate(m, d);
+        d.tool.reset_counters();
+        d.hand.solve();
+        const bool lagged = d.tool.iterations > 0;
+        stale += lagged;
+        const Eigen::Index n = d.hand.r.size();
+        const MatX rhs = MatX::Random(n, 5);
+        MatX many;
+        d.hand.apply_inverse_many(rhs, many);
+        const std::vector<int> rows = {0, 4, 9, static_cast<int>(n) - 2};
+        MatX some;
+        d.hand.apply_inverse_many(rhs, some, &rows);
+        for (int j = 0; j < 5; ++j) {
+            const VecX one = d.hand.apply_inverse(rhs.col(j));
+            CHECK_LT((one - many.col(j)).cwiseAbs().maxCoeff(), 1e-12 * one.cwiseAbs().maxCoeff());
+            for (size_t i = 0; i < rows.size(); ++i) CHECK_LT(std::abs(some(i, j) - one[rows[i]]), 1e-12 * one.cwiseAbs().maxCoeff());
+            if (lagged) continue;  // (an earlier matrix, warped: no exact bound to check)
+            const VecX exact = solve_monolithic(d.hand, rhs.col(j));
+            CHECK_LT((one - exact).cwiseAbs().maxCoeff(), 1e-8 * exact.cwiseAbs().maxCoeff());  // this step's factor
+        }
+        integrate(m, d, d.hand.s);
+    }
+    CHECK(stale >= 4);
+}

@@ -236,6 +236,16 @@ void DeformableSystem::solve() {
     s = x.col(0);
 }
 
+void DeformableSystem::solve_response(const MatX& b, MatX& x, const std::vector<int>* wanted_nodes) {
+    Impl& m = *impl_;
+    if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) return solve_many(b, x, 8, wanted_nodes);
+    // (not counted by the refactorization policy: their cost does not grow with the factor's age)
+    x = b;
+    m.cholesky.solve(x, m.factor_current ? nullptr : m.current_warp(), wanted_nodes);
+    if (!wanted_nodes && !x.allFinite())
+        throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
+}
+
 void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes) {
     Impl& m = *impl_;
     if (m.solver == DeformableSolver::Cholesky) {

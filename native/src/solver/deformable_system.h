@@ -48,6 +48,14 @@ public:
     // wanted_nodes (Cholesky only; ignored by the other solvers): only the rows of these nodes
     // of X are asked for, the others are left unspecified (BlockLDLT::solve).
     void solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes = nullptr);
+    // X = the step's response operator applied to B, for the contact responses (the Delassus
+    // operator and the impulses' velocities): with Cholesky and CG the solve above (slots 8 and
+    // up); with ReusedCholesky the warped factor itself, W Af^-1 W^T, one pass and no CG. That
+    // operator is symmetric positive definite, close to At^-1 and the same for every response
+    // of the step, so the impulses the contact solve finds with it are exactly those the
+    // velocities then receive (the constraints hold); only the flesh's response to them departs
+    // from Eq. 7's by the factor's lag. A CG solve per response would cost tens of passes.
+    void solve_response(const MatX& b, MatX& x, const std::vector<int>* wanted_nodes = nullptr);
     // Element rotations of the step (the co-rotation), for ReusedCholesky's warp: each node's
     // rotation (the rotation of the sum of its elements' rotations) relative to its rotation
     // when the factor was made. Ignored by the other solvers.

@@ -70,10 +70,9 @@ void HandSystem::solve() {
 
 VecX HandSystem::apply_inverse(const VecX& rhs) {
     const Eigen::Index n3 = tool.A.rows();
-    tool.r = rhs.tail(n3);
-    tool.select_slot(8);
-    tool.solve();
-    const VecX s0 = tool.s;
+    MatX solved;
+    tool.solve_response(rhs.tail(n3), solved);
+    const VecX s0 = solved.col(0);
     handle.r = rhs.head<6>() - aht_times(s0);
     handle.solve();  // handle.A still holds the Schur complement
     VecX out(6 + n3);
@@ -99,7 +98,7 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
     MatX flesh;
     for (Eigen::Index first = 0; first < k; first += 8) {
         const Eigen::Index w = std::min<Eigen::Index>(8, k - first);
-        tool.solve_many(rhs.block(6, first, n3, w), flesh, 8, rows ? &wanted : nullptr);
+        tool.solve_response(rhs.block(6, first, n3, w), flesh, rows ? &wanted : nullptr);
         Eigen::Matrix<double, 6, Eigen::Dynamic> vh(6, w);
         for (Eigen::Index j = 0; j < w; ++j)
             vh.col(j) = schur.solve(Vec6(rhs.col(first + j).head<6>() - aht_times(flesh.col(j))));

@@ -24,12 +24,14 @@ public:
     void solve() override;
     // After solve(): A^-1 rhs for another right-hand side, reusing the factor of At, the
     // columns A_t^-1 Ath and the Schur complement (one At solve instead of eight). The
-    // contact solver uses it to build the Delassus operator.
+    // contact solver applies the impulses' velocities with it. The At solve is the tool's
+    // response operator (DeformableSystem::solve_response: with ReusedCholesky the warped
+    // factor, not CG), the same as apply_inverse_many's.
     VecX apply_inverse(const VecX& rhs);
     // After solve(): out = A^-1 rhs for every column of rhs at once (the At solves batched 8
-    // columns per pass through the tool's solve_many, warm-start slots 8-15). Added for the
-    // contact solver's Delassus operator. rows: only these rows of A^-1 rhs (indices into
-    // (v_h, v_t)), in that order; the contact solver needs a few hundred of thousands.
+    // columns per pass through the tool's solve_response). Added for the contact solver's
+    // Delassus operator. rows: only these rows of A^-1 rhs (indices into (v_h, v_t)), in that
+    // order; the contact solver needs a few hundred of thousands.
     void apply_inverse_many(const MatX& rhs, MatX& out, const std::vector<int>* rows = nullptr);
     double t_deformable = 0;  // s spent in tool solves during the last solve()
     double t_schur = 0;       // s spent forming and solving the Schur complement
