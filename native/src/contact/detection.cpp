@@ -191,12 +191,20 @@ thread_local Scratch scratch;
 // the vertex must not belong to the triangle or share its element, the surfaces must face
 // each other and the pair must not be excluded, so neighbouring points of one smooth surface
 // never count as a contact.
+// Whether the box (lo, hi) grown by `grow` overlaps b's box inflated by b's margin: a reach
+// beyond b's margin (a pair with a fast body, see World::detect) grows the query side by the
+// rest; grow <= 0 is the plain test.
+inline bool overlaps_within(const Bvh& b, const Vec3& lo, const Vec3& hi, const Vec3& blo, const Vec3& bhi, double grow) {
+    if (grow > 0) return b.overlaps_inflated(lo.array() - grow, hi.array() + grow, blo, bhi);
+    return b.overlaps_inflated(lo, hi, blo, bhi);
+}
+
 template <bool Self>
 inline void vertex_against_triangle(const CollisionSurface& sa, int v, const CollisionSurface& sb, int r,
                                     const SelfExclusions* skip, double reach, ClosestTriangles& closest) {
     const Vec3& p = sa.x[v];
     const Aabb& box = sb.bvh.rank_boxes()[r];
-    if (!sb.bvh.point_in_inflated(p, box.lo, box.hi)) return;
+    if (!overlaps_within(sb.bvh, p, p, box.lo, box.hi, reach - sb.bvh.margin())) return;
     const Eigen::Vector3i& tri = sb.rank_triangles[r];
     if (Self) {
         if (shares_vertex(tri, v)) return;
@@ -256,9 +264,10 @@ template <bool Self>
 inline void leaf_vertices(const CollisionSurface& sa, int ia, const CollisionSurface& sb, int ib,
                           const SelfExclusions* skip, double reach, ClosestTriangles& closest) {
     const Bvh::Node& b = sb.bvh.nodes()[ib];
+    const double grow = reach - sb.bvh.margin();
     for (int k = sa.leaf_vertex_begin[ia]; k < sa.leaf_vertex_begin[ia + 1]; ++k) {
         const int v = sa.leaf_vertex[k];
-        if (!sb.bvh.point_in_inflated(sa.x[v], b.lo, b.hi)) continue;
+        if (!overlaps_within(sb.bvh, sa.x[v], sa.x[v], b.lo, b.hi, grow)) continue;
         if (Self && scratch.normals.none_facing(sa.vertex_normal[v], ib)) continue;
         for (int r = b.begin; r < b.end; ++r) vertex_against_triangle<Self>(sa, v, sb, r, skip, reach, closest);
     }
@@ -272,21 +281,22 @@ void leaf_edges(const CollisionSurface& sa, int body_a, int ia, const CollisionS
                 double reach) {
     const Bvh::Node& b = sb.bvh.nodes()[ib];
     const auto& boxes = sb.bvh.rank_boxes();
+    const double grow = reach - sb.bvh.margin();
     Contact c;
     for (int k = sa.leaf_edge_begin[ia]; k < sa.leaf_edge_begin[ia + 1]; ++k) {
         const int ea = sa.leaf_edge[k];
         const Vec3& p0 = sa.x[sa.edges[ea][0]];
         const Vec3& p1 = sa.x[sa.edges[ea][1]];
         const Vec3 lo = p0.cwiseMin(p1), hi = p0.cwiseMax(p1);
-        if (!sb.bvh.overlaps_inflated(lo, hi, b.lo, b.hi)) continue;
+        if (!overlaps_within(sb.bvh, lo, hi, b.lo, b.hi, grow)) continue;
         for (int r = b.begin; r < b.end; ++r) {
-            if (!sb.bvh.overlaps_inflated(lo, hi, boxes[r].lo, boxes[r].hi)) continue;
+            if (!overlaps_within(sb.bvh, lo, hi, boxes[r].lo, boxes[r].hi, grow)) continue;
             const int t = sb.bvh.order()[r];
             for (int j = 0; j < 3; ++j) {
                 const int eb = sb.triangle_edges[t][j];
                 bool first = true;  // no lower-ranked triangle of eb overlaps ea's box
                 for (int m = sb.edge_rank_begin[eb]; m < sb.edge_rank_begin[eb + 1] && sb.edge_ranks[m] < r; ++m)
-                    if (sb.bvh.overlaps_inflated(lo, hi, boxes[sb.edge_ranks[m]].lo, boxes[sb.edge_ranks[m]].hi)) {
+                    if (overlaps_within(sb.bvh, lo, hi, boxes[sb.edge_ranks[m]].lo, boxes[sb.edge_ranks[m]].hi, grow)) {
                         first = false;
                         break;
                     }
@@ -305,6 +315,7 @@ void descend(const CollisionSurface& sa, int body_a, const CollisionSurface& sb,
              ClosestTriangles& closest, bool edges) {
     const auto& na = sa.bvh.nodes();
     const auto& nb = sb.bvh.nodes();
+    const double grow = reach - sb.bvh.margin();  // (see overlaps_within)
     auto& stack = scratch.stack;
     stack.clear();
     stack.push_back({0, 0, 0});
@@ -313,7 +324,7 @@ void descend(const CollisionSurface& sa, int body_a, const CollisionSurface& sb,
         stack.pop_back();
         const Bvh::Node& a = na[top.a];
         const Bvh::Node& b = nb[top.b];
-        if (!sb.bvh.overlaps_inflated(a.lo, a.hi, b.lo, b.hi)) continue;
+        if (!overlaps_within(sb.bvh, a.lo, a.hi, b.lo, b.hi, grow)) continue;
         if (!a.leaf() || !b.leaf()) {
             // open the larger node (or the one that is not a leaf)
             if (b.leaf() || (!a.leaf() && (a.hi - a.lo).sum() > (b.hi - b.lo).sum())) {
@@ -392,6 +403,7 @@ void closest_triangles(const CollisionSurface& sa, int body_a, const CollisionSu
         if (!sb.bvh.empty()) {
             Aabb query;
             query.grow(sa.x[v]);
+            if (reach > sb.bvh.margin()) query.inflate(reach - sb.bvh.margin());  // (see descend)
             sb.bvh.query_ranks(query, [&](int r) { vertex_against_triangle<Self>(sa, v, sb, r, skip, reach, closest); });
         }
 }
@@ -479,8 +491,12 @@ bool SelfExclusions::excludes(int v, int t) const {
 
 void detect_pair(const CollisionSurface& sa, int body_a, const CollisionSurface& sb, int body_b,
                  const DetectionSettings& settings, std::vector<Contact>& out) {
-    if (!sa.bvh.empty() && !sb.bvh.empty() && !sa.bvh.bounds().overlaps(sb.bvh.bounds())) return;
     const double reach = settings.distance;
+    if (!sa.bvh.empty() && !sb.bvh.empty()) {
+        Aabb bounds = sa.bvh.bounds();  // inflated by a's margin, b's by its own: the rest of the reach
+        bounds.inflate(std::max(0.0, reach - sa.bvh.margin() - sb.bvh.margin()));
+        if (!bounds.overlaps(sb.bvh.bounds())) return;
+    }
     // a's vertices and edges against b's triangles in one descent, then b's vertices against a's
     auto& edges = scratch.edge_found;
     edges.clear();

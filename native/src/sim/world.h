@@ -100,6 +100,7 @@ public:
     // the same by patch (pair of bodies, cell, element, normal octant): when another vertex
     // becomes the deepest of a patch, its contact starts from the patch's last impulse
     std::unordered_map<std::uint64_t, Vec3> previous_patch_impulse;
+    std::vector<double> motion_;  // per body: how far its fastest point moves in the step (detect)
     std::vector<std::uint64_t> contact_patch_keys;  // per contact of the last step
     // The last contact solve, kept for the handle-space linearization (haptics/coupling_model).
     // Contacts are grouped by the dynamic bodies they share (contacts of bodies that do not
