@@ -92,6 +92,12 @@ public:
                blo.x() - margin_ <= hi.x() && blo.y() - margin_ <= hi.y() && blo.z() - margin_ <= hi.z();
     }
     bool point_in_inflated(const Vec3& p, const Vec3& blo, const Vec3& bhi) const { return overlaps_inflated(p, p, blo, bhi); }
+    // The same with the margin grown by `extra` (a query that reaches further, see detect_pair).
+    bool overlaps_inflated(const Vec3& lo, const Vec3& hi, const Vec3& blo, const Vec3& bhi, double extra) const {
+        const double m = margin_ + extra;
+        return lo.x() <= bhi.x() + m && lo.y() <= bhi.y() + m && lo.z() <= bhi.z() + m && blo.x() - m <= hi.x() &&
+               blo.y() - m <= hi.y() && blo.z() - m <= hi.z();
+    }
 
     Aabb bounds() const;  // the root's inflated box
     bool empty() const { return nodes_.empty(); }

@@ -191,11 +191,11 @@ thread_local Scratch scratch;
 // the vertex must not belong to the triangle or share its element, the surfaces must face
 // each other and the pair must not be excluded, so neighbouring points of one smooth surface
 // never count as a contact.
-// Whether the box (lo, hi) grown by `grow` overlaps b's box inflated by b's margin: a reach
-// beyond b's margin (a pair with a fast body, see World::detect) grows the query side by the
-// rest; grow <= 0 is the plain test.
+// Whether the box (lo, hi) overlaps b's box inflated by b's margin plus `grow`: a reach beyond
+// b's margin (a pair with a fast body, see World::detect) adds the rest; grow <= 0 is the
+// plain test (bit for bit what it was).
 inline bool overlaps_within(const Bvh& b, const Vec3& lo, const Vec3& hi, const Vec3& blo, const Vec3& bhi, double grow) {
-    if (grow > 0) return b.overlaps_inflated(lo.array() - grow, hi.array() + grow, blo, bhi);
+    if (grow > 0) return b.overlaps_inflated(lo, hi, blo, bhi, grow);
     return b.overlaps_inflated(lo, hi, blo, bhi);
 }
 

@@ -568,7 +568,8 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
     constexpr int LV = W == 1 ? VL : (W < VL ? W : VL);
     constexpr int N = W == 1 ? 1 : W / LV;
     typedef typename Lanes<LV>::V V;
-    constexpr int G = W == 1 ? 4 : 8;  // columns per group
+    // columns per group: the group's values of every lane stay in registers (G x N vectors)
+    constexpr int G = W == 1 ? 4 : (W <= 8 ? 8 : 4);
     for (int j = 0; j < f.ns; ++j) {  // L z = b
         const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
         const int* rows = f.rows + f.rows_ptr[j];
@@ -720,16 +721,22 @@ void supernodal_dispatch_typed(const SupernodalFactor& f, const PT* v, const dou
     if (level == 2) {
         if (w == 1) return supernodal_avx512<1, 8, PT>(f, v, d, x, y);
         if (w == 4) return supernodal_avx512<4, 4, PT>(f, v, d, x, y);
+        if (w == 16) return supernodal_avx512<16, 8, PT>(f, v, d, x, y);
+        if (w == 32) return supernodal_avx512<32, 8, PT>(f, v, d, x, y);
         return supernodal_avx512<8, 8, PT>(f, v, d, x, y);
     }
     if (level == 1) {
         if (w == 1) return supernodal_avx2<1, 4, PT>(f, v, d, x, y);
         if (w == 4) return supernodal_avx2<4, 4, PT>(f, v, d, x, y);
+        if (w == 16) return supernodal_avx2<16, 4, PT>(f, v, d, x, y);
+        if (w == 32) return supernodal_avx2<32, 4, PT>(f, v, d, x, y);
         return supernodal_avx2<8, 4, PT>(f, v, d, x, y);
     }
 #endif
     if (w == 1) supernodal_solve<1, 4, PT>(f, v, d, x, y);
     else if (w == 4) supernodal_solve<4, 4, PT>(f, v, d, x, y);
+    else if (w == 16) supernodal_solve<16, 4, PT>(f, v, d, x, y);
+    else if (w == 32) supernodal_solve<32, 4, PT>(f, v, d, x, y);
     else supernodal_solve<8, 4, PT>(f, v, d, x, y);
 }
 
@@ -812,11 +819,14 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
 
 void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, bool single,
                                  const unsigned char* wanted) const {
-    if (w != 1 && w != 4 && w != 8) throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8");
+    if (!(w == 1 || w == 4 || w == 8 || (supernodal_ && (w == 16 || w == 32))))
+        throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8 (16 or 32: supernodal form only)");
     work_.resize(static_cast<size_t>(3) * n_ * w);
     double* x = work_.data();
     if (w == 1) warp_permute<1, true>(n_, order_.data(), warp, b, x);
     else if (w == 4) warp_permute<4, true>(n_, order_.data(), warp, b, x);
+    else if (w == 16) warp_permute<16, true>(n_, order_.data(), warp, b, x);
+    else if (w == 32) warp_permute<32, true>(n_, order_.data(), warp, b, x);
     else warp_permute<8, true>(n_, order_.data(), warp, b, x);
     if (supernodal_) {
         if (single && !single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
@@ -831,6 +841,8 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
     }
     if (w == 1) warp_permute<1, false>(n_, order_.data(), warp, x, b);
     else if (w == 4) warp_permute<4, false>(n_, order_.data(), warp, x, b);
+    else if (w == 16) warp_permute<16, false>(n_, order_.data(), warp, x, b);
+    else if (w == 32) warp_permute<32, false>(n_, order_.data(), warp, x, b);
     else warp_permute<8, false>(n_, order_.data(), warp, x, b);
 }
 
@@ -864,13 +876,15 @@ const unsigned char* BlockLDLT::wanted_mask(const std::vector<int>& nodes) const
 void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes) const {
     if (b.rows() != 3 * n_) throw std::logic_error("BlockLDLT::solve: right-hand side of the wrong size");
     const unsigned char* wanted = wanted_nodes ? wanted_mask(*wanted_nodes) : nullptr;
-    for (Eigen::Index first = 0; first < b.cols(); first += 8) {
-        const int k = static_cast<int>(std::min<Eigen::Index>(8, b.cols() - first));
-        const int w = k == 1 ? 1 : (k <= 4 ? 4 : 8);  // 2-3 and 5-7 right-hand sides are padded
-        // row by row (k column streams in, one contiguous stream out): a column at a time would
-        // write with stride w, a cache line per entry
+    // Columns per pass: the passes stream the factor from memory, so more columns share each
+    // load. The supernodal kernels take up to 32 (the contact responses' many unit columns),
+    // the up-looking ones 8.
+    const int most = supernodal_ ? kWidestSolve : 8;
+    for (Eigen::Index first = 0; first < b.cols(); first += most) {
+        const int k = static_cast<int>(std::min<Eigen::Index>(most, b.cols() - first));
+        const int w = k == 1 ? 1 : (k <= 4 ? 4 : (k <= 8 ? 8 : (k <= 16 ? 16 : 32)));  // padded
         packed_.resize(static_cast<size_t>(3) * n_ * w);
-        const double* in[8];
+        const double* in[32];
         for (int j = 0; j < k; ++j) in[j] = b.col(first + j).data();
         for (int e = 0; e < 3 * n_; ++e) {
             double* row = packed_.data() + static_cast<size_t>(w) * e;
@@ -878,7 +892,7 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<
             for (int j = k; j < w; ++j) row[j] = 0.0;
         }
         solve_node_major(packed_.data(), w, warp, false, wanted);
-        double* out[8];
+        double* out[32];
         for (int j = 0; j < k; ++j) out[j] = b.col(first + j).data();
         for (int e = 0; e < 3 * n_; ++e) {
             const double* row = packed_.data() + static_cast<size_t>(w) * e;

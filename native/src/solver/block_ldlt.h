@@ -14,6 +14,9 @@
 
 namespace hh {
 
+// Most right-hand sides one solve pass takes (supernodal form; the up-looking form takes 8).
+constexpr int kWidestSolve = 32;
+
 class BlockLDLT {
 public:
     // A: 3n x 3n, column-major, both triangles stored, pattern closed under 3x3 node blocks.

@@ -1,4 +1,5 @@
 #include "solver/hand_system.h"
+#include "solver/block_ldlt.h"
 
 #include <Eigen/SparseLU>
 #include <algorithm>
@@ -96,8 +97,8 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
         wanted.insert(wanted.end(), coupled_nodes.begin(), coupled_nodes.end());
     }
     MatX flesh;
-    for (Eigen::Index first = 0; first < k; first += 8) {
-        const Eigen::Index w = std::min<Eigen::Index>(8, k - first);
+    for (Eigen::Index first = 0; first < k; first += kWidestSolve) {  // (as many as a pass takes)
+        const Eigen::Index w = std::min<Eigen::Index>(kWidestSolve, k - first);
         tool.solve_response(rhs.block(6, first, n3, w), flesh, rows ? &wanted : nullptr);
         Eigen::Matrix<double, 6, Eigen::Dynamic> vh(6, w);
         for (Eigen::Index j = 0; j < w; ++j)
