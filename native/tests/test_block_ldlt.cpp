@@ -311,7 +311,7 @@ TEST(solves_asked_for_some_nodes_give_those_rows_of_the_inverse_in_both_forms) {
     // only (the contact responses need the inverse at a few touched nodes). Their rows must be
     // those of A^-1 b, for unit and dense columns, at every SIMD level and width, with and
     // without a warp; the wanted sets include a single node, the first and last nodes, and
-    // nodes spread over the mesh.
+    // nodes spread over the mesh; widths past one pass.
     const SpMat a = system_matrix(7, 5, 4, 23);
     const int n3 = static_cast<int>(a.rows()), n = n3 / 3;
     std::mt19937 rng(24);
@@ -329,7 +329,9 @@ TEST(solves_asked_for_some_nodes_give_those_rows_of_the_inverse_in_both_forms) {
         f.factorize(a);
         for (int level = 0; level <= detected_simd_level(); ++level) {
             simd_level_override() = level;
-            for (int width : {1, 5, 8}) {
+            // up to 8 columns a pass (up-looking), 16 or 32 (supernodal): padded widths, and
+            // more columns than one pass takes
+            for (int width : {1, 5, 8, 13, 32, 40}) {
                 MatX b = MatX::Zero(n3, width);
                 for (int j = 0; j < width; ++j) {
                     if (j % 2) b(std::min(n3 - 1, 3 * j * j + j), j) = 1.0;  // unit columns
