@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <limits>
 #include <map>
+#include <string>
 
 #include "rigid/quaternion.h"
 
@@ -435,6 +436,9 @@ void World::solve_contacts() {
             }
             for (size_t k = 0; k < cb.watched.size(); ++k) cb.K.block(k, first, 1, w) = x.block(cb.watched[k], 0, 1, w);
         }
+        if (!cb.K.allFinite())  // (the solves above check only the rows they were asked for)
+            throw NumericalError("the contact response of body " + std::to_string(bi) +
+                                 " is not finite: reduce the time step or check its material");
         // u_free, and the body's symmetric response on its basis for the sweeps
         VecX v_touched(nt);
         for (int k = 0; k < nt; ++k) v_touched[k] = b.v_free[cb.touched[k]];
