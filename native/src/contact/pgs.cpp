@@ -24,6 +24,18 @@ void add_three_columns(double* __restrict y, const double* __restrict h, long m,
     for (long k = 0; k < m; ++k) y[k] += h0[k] * d0 + h1[k] * d1 + h2[k] * d2;
 }
 
+// The same with the columns in single precision (half the memory traffic; see ReducedOp).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 12 && !defined(__SANITIZE_THREAD__)
+__attribute__((target_clones("arch=x86-64-v3", "default")))
+#endif
+void add_three_columns_single(double* __restrict y, const float* __restrict h, long m, long ld, double d0, double d1,
+                              double d2) {
+    const float* __restrict h0 = h;
+    const float* __restrict h1 = h + ld;
+    const float* __restrict h2 = h + 2 * ld;
+    for (long k = 0; k < m; ++k) y[k] += double(h0[k]) * d0 + double(h1[k]) * d1 + double(h2[k]) * d2;
+}
+
 // h_k += c a_k (k = 0, 1, 2; h_k = h + k ld) over m entries: one contact entry's share of its
 // three response columns H = C P^T, formed for every contact at the start of each solve (about
 // a tenth of a bunny frame's contact solve in Eigen's baseline build).
@@ -127,6 +139,8 @@ constexpr double kDependent = 1e-6;    // pivot / diagonal below which a row cou
 constexpr int kSubspaceMaxActive = 64;
 // Sweeps between full ones, with the open contacts left out in between (see sweep)
 constexpr int kFullEvery = 10;
+// Response columns (all bodies, double) above which the sweeps use single-precision copies
+constexpr size_t kSingleColumnsBytes = size_t(6) << 20;
 
 // A basic solution of m z = rhs (m square, nearly symmetric, possibly singular): Gaussian
 // elimination with diagonal pivoting, each step taking the row least implied by those taken
@@ -375,6 +389,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
     int next_full = 0;
     for (int it = 0, pass = 0; it < max_iterations; ++it) {
         const bool full = it >= next_full;
+        if (full && it > 0) op.refresh(lambda);
         const std::vector<int>& visit = full ? all : live;
         for (const int i : visit) {
             const int n = 3 * i;
@@ -473,6 +488,7 @@ struct DenseOp {
     Mat3 cross_block(int i, int j) const { return W.block<3, 3>(3 * i, 3 * j); }
     const VecX& u_free;
     void reset(const VecX& lambda) { u.noalias() = u_free + W * lambda; }
+    void refresh(const VecX&) {}
     void apply(int i, const Vec3& delta) {
         for (int d = 0; d < 3; ++d)
             if (delta[d] != 0) u.noalias() += W.col(3 * i + d) * delta[d];
@@ -491,6 +507,7 @@ struct ReducedOp {
     std::vector<VecX> y, f;
     std::vector<Mat3> blocks;
     std::vector<MatX> h;                                   // per body: m_b x 3 (its contacts)
+    std::vector<Eigen::MatrixXf> hs;
     std::vector<std::vector<std::pair<int, int>>> parts;  // per contact: (body, first column in h[body])
     ReducedOp(const ReducedContactProblem& p, const VecX& lambda) : p(p) {
         const int c = static_cast<int>(p.gap.size());
@@ -526,11 +543,26 @@ struct ReducedOp {
                 for (const auto& q : parts[i])
                     if (q.first == a.body) blocks[i] += a.coefficient * h[a.body].row(a.index).segment<3>(q.second);
             }
+        // Single-precision copies of the columns when they outgrow the caches: a sweep then
+        // streams them from memory, and half the bytes is most of the sweep's time (10x bunny:
+        // ~950 contacts on ~590 unknowns, 13 MB of columns; sweeps 37.5 -> 30.5 ms a frame).
+        // The velocities are kept in double and recomputed exactly every full sweep (refresh),
+        // so the single-precision round-off (~1e-7 relative) does not accumulate; the paper
+        // bunny's ~2 MB stay double (the copy cost more than it saved there).
+        size_t bytes = 0;
+        for (int b = 0; b < nb; ++b) bytes += sizeof(double) * static_cast<size_t>(h[b].size());
+        if (p.single_columns == 1 || (p.single_columns < 0 && bytes > kSingleColumnsBytes)) {
+            hs.resize(nb);
+            for (int b = 0; b < nb; ++b) hs[b] = h[b].cast<float>();
+        }
         reset(lambda);
     }
     void reset(const VecX& lambda) {
         VecX u;
         reduced_velocities(p, lambda, f, y, u);
+    }
+    void refresh(const VecX& lambda) {  // (see hs)
+        if (!hs.empty()) reset(lambda);
     }
     Vec3 velocity(int i) const {
         Vec3 out = p.u_free.segment<3>(3 * i);
@@ -551,6 +583,11 @@ struct ReducedOp {
         if (delta[0] == 0 && delta[1] == 0 && delta[2] == 0) return;  // an open contact staying open
         for (const auto& q : parts[i]) {
             const MatX& hb = h[q.first];
+            if (!hs.empty()) {
+                const Eigen::MatrixXf& hf = hs[q.first];
+                add_three_columns_single(y[q.first].data(), hf.data() + hf.rows() * q.second, hf.rows(), hf.rows(), delta[0], delta[1], delta[2]);
+                continue;
+            }
             add_three_columns(y[q.first].data(), hb.data() + hb.rows() * q.second, hb.rows(), hb.rows(), delta[0], delta[1], delta[2]);
         }
     }

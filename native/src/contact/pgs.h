@@ -46,6 +46,9 @@ struct ReducedContactProblem {
     VecX u_free, gap, friction, kinetic;  // as in ContactProblem
     double dt = 0;
     double recovery_speed = 0.05;
+    // The sweeps' response columns in single precision (velocities stay double, recomputed
+    // every full sweep): -1 when the columns outgrow the caches (6 MB), 0 never, 1 always.
+    int single_columns = -1;
     // W = sum_b P_b C_b P_b^T, rows and columns of the given contacts (3 per contact)
     MatX delassus() const;
 };
