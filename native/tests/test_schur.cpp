@@ -258,6 +258,8 @@ TEST(hand_apply_inverse_many_on_chosen_rows_equals_the_full_solve) {
         CHECK_LT((some.row(i) - full.row(rows[i])).cwiseAbs().maxCoeff(), 1e-12 * full.cwiseAbs().maxCoeff());
     const VecX mono = solve_monolithic(d.hand, rhs.col(3));
     CHECK_LT((full.col(3) - mono).cwiseAbs().maxCoeff(), 1e-8 * mono.cwiseAbs().maxCoeff());
+    MatX units;  // a factor made every step keeps no columns: the contact build solves instead
+    CHECK(!d.hand.apply_inverse_units({7, 8}, rows, units));
 }
 
 TEST(reused_cholesky_policy_counts_work_so_runs_repeat_exactly) {
@@ -362,6 +364,18 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
             if (lagged) continue;  // (an earlier matrix, warped: no exact bound to check)
             const VecX exact = solve_monolithic(d.hand, rhs.col(j));
             CHECK_LT((one - exact).cwiseAbs().maxCoeff(), 1e-8 * exact.cwiseAbs().maxCoeff());  // this step's factor
+        }
+        // unit columns from the kept response columns (the contact build's path): the same
+        // operator again, on the first call of a step and on a second one served from the
+        // columns kept (also across steps while the factor is not renewed)
+        const std::vector<int> unknowns = {2, 6 + 3 * 5 + 1, 6 + 3 * 5 + 2, static_cast<int>(n) - 1, 6 + 3 * 11};
+        MatX e = MatX::Zero(n, static_cast<Eigen::Index>(unknowns.size()));
+        for (size_t j = 0; j < unknowns.size(); ++j) e(unknowns[j], j) = 1.0;
+        MatX via_many, via_units;
+        d.hand.apply_inverse_many(e, via_many, &rows);
+        for (int call = 0; call < 2; ++call) {
+            CHECK(d.hand.apply_inverse_units(unknowns, rows, via_units));
+            CHECK_LT((via_units - via_many).cwiseAbs().maxCoeff(), 1e-12 * via_many.cwiseAbs().maxCoeff());
         }
         integrate(m, d, d.hand.s);
     }

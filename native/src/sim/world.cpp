@@ -415,7 +415,10 @@ void World::solve_contacts() {
             for (int k : cb.watched)
                 if (watched_nodes.empty() || watched_nodes.back() != k / 3) watched_nodes.push_back(k / 3);
         MatX rhs, x;
-        for (int first = 0; first < m; first += kWidestSolve) {  // (as many as a solve pass takes)
+        // the hand's unit columns from its kept response columns, when its solver keeps them
+        const bool units = b.kind == BodyKind::Hand && !cb.row_basis &&
+                           b.hand->hand.apply_inverse_units(cb.touched, cb.watched, cb.K);
+        for (int first = units ? m : 0; first < m; first += kWidestSolve) {  // (as many as a solve pass takes)
             const int w = std::min(kWidestSolve, m - first);
             rhs.setZero(dofs, w);
             for (int j = 0; j < w; ++j) {

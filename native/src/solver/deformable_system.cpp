@@ -2,6 +2,7 @@
 
 #include <cstdio>
 #include <string>
+#include <unordered_map>
 
 #include <Eigen/IterativeLinearSolvers>
 #include <algorithm>
@@ -119,6 +120,9 @@ struct DeformableSystem::Impl {
         step_units += units;
         epoch_units += units;
     }
+    // Af^-1's three columns per node (3n x 3 each), kept until the next factorization
+    std::unordered_map<int, MatX> response_cache;
+    size_t response_cache_bytes() const { return response_cache.size() * 9 * static_cast<size_t>(cholesky.nodes()) * sizeof(double); }
     // PCG workspaces (node-major blocks)
     std::vector<double> nb, nx, nr, nz, np, nq;
 
@@ -141,6 +145,7 @@ struct DeformableSystem::Impl {
         cholesky.factorize(sys.A);
         ++sys.factorizations;
         have_factor = factor_current = true;
+        response_cache.clear();  // columns of the former factor
         if (have_rotations) node_r_factor = node_r;
         else node_r_factor.clear();  // no warp until the next factorization
         epoch_units = 0;
@@ -244,6 +249,35 @@ void DeformableSystem::solve_response(const MatX& b, MatX& x, const std::vector<
     m.cholesky.solve(x, m.factor_current ? nullptr : m.current_warp(), wanted_nodes);
     if (!wanted_nodes && !x.allFinite())
         throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
+}
+
+bool DeformableSystem::response_blocks(const std::vector<int>& nodes, std::vector<const double*>& out,
+                                       const std::vector<Mat3>*& warp) {
+    Impl& m = *impl_;
+    if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) return false;
+    const int n = m.cholesky.nodes();
+    // at most ~64 MB of columns (a few hundred nodes of a 17000-tet hand): past that, start over
+    const size_t budget = size_t(64) << 20;
+    if (9 * static_cast<size_t>(n) * sizeof(double) * nodes.size() > budget) return false;
+    if (m.response_cache_bytes() + 9 * static_cast<size_t>(n) * sizeof(double) * nodes.size() > budget) m.response_cache.clear();
+    std::vector<int> missing;
+    for (int node : nodes)
+        if (!m.response_cache.count(node) && std::find(missing.begin(), missing.end(), node) == missing.end()) missing.push_back(node);
+    MatX rhs;
+    for (size_t first = 0; first < missing.size();) {
+        const size_t count = std::min<size_t>(kWidestSolve / 3, missing.size() - first);  // 3 columns a node
+        rhs.setZero(3 * n, 3 * static_cast<Eigen::Index>(count));
+        for (size_t k = 0; k < count; ++k)
+            for (int d = 0; d < 3; ++d) rhs(3 * missing[first + k] + d, 3 * k + d) = 1.0;
+        m.cholesky.solve(rhs, nullptr);  // Af^-1, unwarped
+        if (!rhs.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
+        for (size_t k = 0; k < count; ++k) m.response_cache[missing[first + k]] = rhs.middleCols(3 * k, 3);
+        first += count;
+    }
+    out.resize(nodes.size());
+    for (size_t k = 0; k < nodes.size(); ++k) out[k] = m.response_cache.at(nodes[k]).data();
+    warp = m.factor_current ? nullptr : m.current_warp();  // as solve_response
+    return true;
 }
 
 void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes) {

@@ -56,6 +56,13 @@ public:
     // velocities then receive (the constraints hold); only the flesh's response to them departs
     // from Eq. 7's by the factor's lag. A CG solve per response would cost tens of passes.
     void solve_response(const MatX& b, MatX& x, const std::vector<int>* wanted_nodes = nullptr);
+    // ReusedCholesky only (false otherwise, and out untouched): the response operator's columns
+    // at the given nodes, as unwarped blocks. The operator is W Af^-1 W^T with Af fixed until the
+    // next factorization, so Af^-1's 3 columns of a node are kept from step to step and only
+    // nodes not seen since the factorization cost solves (up to 32 columns a pass). out[k]: 3n x 3,
+    // column-major, Af^-1's columns of nodes[k] (valid until the next call); warp: W (null: the
+    // identity). Then column d of node k's response is W (Af^-1 e_{k,d}') with e' = W_k^T e_d.
+    bool response_blocks(const std::vector<int>& nodes, std::vector<const double*>& out, const std::vector<Mat3>*& warp);
     // Element rotations of the step (the co-rotation), for ReusedCholesky's warp: each node's
     // rotation (the rotation of the sum of its elements' rotations) relative to its rotation
     // when the factor was made. Ignored by the other solvers.

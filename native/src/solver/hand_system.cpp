@@ -118,6 +118,64 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
         throw NumericalError("the contact response of the hand is not finite: reduce the time step");
 }
 
+bool HandSystem::apply_inverse_units(const std::vector<int>& unknowns, const std::vector<int>& rows, MatX& out) {
+    // the flesh nodes of the unit columns (handle unknowns 0-5 have no flesh part)
+    std::vector<int> nodes, slot(unknowns.size(), -1);
+    for (size_t j = 0; j < unknowns.size(); ++j) {
+        if (unknowns[j] < 6) continue;
+        const int node = (unknowns[j] - 6) / 3;
+        auto it = std::find(nodes.begin(), nodes.end(), node);
+        slot[j] = static_cast<int>(it - nodes.begin());
+        if (it == nodes.end()) nodes.push_back(node);
+    }
+    std::vector<const double*> blocks;
+    const std::vector<Mat3>* warp = nullptr;
+    if (!tool.response_blocks(nodes, blocks, warp)) return false;
+    const Eigen::Index n3 = tool.A.rows();
+    auto rot = [&](int node) -> Mat3 { return warp ? (*warp)[node] : Mat3::Identity(); };
+    Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
+    out.resize(static_cast<Eigen::Index>(rows.size()), static_cast<Eigen::Index>(unknowns.size()));
+    for (size_t j = 0; j < unknowns.size(); ++j) {
+        Vec6 rh = Vec6::Zero();
+        if (unknowns[j] < 6) rh[unknowns[j]] = 1.0;
+        // the flesh part x_t = W Af^-1 W^T e (e: unit at the unknown): Af^-1's columns of its
+        // node times w = W_k^T e_d, then each asked row's node block rotated by W_i
+        Vec3 w = Vec3::Zero();
+        const double* c = nullptr;
+        if (slot[j] >= 0) {
+            const int node = nodes[slot[j]], d = (unknowns[j] - 6) % 3;
+            w = rot(node).row(d).transpose();
+            c = blocks[slot[j]];
+        }
+        auto flesh_block = [&](int node) -> Vec3 {  // x_t at node (3 values)
+            if (!c) return Vec3::Zero();
+            Vec3 y = Vec3::Zero();
+            for (int q = 0; q < 3; ++q) y += w[q] * Eigen::Map<const Vec3>(c + q * n3 + 3 * node);
+            return rot(node) * y;
+        };
+        Vec6 aht = Vec6::Zero();  // Aht x_t
+        for (size_t k = 0; k < coupled_nodes.size(); ++k) aht += Aht[k] * flesh_block(coupled_nodes[k]);
+        const Vec6 vh = schur.solve(Vec6(rh - aht));
+        int last = -1;
+        Vec3 at_last = Vec3::Zero();
+        for (size_t i = 0; i < rows.size(); ++i) {  // Eq. 12 on the asked rows
+            const int row = rows[i];
+            if (row < 6) {
+                out(i, j) = vh[row];
+                continue;
+            }
+            const int node = (row - 6) / 3;
+            if (node != last) {  // (a node's rows come together)
+                at_last = flesh_block(node);
+                last = node;
+            }
+            out(i, j) = at_last[(row - 6) % 3] - response_.row(row - 6).dot(vh);
+        }
+    }
+    if (!out.allFinite()) throw NumericalError("the contact response of the hand is not finite: reduce the time step");
+    return true;
+}
+
 VecX solve_monolithic(const HandSystem& system, const VecX& rhs) {
     const SpMat& at = system.tool.A;
     const Eigen::Index n3 = at.rows();

@@ -33,6 +33,12 @@ public:
     // Delassus operator. rows: only these rows of A^-1 rhs (indices into (v_h, v_t)), in that
     // order; the contact solver needs a few hundred of thousands.
     void apply_inverse_many(const MatX& rhs, MatX& out, const std::vector<int>* rows = nullptr);
+    // The same for unit right-hand sides, one per unknown in `unknowns` (indices into (v_h,
+    // v_t)), from the tool's kept response columns (DeformableSystem::response_blocks: with
+    // ReusedCholesky, only flesh nodes not seen since the last factorization cost solves).
+    // The same operator as apply_inverse_many's. False (out untouched) when the tool keeps no
+    // columns (other solvers).
+    bool apply_inverse_units(const std::vector<int>& unknowns, const std::vector<int>& rows, MatX& out);
     double t_deformable = 0;  // s spent in tool solves during the last solve()
     double t_schur = 0;       // s spent forming and solving the Schur complement
 
