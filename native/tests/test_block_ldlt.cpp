@@ -30,6 +30,14 @@ SpMat system_matrix(int nx, int ny, int nz, unsigned seed) {
         for (int c = 0; c < 3; ++c) a.coeffRef(3 * i + c, 3 * i + c) += m[i];
     return a;
 }
+
+BlockLDLT factored(const SpMat& a, bool supernodal) {
+    BlockLDLT f;
+    f.set_supernodal(supernodal);
+    f.analyze(a);
+    f.factorize(a);
+    return f;
+}
 }  // namespace
 
 TEST(block_ldlt_solves_like_a_dense_solver) {
@@ -276,10 +284,7 @@ TEST(sparse_right_hand_sides_give_the_columns_of_the_inverse_in_both_forms) {
     for (int i = 0; i < n3; ++i) dense[i] = g(rng);
     const VecX dense_solution = MatX(a).ldlt().solve(dense);
     for (bool supernodal : {false, true}) {
-        BlockLDLT f;
-        f.set_supernodal(supernodal);
-        f.analyze(a);
-        f.factorize(a);
+        const BlockLDLT f = factored(a, supernodal);
         for (int level = 0; level <= detected_simd_level(); ++level) {
             simd_level_override() = level;
             for (int width : {1, 4, 8}) {
@@ -324,10 +329,7 @@ TEST(solves_asked_for_some_nodes_give_those_rows_of_the_inverse_in_both_forms) {
     const MatX warped_inverse = wb * inverse * wb.transpose();
     const std::vector<std::vector<int>> wanted_sets = {{n / 2}, {0, n - 1}, {3, 17, n / 3, 2 * n / 3, n - 7}};
     for (bool supernodal : {false, true}) {
-        BlockLDLT f;
-        f.set_supernodal(supernodal);
-        f.analyze(a);
-        f.factorize(a);
+        const BlockLDLT f = factored(a, supernodal);
         for (int level = 0; level <= detected_simd_level(); ++level) {
             simd_level_override() = level;
             // up to 8 columns a pass (up-looking), 16 or 32 (supernodal): padded widths, and

@@ -38,6 +38,14 @@ void solve_perturbed(const Model& m, Data& d, unsigned seed) {
     formulate(m, d);
     d.hand.solve();
 }
+// A 6 x 4 x 3 box hand on the reused factor, CG to 1e-10 (to compare with direct solves)
+Model reused_box_model() {
+    const BoxMesh b = make_box(6, 4, 3, 0.01);
+    hh_params p = box_params();
+    p.solver = HH_SOLVER_REUSED_CHOLESKY;
+    p.cg_tolerance = 1e-10;
+    return build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
+}
 double schur_vs_monolithic(int solver, double cg_tol) {
     const BoxMesh b = make_box(4, 3, 2, 0.01);
     hh_params p = box_params();
@@ -266,11 +274,8 @@ TEST(reused_cholesky_policy_counts_work_so_runs_repeat_exactly) {
     // the refactorization policy counts passes over the factor instead of timing them: two runs
     // of the same scenario factor at the same steps and end on identical states
     auto run = [](int limit, std::vector<int>& factored, VecX& x) {
-        const BoxMesh b = make_box(6, 4, 3, 0.01);
-        hh_params p = box_params();
-        p.solver = HH_SOLVER_REUSED_CHOLESKY;
-        p.cg_tolerance = 1e-10;
-        const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
+        const Model m = reused_box_model();
+        const hh_params& p = m.params;
         Data d(m);
         d.tool.reuse_iteration_limit = limit;
         d.device.enabled = true;
@@ -333,11 +338,8 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
     // apply_inverse (the impulses' velocities) and apply_inverse_many (the Delassus operator)
     // must apply the same operator, so that the impulses solved with one are those the
     // velocities receive; with the factor of this very step they are the exact inverse.
-    const BoxMesh b = make_box(6, 4, 3, 0.01);
-    hh_params p = box_params();
-    p.solver = HH_SOLVER_REUSED_CHOLESKY;
-    p.cg_tolerance = 1e-10;
-    const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
+    const Model m = reused_box_model();
+    const hh_params& p = m.params;
     Data d(m);
     d.device.enabled = true;
     int stale = 0;
