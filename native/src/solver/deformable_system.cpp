@@ -152,6 +152,8 @@ struct DeformableSystem::Impl {
         epoch_steps = 1;
         renew = false;
     }
+    // the response operator's warp (DeformableSystem::solve_response): none on the step's own factor
+    const std::vector<Mat3>* response_warp() { return factor_current ? nullptr : current_warp(); }
     const std::vector<Mat3>* current_warp() {
         if (!have_rotations || node_r_factor.size() != node_r.size()) return nullptr;
         warp.resize(node_r.size());
@@ -246,7 +248,7 @@ void DeformableSystem::solve_response(const MatX& b, MatX& x, const std::vector<
     if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) return solve_many(b, x, 8, wanted_nodes);
     // (not counted by the refactorization policy: their cost does not grow with the factor's age)
     x = b;
-    m.cholesky.solve(x, m.factor_current ? nullptr : m.current_warp(), wanted_nodes);
+    m.cholesky.solve(x, m.response_warp(), wanted_nodes);
     if (!wanted_nodes && !x.allFinite())
         throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
@@ -276,7 +278,7 @@ bool DeformableSystem::response_blocks(const std::vector<int>& nodes, std::vecto
     }
     out.resize(nodes.size());
     for (size_t k = 0; k < nodes.size(); ++k) out[k] = m.response_cache.at(nodes[k]).data();
-    warp = m.factor_current ? nullptr : m.current_warp();  // as solve_response
+    warp = m.response_warp();
     return true;
 }
 

@@ -108,14 +108,21 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
             out.block(6, first, n3, w).noalias() = flesh - response_ * vh;  // Eq. 12 for every column
             continue;
         }
-        for (size_t i = 0; i < rows->size(); ++i) {  // Eq. 12 on the asked rows only
-            const int row = (*rows)[i];
-            if (row < 6) out.block(i, first, 1, w) = vh.row(row);
-            else out.block(i, first, 1, w) = flesh.row(row - 6) - response_.row(row - 6) * vh;
-        }
+        MatX flesh_rows = MatX::Zero(static_cast<Eigen::Index>(rows->size()), w);
+        for (size_t i = 0; i < rows->size(); ++i)
+            if ((*rows)[i] >= 6) flesh_rows.row(i) = flesh.row((*rows)[i] - 6);
+        eq12_on_rows(*rows, flesh_rows, vh, out.middleCols(first, w));
     }
-    if (rows && !out.allFinite())
-        throw NumericalError("the contact response of the hand is not finite: reduce the time step");
+}
+
+void HandSystem::eq12_on_rows(const std::vector<int>& rows, const MatX& flesh_rows,
+                              const Eigen::Matrix<double, 6, Eigen::Dynamic>& vh, Eigen::Ref<MatX> out) const {
+    for (size_t i = 0; i < rows.size(); ++i) {
+        const int row = rows[i];
+        if (row < 6) out.row(i) = vh.row(row);
+        else out.row(i) = flesh_rows.row(i) - response_.row(row - 6) * vh;
+    }
+    if (!out.allFinite()) throw NumericalError("the contact response of the hand is not finite: reduce the time step");
 }
 
 bool HandSystem::apply_inverse_units(const std::vector<int>& unknowns, const std::vector<int>& rows, MatX& out) {
@@ -134,7 +141,9 @@ bool HandSystem::apply_inverse_units(const std::vector<int>& unknowns, const std
     const Eigen::Index n3 = tool.A.rows();
     auto rot = [&](int node) -> Mat3 { return warp ? (*warp)[node] : Mat3::Identity(); };
     Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
-    out.resize(static_cast<Eigen::Index>(rows.size()), static_cast<Eigen::Index>(unknowns.size()));
+    const Eigen::Index nr = static_cast<Eigen::Index>(rows.size()), k = static_cast<Eigen::Index>(unknowns.size());
+    MatX flesh_rows = MatX::Zero(nr, k);  // the flesh part at the asked rows
+    Eigen::Matrix<double, 6, Eigen::Dynamic> vh(6, k);
     for (size_t j = 0; j < unknowns.size(); ++j) {
         Vec6 rh = Vec6::Zero();
         if (unknowns[j] < 6) rh[unknowns[j]] = 1.0;
@@ -155,24 +164,21 @@ bool HandSystem::apply_inverse_units(const std::vector<int>& unknowns, const std
         };
         Vec6 aht = Vec6::Zero();  // Aht x_t
         for (size_t k = 0; k < coupled_nodes.size(); ++k) aht += Aht[k] * flesh_block(coupled_nodes[k]);
-        const Vec6 vh = schur.solve(Vec6(rh - aht));
+        vh.col(j) = schur.solve(Vec6(rh - aht));
         int last = -1;
         Vec3 at_last = Vec3::Zero();
-        for (size_t i = 0; i < rows.size(); ++i) {  // Eq. 12 on the asked rows
-            const int row = rows[i];
-            if (row < 6) {
-                out(i, j) = vh[row];
-                continue;
-            }
-            const int node = (row - 6) / 3;
+        for (size_t i = 0; i < rows.size(); ++i) {
+            if (rows[i] < 6) continue;
+            const int node = (rows[i] - 6) / 3;
             if (node != last) {  // (a node's rows come together)
                 at_last = flesh_block(node);
                 last = node;
             }
-            out(i, j) = at_last[(row - 6) % 3] - response_.row(row - 6).dot(vh);
+            flesh_rows(i, j) = at_last[(rows[i] - 6) % 3];
         }
     }
-    if (!out.allFinite()) throw NumericalError("the contact response of the hand is not finite: reduce the time step");
+    out.resize(nr, k);
+    eq12_on_rows(rows, flesh_rows, vh, out);
     return true;
 }
 

@@ -44,6 +44,10 @@ public:
 
 private:
     Vec6 aht_times(const VecX& vt) const;  // Aht * vt, touching only coupled nodes
+    // Eq. 12 on asked rows: out(i, j) = v_h(row, j) for handle rows, else the flesh value at the
+    // row (flesh_rows(i, j)) minus (A_t^-1 Ath v_h)(row); throws on non-finite values
+    void eq12_on_rows(const std::vector<int>& rows, const MatX& flesh_rows, const Eigen::Matrix<double, 6, Eigen::Dynamic>& vh,
+                      Eigen::Ref<MatX> out) const;
     MatX rhs_, solved_;                   // the 7 batched right-hand sides and solutions
     MatX response_;                       // A_t^-1 Ath: its 6 columns side by side
     double schur_condition_ = 0;          // of the last step's Schur complement (0: none yet)
