@@ -41,8 +41,8 @@ test-sanitize: | $(BUILD)/.deps
 # The threaded parts (haptic loop, live sessions, the OpenHaptics stand-in) under ThreadSanitizer.
 test-tsan: | $(BUILD)/.deps
 	cmake -S native -B build/tsan -DCMAKE_BUILD_TYPE=Debug -DHH_SANITIZE=thread > /dev/null
-	cmake --build build/tsan -j2 --target test_haptics hd_standin
-	cd build/tsan && TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1" ctest --output-on-failure -R haptics
+	cmake --build build/tsan -j2 --target test_haptics test_world_threads hd_standin
+	cd build/tsan && TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1" ctest --output-on-failure -R "haptics|world_threads"
 
 test-python: native venv
 	$(PY) -m pytest -q tests

@@ -36,7 +36,7 @@ DEFAULTS = {
         "kinetic_friction": None,
         "self_collision": True,
     },
-    "contact": {"thickness": 1e-3, "patch": 4e-3, "max_iterations": 300, "tolerance": 1e-5},
+    "contact": {"thickness": 1e-3, "patch": 4e-3, "max_iterations": 300, "tolerance": 1e-5, "threads": 2},
     "bodies": [],
     "material": {"young_modulus": 5e4, "poisson_ratio": 0.3, "density": 1000.0,
                  "rayleigh_alpha": 0.0, "rayleigh_beta": 0.01},
@@ -235,6 +235,9 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     for key in ("thickness", "patch", "tolerance"):
         _positive(merged["contact"][key], f"contact.{key}")
     _positive(merged["contact"]["max_iterations"], "contact.max_iterations", integer=True)
+    if isinstance(merged["contact"]["threads"], bool) or merged["contact"]["threads"] not in (1, 2):
+        raise SceneError(f"contact.threads = {merged['contact']['threads']!r} is invalid: use 1 (the visual loop on "
+                         "one thread) or 2 (collision detection and a share of the solves on a second one)")
     h = merged["haptics"]
     _positive(h["rate"], "haptics.rate")
     if not 100 <= h["rate"] <= 10000:

@@ -181,6 +181,9 @@ typedef struct hh_world_params {
                                  of this size, which bounds the contact count of large areas */
     int max_iterations;       /* projected Gauss-Seidel sweeps, > 0 */
     double tolerance;         /* m/s, > 0: largest constraint velocity error that ends the sweeps */
+    int threads;              /* 1 or 2 (default): with 2, a second thread runs collision detection
+                                 and a share of the bodies' solves side by side with the caller's
+                                 (same results; the haptic loop's thread is separate) */
 } hh_world_params;
 
 typedef struct hh_material {

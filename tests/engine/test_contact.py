@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from haptic_hand.engine import mesh
+from haptic_hand.engine import mesh, native, scene as scenes
 from haptic_hand.engine import native_world as W
 
 G = 9.81
@@ -160,3 +160,12 @@ def test_fast_bodies_do_not_tunnel(target):
     assert fastest * dt > 20 * thickness  # it did fall fast enough to have tunnelled
     assert world.nodes(block)[0][:, 2].min() > 0  # it did land, on top
     assert deepest < thickness
+
+
+@pytest.mark.parametrize("threads", [0, 3, True, 1.5])
+def test_bad_thread_counts_are_named(threads):
+    with pytest.raises(scenes.SceneError, match="contact.threads"):
+        scenes.from_dict({"format": scenes.FORMAT, "contact": {"threads": threads}})
+    if isinstance(threads, int) and not isinstance(threads, bool):
+        with pytest.raises(native.InvalidInput, match="threads"):
+            W.World(threads=threads)

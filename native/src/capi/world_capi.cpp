@@ -66,6 +66,7 @@ void hh_default_world_params(hh_world_params* p) {
     p->contact_patch = 4e-3;
     p->max_iterations = 300;
     p->tolerance = 1e-5;
+    p->threads = 2;
 }
 
 void hh_default_material(hh_material* m) {
@@ -91,6 +92,8 @@ int hh_world_create(const hh_world_params* p, hh_world** out) {
         require_finite_positive(p->contact_patch, "contact_patch", "a positive distance in metres (e.g. 4e-3)");
         require(p->max_iterations > 0, "max_iterations must be positive");
         require_finite_positive(p->tolerance, "tolerance", "a positive speed in m/s (e.g. 1e-5)");
+        require(p->threads == 1 || p->threads == 2,
+                "threads = " + std::to_string(p->threads) + " is invalid: use 1 (all on the caller's thread) or 2");
         hh::WorldSettings s;
         s.dt = p->dt;
         s.gravity = vec3(p->gravity);
@@ -98,6 +101,7 @@ int hh_world_create(const hh_world_params* p, hh_world** out) {
         s.contact_patch = p->contact_patch;
         s.max_iterations = p->max_iterations;
         s.tolerance = p->tolerance;
+        s.threads = p->threads;
         *out = new hh_world(s);
         return HH_OK;
     });

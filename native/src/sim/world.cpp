@@ -2,6 +2,7 @@
 #include "solver/block_ldlt.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <functional>
 #include <cmath>
@@ -58,7 +59,32 @@ int Body::dofs() const {
     }
 }
 
-World::World(const WorldSettings& s) : settings(s) {}
+World::World(const WorldSettings& s) : settings(s) {
+    if (settings.threads > 1) worker_ = std::make_unique<Worker>();
+}
+
+void World::share(const std::vector<int>& order, const std::function<void(int)>& body, const std::function<void()>& first) {
+    std::atomic<size_t> next{0};
+    auto take = [&] {
+        for (size_t k; (k = next.fetch_add(1)) < order.size();) body(order[k]);
+    };
+    if (!worker_) {
+        first();
+        take();
+        return;
+    }
+    worker_->start([&] {
+        first();
+        take();
+    });
+    try {
+        take();
+    } catch (...) {
+        worker_->join_quietly();  // it still uses this frame's variables
+        throw;
+    }
+    worker_->join();
+}
 
 int World::add(std::unique_ptr<Body> body) {
     bodies.push_back(std::move(body));
@@ -190,10 +216,9 @@ void World::reduce_contacts() {
     }
 }
 
-void World::solve_free() {
+void World::solve_free(Body& b) {
     const double dt = settings.dt;
-    for (auto& bp : bodies) {
-        Body& b = *bp;
+    {
         switch (b.kind) {
             case BodyKind::Hand: {
                 const auto t0 = std::chrono::steady_clock::now();
@@ -351,11 +376,19 @@ void World::solve_contacts() {
     }
 
     std::map<int, MatX> response;  // per body: its symmetrized C_b (see ReducedContactProblem)
+    std::map<int, VecX> u_body;    // per body: its share of u_free on its rows
+    for (int bi : involved) {      // (made here: the bodies below are built side by side)
+        contact_bodies[bi];
+        response[bi];
+        u_body[bi];
+    }
     // Per dynamic body: J_b on the unknowns it touches (G), their responses K from batched
     // black-box solves (8 right-hand sides per pass), and its block G K G^T (or G K) of W.
-    for (int bi : involved) {
+    // Each body's solves are its own: with a worker, two bodies are built at once (the largest
+    // first), each writing only its own entries.
+    auto build = [&](int bi) {
         Body& b = *bodies[bi];
-        ContactBody& cb = contact_bodies[bi];
+        ContactBody& cb = contact_bodies.at(bi);
         const int dofs = b.dofs();
         std::vector<int> touched_mark(dofs, 0);
         for (int c = 0; c < nc; ++c)
@@ -445,11 +478,17 @@ void World::solve_contacts() {
         // u_free, and the body's symmetric response on its basis for the sweeps
         VecX v_touched(nt);
         for (int k = 0; k < nt; ++k) v_touched[k] = b.v_free[cb.touched[k]];
-        const VecX u_b = cb.G * v_touched;
-        for (int l = 0; l < nr; ++l) u_free[cb.rows[l]] += u_b[l];
+        u_body.at(bi) = cb.G * v_touched;
         MatX c_b = cb.row_basis ? MatX(cb.G * cb.K.topRows(nt)) : MatX(cb.K.topRows(nt));
-        response[bi] = 0.5 * (c_b + c_b.transpose());
+        response.at(bi) = 0.5 * (c_b + c_b.transpose());
         if (std::getenv("HH_CONTACT_TRACE")) std::fprintf(stderr, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(t_start));
+    };
+    std::vector<int> order = involved;
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return bodies[a]->dofs() > bodies[b]->dofs(); });
+    share(order, build, [] {});
+    for (int bi : involved) {
+        const ContactBody& cb = contact_bodies.at(bi);
+        for (size_t l = 0; l < cb.rows.size(); ++l) u_free[cb.rows[l]] += u_body.at(bi)[l];
     }
     const auto t_built = clock::now();
     stats.t_contact_build = std::chrono::duration<double>(t_built - t_start).count();
@@ -686,13 +725,29 @@ void World::step() {
             bp->target.v_com = (p1.position - p0.position) / settings.dt;
             bp->target.omega = quat_to_rotation_vector(quat_multiply(p1.quaternion, quat_conjugate(p0.quaternion))) / settings.dt;
         }
-    detect();
-    reduce_contacts();
-    const auto t1 = clock::now();
-    stats.t_detection = seconds_since(t0);
-    solve_free();
+    // Detection reads the bodies' positions and velocities at the start of the step; the free
+    // solves read them too and write only their own systems and v_free: independent, so with a
+    // worker they run side by side (the worker detects, then joins in on the solves, the
+    // largest body first).
+    std::vector<int> order(bodies.size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return bodies[a]->dofs() > bodies[b]->dofs(); });
+    std::vector<double> free_seconds(bodies.size(), 0.0);
+    share(
+        order,
+        [&](int i) {
+            const auto t = clock::now();
+            solve_free(*bodies[i]);
+            free_seconds[i] = seconds_since(t);
+        },
+        [&] {
+            const auto t = clock::now();
+            detect();
+            reduce_contacts();
+            stats.t_detection = seconds_since(t);
+        });
+    for (double s : free_seconds) stats.t_dynamics += s;
     const auto t2 = clock::now();
-    stats.t_dynamics = seconds_since(t1);
     solve_contacts();
     stats.t_contact = seconds_since(t2);
     integrate();

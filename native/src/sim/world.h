@@ -6,11 +6,13 @@
 // solve (Delassus operator W = J A^-1 J^T, projected Gauss-Seidel), then all bodies advance.
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <unordered_map>
 #include <vector>
 
+#include "common/worker.h"
 #include "contact/detection.h"
 #include "contact/pgs.h"
 #include "sim/data.h"
@@ -70,6 +72,9 @@ struct WorldSettings {
     double contact_patch = 4e-3;      // m: one contact per cell of this size per pair of bodies
     int max_iterations = 300;         // projected Gauss-Seidel sweeps (resting contacts end far sooner)
     double tolerance = 1e-5;          // m/s: largest constraint velocity error that ends the sweeps
+    // 2: a second thread takes collision detection and a share of the bodies' solves (the
+    // results are the same as with 1, bit for bit: only independent parts run side by side)
+    int threads = 2;
 };
 
 struct WorldStats {
@@ -79,6 +84,8 @@ struct WorldStats {
     double min_distance = 0;     // m: smallest signed distance of a contact after the step
     double residual = 0;         // m/s: largest constraint violation left by the solver
     int iterations = 0;
+    // t_total is the step's wall time; with two threads detection and dynamics overlap (and
+    // t_dynamics sums the bodies' free solves, whichever thread ran them)
     double t_detection = 0, t_dynamics = 0, t_contact = 0, t_total = 0;  // s
     // inside t_contact: forming the groups' W (the bodies' batched solves included), the
     // Gauss-Seidel sweeps, and the final velocity solves
@@ -146,10 +153,14 @@ private:
     void update_points(Body& b);
     void detect();
     void reduce_contacts();
-    void solve_free();
+    void solve_free(Body& b);
+    // Runs body(k) for k = 0 .. n - 1 on this thread and, when there is one, the worker (after
+    // its `first` job), each taking the next k as it becomes free; k in order of `order`.
+    void share(const std::vector<int>& order, const std::function<void(int)>& body, const std::function<void()>& first);
     void solve_contacts();
     void integrate();
     double contact_distance(const Contact& c) const;
+    std::unique_ptr<Worker> worker_;  // settings.threads > 1
 };
 
 // Mass, centre of mass and inertia about it of a closed, outward-wound triangle mesh of

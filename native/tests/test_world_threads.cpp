@@ -1,0 +1,203 @@
+// The world step on two threads (WorldSettings::threads, common/worker.h): the worker runs
+// collision detection and a share of the bodies' free solves and contact responses. Only
+// independent parts run side by side, each writing its own results, so a scene must step
+// exactly as on one thread, bit for bit. Run under ThreadSanitizer too (make test-tsan).
+#include <algorithm>
+#include <cstring>
+#include <stdexcept>
+#include <vector>
+
+#include "box_mesh.h"
+#include "check.h"
+#include "common/worker.h"
+#include "haptic_hand.h"
+
+namespace {
+
+// the hand's box starts 0.4 mm above the upper soft box's top (2.32 + 2 cm), within reach
+constexpr double kHandLift = 0.0436;
+
+// The box hand pressed by its device onto a stack of two soft boxes on the ground: hand-box,
+// box-box and box-ground contacts, three dynamic bodies whose solves and responses can share
+// the two threads.
+struct Stack {
+    BoxMesh hand_box = make_box(4, 3, 2, 0.01);
+    BoxMesh soft = make_box(3, 3, 2, 0.01);
+    hh_model* model = nullptr;
+    hh_world* world = nullptr;
+    int hand = -1, lower = -1, upper = -1;
+    double com[3] = {0, 0, 0};
+
+    explicit Stack(int threads) {
+        hh_params p = box_hand_params();
+        p.palm_seed[2] += kHandLift;
+        hh_world_params wp;
+        hh_default_world_params(&wp);
+        wp.threads = threads;
+        CHECK(hh_world_create(&wp, &world) == HH_OK);
+        const double ground[3] = {0, 0, 0}, up[3] = {0, 0, 1};
+        int plane = -1;
+        CHECK(hh_world_add_plane(world, ground, up, 0.6, &plane) == HH_OK);
+        lower = add_soft(0.0011);
+        upper = add_soft(0.0232);
+        // the hand above the stack: its bottom face (z = 0 of its box) as collision surface
+        std::vector<double> x = hand_box.nodes;
+        for (size_t i = 0; i < x.size(); i += 3) x[i + 2] += kHandLift;
+        CHECK(hh_model_create(x.data(), hand_box.n_nodes(), hand_box.tets.data(), hand_box.n_tets(), &p, &model) ==
+              HH_OK);
+        std::vector<int> nodes;
+        std::vector<double> weights;
+        std::vector<int> faces;
+        bottom_surface(hand_box, 4, 3, nodes, weights, faces);
+        CHECK(hh_world_add_hand(world, model, nodes.data(), weights.data(), static_cast<int>(nodes.size() / 4),
+                                faces.data(), static_cast<int>(faces.size() / 3), 0.5, 0, &hand) == HH_OK);
+        hh_model_info info;
+        CHECK(hh_model_info_get(model, &info) == HH_OK);
+        for (int i = 0; i < 3; ++i) com[i] = info.handle_com[i];
+    }
+    ~Stack() {
+        hh_world_free(world);
+        hh_model_free(model);
+    }
+
+    // The bottom face (k = 0) of a box mesh, as a vertex surface on its nodes (two triangles per
+    // cell); top = true for the top face, wound outwards.
+    static void bottom_surface(const BoxMesh& m, int nx, int ny, std::vector<int>& nodes, std::vector<double>& weights,
+                               std::vector<int>& faces, bool top = false, int nz = 0) {
+        const int k = top ? nz : 0;
+        auto id = [&](int i, int j) { return (k * (ny + 1) + j) * (nx + 1) + i; };
+        for (int j = 0; j <= ny; ++j)
+            for (int i = 0; i <= nx; ++i) {
+                const int n[4] = {id(i, j), 0, 0, 0};
+                const double w[4] = {1, 0, 0, 0};
+                nodes.insert(nodes.end(), n, n + 4);
+                weights.insert(weights.end(), w, w + 4);
+            }
+        (void)m;
+        auto v = [&](int i, int j) { return j * (nx + 1) + i; };
+        for (int j = 0; j < ny; ++j)
+            for (int i = 0; i < nx; ++i) {
+                int a = v(i, j), b = v(i + 1, j), c = v(i + 1, j + 1), d = v(i, j + 1);
+                if (top) {
+                    faces.insert(faces.end(), {a, b, c, a, c, d});
+                } else {
+                    faces.insert(faces.end(), {a, c, b, a, d, c});
+                }
+            }
+    }
+
+    // A soft box (3 x 3 x 2 cells of 1 cm) with its bottom at height z; its collision surface
+    // is its bottom and top faces.
+    int add_soft(double z) {
+        std::vector<double> x = soft.nodes;
+        for (size_t i = 0; i < x.size(); i += 3) {
+            x[i] += 0.005;
+            x[i + 2] += z;
+        }
+        std::vector<int> nodes, faces;
+        std::vector<double> weights;
+        bottom_surface(soft, 3, 3, nodes, weights, faces);
+        const int offset = static_cast<int>(nodes.size() / 4);
+        std::vector<int> top_nodes, top_faces;
+        std::vector<double> top_weights;
+        bottom_surface(soft, 3, 3, top_nodes, top_weights, top_faces, true, 2);
+        nodes.insert(nodes.end(), top_nodes.begin(), top_nodes.end());
+        weights.insert(weights.end(), top_weights.begin(), top_weights.end());
+        for (int f : top_faces) faces.push_back(f + offset);
+        hh_material mat;
+        hh_default_material(&mat);
+        int body = -1;
+        CHECK(hh_world_add_soft_body(world, x.data(), soft.n_nodes(), soft.tets.data(), soft.n_tets(), &mat, nullptr, 0,
+                                     nodes.data(), weights.data(), static_cast<int>(nodes.size() / 4), faces.data(),
+                                     static_cast<int>(faces.size() / 3), 0.6, &body) == HH_OK);
+        return body;
+    }
+
+    // The device 1 cm below the handle's rest position: the hand presses down on the stack.
+    void press() {
+        const double q[4] = {0, 0, 0, 1}, zero[3] = {0, 0, 0};
+        const double target[3] = {com[0], com[1], com[2] - 0.01};
+        CHECK(hh_world_set_device(world, hand, 1, target, q, zero, zero) == HH_OK);
+    }
+
+    std::vector<double> nodes_of(int body, int n) const {
+        std::vector<double> x(3 * static_cast<size_t>(n)), v(3 * static_cast<size_t>(n));
+        CHECK(hh_world_body_nodes(world, body, x.data(), v.data(), n) == HH_OK);
+        x.insert(x.end(), v.begin(), v.end());
+        return x;
+    }
+    std::vector<double> state() const {
+        std::vector<double> out = nodes_of(hand, hand_box.n_nodes());
+        for (int b : {lower, upper}) {
+            const std::vector<double> s = nodes_of(b, soft.n_nodes());
+            out.insert(out.end(), s.begin(), s.end());
+        }
+        return out;
+    }
+};
+
+}  // namespace
+
+TEST(two_threads_step_a_scene_exactly_as_one) {
+    Stack one(1), two(2);
+    one.press();
+    two.press();
+    int most_contacts = 0;
+    double most_upward = 0;  // N: largest upward contact force on the hand
+    for (int step = 0; step < 12; ++step) {
+        hh_world_stats s1, s2;
+        CHECK(hh_world_step(one.world, &s1) == HH_OK);
+        CHECK(hh_world_step(two.world, &s2) == HH_OK);
+        CHECK(s1.contacts == s2.contacts);
+        CHECK(s1.iterations == s2.iterations);
+        CHECK(s1.residual == s2.residual);
+        most_contacts = std::max(most_contacts, s1.contacts);
+        double f[3];
+        CHECK(hh_world_contact_force(two.world, two.hand, f) == HH_OK);
+        most_upward = std::max(most_upward, f[2]);
+        const std::vector<double> a = one.state(), b = two.state();
+        CHECK(a.size() == b.size());
+        CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0);
+    }
+    // the scene did what it is for: the boxes met each other and the ground (more contacts
+    // than one 4 x 4-vertex face), and the upper box pushed the hand up at least once
+    CHECK(most_contacts > 32);
+    CHECK(most_upward > 0);
+}
+
+TEST(bad_thread_counts_are_refused_with_a_message) {
+    hh_world_params wp;
+    hh_default_world_params(&wp);
+    CHECK(wp.threads == 2);
+    hh_world* world = nullptr;
+    for (int bad : {0, 3, -1}) {
+        wp.threads = bad;
+        CHECK(hh_world_create(&wp, &world) == HH_ERR_INVALID_ARGUMENT);
+        CHECK(world == nullptr);
+        CHECK(std::strstr(hh_last_error(), "threads") != nullptr);
+    }
+}
+
+TEST(a_worker_job_that_throws_reaches_join_and_the_worker_runs_on) {
+    hh::Worker worker;
+    int ran = 0;
+    worker.start([&] { throw std::runtime_error("job failed"); });
+    bool caught = false;
+    try {
+        worker.join();
+    } catch (const std::runtime_error& e) {
+        caught = std::strcmp(e.what(), "job failed") == 0;
+    }
+    CHECK(caught);
+    worker.start([&] { ran = 1; });
+    worker.join();
+    CHECK(ran == 1);
+    // join_quietly drops the error (the caller is already unwinding from its own)
+    worker.start([&] { throw std::runtime_error("dropped"); });
+    worker.join_quietly();
+    worker.start([&] { ran = 2; });
+    worker.join();
+    CHECK(ran == 2);
+}
+
+
