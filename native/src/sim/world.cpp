@@ -517,9 +517,10 @@ void World::solve_contacts() {
     // torques), so neither is W; Gauss-Seidel is only sure to converge on a symmetric one. Its
     // symmetric part differs by terms of the order of the springs' damping times the handle's
     // spin; the velocities below use the true operator.
-    stats.iterations = 0;
-    stats.residual = 0;
-    for (ContactGroup& g : contact_groups) {
+    // Groups share no body, so with a worker two are solved at once (the most contacts first),
+    // each writing its own impulses.
+    auto solve_group = [&](int group) {
+        ContactGroup& g = contact_groups[group];
         const int gc = static_cast<int>(g.contacts.size());
         ReducedContactProblem prob;
         prob.dt = settings.dt;
@@ -542,9 +543,9 @@ void World::solve_contacts() {
                 auto sl = slot.find(bi);
                 if (sl == slot.end()) {
                     sl = slot.emplace(bi, static_cast<int>(prob.bodies.size())).first;
-                    prob.bodies.push_back({std::move(response[bi])});
+                    prob.bodies.push_back({std::move(response.at(bi))});
                 }
-                const ContactBody& cb = contact_bodies[bi];
+                const ContactBody& cb = contact_bodies.at(bi);
                 const int l0 = cb.local_row[3 * c];
                 if (cb.row_basis) {
                     for (int d = 0; d < 3; ++d) prob.entries.push_back({sl->second, l0 + d, Vec3::Unit(d)});
@@ -564,17 +565,27 @@ void World::solve_contacts() {
         const PgsResult res = solve_pgs(prob, lg, settings.max_iterations, settings.tolerance);
         g.iterations = res.iterations;
         g.residual = res.residual;
-        stats.iterations = std::max(stats.iterations, res.iterations);
-        stats.residual = std::max(stats.residual, res.residual);
         for (int i = 0; i < gc; ++i) lambda.segment<3>(3 * g.contacts[i]) = lg.segment<3>(3 * i);
+    };
+    std::vector<int> group_order(contact_groups.size());
+    for (size_t k = 0; k < group_order.size(); ++k) group_order[k] = static_cast<int>(k);
+    std::stable_sort(group_order.begin(), group_order.end(), [&](int a, int b) {
+        return contact_groups[a].contacts.size() > contact_groups[b].contacts.size();
+    });
+    share(group_order, solve_group, [] {});
+    stats.iterations = 0;
+    stats.residual = 0;
+    for (const ContactGroup& g : contact_groups) {
+        stats.iterations = std::max(stats.iterations, g.iterations);
+        stats.residual = std::max(stats.residual, g.residual);
     }
     const auto t_swept = clock::now();
     stats.t_contact_sweeps = std::chrono::duration<double>(t_swept - t_built).count();
 
-    // v = v* + A^-1 J^T lambda: one more solve per body
-    for (int bi : involved) {
+    // v = v* + A^-1 J^T lambda: one more solve per body (two bodies at once with a worker)
+    share(order, [&](int bi) {
         Body& b = *bodies[bi];
-        const ContactBody& cb = contact_bodies[bi];
+        const ContactBody& cb = contact_bodies.at(bi);
         VecX lb(cb.rows.size());
         for (size_t l = 0; l < cb.rows.size(); ++l) lb[l] = lambda[cb.rows[l]];
         const VecX f = cb.G.transpose() * lb;
@@ -590,7 +601,7 @@ void World::solve_contacts() {
                 break;
             default: b.v_new += Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
         }
-    }
+    }, [] {});
     previous_impulse.clear();
     previous_patch_impulse.clear();
     for (int c = 0; c < nc; ++c) {
