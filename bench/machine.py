@@ -65,7 +65,7 @@ def print_machine(info: dict) -> None:
     print("== Machine")
     print(f"CPU:      {info['cpu']}")
     print(f"cores:    {info['logical_cores']} logical, {info['physical_cores']} physical, "
-          f"{info['usable_cores']} usable by this process (the engine uses one)")
+          f"{info['usable_cores']} usable by this process (the world step uses up to two: contact.threads)")
     if info["load_average"]:
         print("load:     " + " ".join(f"{x:.2f}" for x in info["load_average"])
               + " (1/5/15 min; anything else running skews the times)")

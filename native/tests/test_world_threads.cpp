@@ -3,11 +3,13 @@
 // independent parts run side by side, each writing its own results, so a scene must step
 // exactly as on one thread, bit for bit. Run under ThreadSanitizer too (make test-tsan).
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <stdexcept>
 #include <vector>
 
 #include "box_mesh.h"
+#include "capi/guard.h"
 #include "check.h"
 #include "common/worker.h"
 #include "haptic_hand.h"
@@ -163,6 +165,24 @@ TEST(two_threads_step_a_scene_exactly_as_one) {
     // than one 4 x 4-vertex face), and the upper box pushed the hand up at least once
     CHECK(most_contacts > 32);
     CHECK(most_upward > 0);
+}
+
+// A body whose state went bad (NaN: here written past the C API's checks) makes its solve fail
+// on whichever thread runs it; the step returns that as a status with a message instead of
+// crashing or hanging, on one thread as on two, and the world can be freed afterwards.
+TEST(a_failing_body_solve_comes_back_as_a_status_on_either_thread) {
+    for (int threads : {1, 2}) {
+        Stack stack(threads);
+        hh_world_stats st;
+        CHECK(hh_world_step(stack.world, &st) == HH_OK);
+        for (int body : {stack.lower, stack.upper}) {
+            Stack again(threads);
+            again.world->w.bodies[body]->state.v[0] = std::nan("");
+            const int status = hh_world_step(again.world, &st);
+            CHECK(status == HH_ERR_NUMERICAL);
+            CHECK(std::strstr(hh_last_error(), "non-finite") != nullptr);
+        }
+    }
 }
 
 TEST(bad_thread_counts_are_refused_with_a_message) {
