@@ -3,6 +3,10 @@
 // independent parts run side by side, each writing its own results, so a scene must step
 // exactly as on one thread, bit for bit. Run under ThreadSanitizer too (make test-tsan).
 #include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <thread>
+#include <mutex>
 #include <cmath>
 #include <cstring>
 #include <stdexcept>
@@ -11,6 +15,7 @@
 #include "box_mesh.h"
 #include "capi/guard.h"
 #include "check.h"
+#include "common/task_graph.h"
 #include "common/worker.h"
 #include "haptic_hand.h"
 
@@ -220,4 +225,90 @@ TEST(a_worker_job_that_throws_reaches_join_and_the_worker_runs_on) {
     CHECK(ran == 2);
 }
 
+// The step's scheduler (common/task_graph.h): a task never starts before those it comes after
+// have ended, on one thread or two; tasks added by a running task run too; one thread takes
+// the ready tasks by priority; an error stops the graph and comes back from run; a task cannot
+// come after one that does not exist yet.
+TEST(task_graph_keeps_order_runs_added_tasks_and_returns_errors) {
+    for (bool two : {false, true}) {
+        hh::Worker worker;
+        hh::TaskGraph graph;
+        std::mutex m;
+        std::vector<int> log;  // task ids in the order they ended
+        std::atomic<int> running{0}, most{0};  // tasks running at once, and the most seen
+        auto task = [&](int id) {
+            return [&, id] {
+                const int now = ++running;
+                int seen = most.load();
+                while (now > seen && !most.compare_exchange_weak(seen, now)) {
+                }
+                volatile double x = 0;  // some work, so the two threads overlap
+                for (int k = 0; k < 200000; ++k) x = x + k;
+                --running;
+                std::lock_guard<std::mutex> lock(m);
+                log.push_back(id);
+            };
+        };
+        const int a = graph.add(task(0), {}, 1);
+        const int b = graph.add(task(1), {}, 2);
+        graph.add(
+            [&, a, b] {
+                task(2)();
+                // added while running: 3 after a and b, 4 after 3
+                const int c = graph.add(task(3), {a, b}, 1);
+                graph.add(task(4), {c}, 5);
+            },
+            {a}, 0);
+        graph.add(task(5), {}, 0.5);
+        graph.run(two ? &worker : nullptr);
+        CHECK(log.size() == 6);
+        auto pos = [&](int id) { return std::find(log.begin(), log.end(), id) - log.begin(); };
+        CHECK(pos(2) > pos(0));
+        CHECK(pos(3) > pos(0) && pos(3) > pos(1) && pos(3) > pos(2));
+        CHECK(pos(4) > pos(3));
+        if (!two) {
+            CHECK(most.load() == 1);
+            CHECK(log[0] == 1 && log[1] == 0);  // by priority among the ready ones
+        }
+    }
+    {  // two ready tasks run at once on two threads: each waits (up to 20 s) to see the other start
+        hh::Worker worker;
+        hh::TaskGraph graph;
+        std::atomic<int> started{0};
+        std::atomic<int> met{0};
+        auto meet = [&] {
+            ++started;
+            const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+            while (started.load() < 2 && std::chrono::steady_clock::now() < until) std::this_thread::yield();
+            if (started.load() == 2) ++met;
+        };
+        graph.add(meet, {}, 1);
+        graph.add(meet, {}, 1);
+        graph.run(&worker);
+        CHECK(met.load() == 2);
+    }
+    for (bool two : {false, true}) {
+        hh::Worker worker;
+        hh::TaskGraph graph;
+        std::atomic<int> after_error{0};
+        const int bad = graph.add([] { throw std::runtime_error("task failed"); }, {}, 10);
+        graph.add([&] { ++after_error; }, {bad}, 0);
+        bool caught = false;
+        try {
+            graph.run(two ? &worker : nullptr);
+        } catch (const std::runtime_error& e) {
+            caught = std::strcmp(e.what(), "task failed") == 0;
+        }
+        CHECK(caught);
+        CHECK(after_error.load() == 0);
+    }
+    hh::TaskGraph graph;  // a task after one not added yet is refused (no cycles, no hang)
+    bool refused = false;
+    try {
+        graph.add([] {}, {0}, 0);
+    } catch (const std::invalid_argument&) {
+        refused = true;
+    }
+    CHECK(refused);
+}
 

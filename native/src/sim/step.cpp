@@ -1,15 +1,10 @@
 #include <chrono>
 
+#include "common/clock.h"
 #include "rigid/quaternion.h"
 #include "sim/data.h"
 
 namespace hh {
-
-namespace {
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-}  // namespace
 
 Data::Data(const Model& model) {
     reset(model, *this);

@@ -72,8 +72,9 @@ struct WorldSettings {
     double contact_patch = 4e-3;      // m: one contact per cell of this size per pair of bodies
     int max_iterations = 300;         // projected Gauss-Seidel sweeps (resting contacts end far sooner)
     double tolerance = 1e-5;          // m/s: largest constraint velocity error that ends the sweeps
-    // 2: a second thread takes collision detection and a share of the bodies' solves (the
-    // results are the same as with 1, bit for bit: only independent parts run side by side)
+    // 2: a second thread takes parts of the step (detection, bodies' solves, contact groups)
+    // beside the caller's (the results are the same as with 1, bit for bit: only parts that do
+    // not depend on each other run side by side; see World::step)
     int threads = 2;
 };
 
@@ -96,6 +97,7 @@ struct WorldStats {
 class World {
 public:
     explicit World(const WorldSettings& settings);
+    ~World();
     WorldSettings settings;
     std::vector<std::unique_ptr<Body>> bodies;
     std::vector<Contact> contacts;  // of the last step, one per patch
@@ -154,10 +156,19 @@ private:
     void detect();
     void reduce_contacts();
     void solve_free(Body& b);
-    // Runs body(k) for k = 0 .. n - 1 on this thread and, when there is one, the worker (after
-    // its `first` job), each taking the next k as it becomes free; k in order of `order`.
-    void share(const std::vector<int>& order, const std::function<void(int)>& body, const std::function<void()>& first);
-    void solve_contacts();
+    // The contact solve in parts (sim/world_contact.cpp), scheduled by step as tasks: prepare
+    // from the contacts alone; per dynamic body, once its free solve is done, its responses;
+    // per group of coupled contacts, once its bodies are built, the sweeps; per body, once its
+    // group is solved, its final velocity solve; then finish.
+    struct ContactSetup;
+    std::unique_ptr<ContactSetup> setup_;
+    void prepare_contacts();
+    void build_contact_body(int body);
+    void solve_contact_group(int group);
+    void apply_contact_body(int body);
+    void finish_contacts();
+    const std::vector<int>& contact_involved() const;               // (after prepare_contacts)
+    const std::vector<int>& contact_group_bodies(int group) const;  // (after prepare_contacts)
     void integrate();
     double contact_distance(const Contact& c) const;
     std::unique_ptr<Worker> worker_;  // settings.threads > 1

@@ -1,17 +1,12 @@
 #include "solver/hand_system.h"
 #include "solver/block_ldlt.h"
+#include "common/clock.h"
 
 #include <Eigen/SparseLU>
 #include <algorithm>
 #include <chrono>
 
 namespace hh {
-
-namespace {
-double seconds_since(std::chrono::steady_clock::time_point t0) {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-}  // namespace
 
 Vec6 HandSystem::aht_times(const VecX& vt) const {
     Vec6 out = Vec6::Zero();

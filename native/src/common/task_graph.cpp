@@ -1,0 +1,66 @@
+#include "common/task_graph.h"
+
+#include <stdexcept>
+
+namespace hh {
+
+int TaskGraph::add(std::function<void()> run, std::vector<int> after, double priority) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    // (so the graph has no cycles: every task can run once those before it have)
+    for (int a : after)
+        if (a < 0 || a >= static_cast<int>(tasks_.size()))
+            throw std::invalid_argument("TaskGraph::add: a task can only come after tasks added before it");
+    tasks_.push_back(Task{std::move(run), std::move(after), priority});
+    ++left_;
+    changed_.notify_all();
+    return static_cast<int>(tasks_.size()) - 1;
+}
+
+void TaskGraph::drain() {
+    std::unique_lock<std::mutex> lock(mutex_);
+    for (;;) {
+        if (error_ || left_ == 0) return;
+        int best = -1;
+        for (size_t i = 0; i < tasks_.size(); ++i) {
+            const Task& t = tasks_[i];
+            if (t.state != 0 || (best >= 0 && t.priority <= tasks_[best].priority)) continue;
+            bool ready = true;
+            for (int a : t.after) ready = ready && tasks_[a].state == 2;
+            if (ready) best = static_cast<int>(i);
+        }
+        if (best < 0) {
+            if (running_ == 0) {  // (cannot happen: add keeps the graph acyclic)
+                error_ = std::make_exception_ptr(std::logic_error("TaskGraph: tasks wait on tasks that never run"));
+                changed_.notify_all();
+                return;
+            }
+            changed_.wait(lock);
+            continue;
+        }
+        Task& task = tasks_[best];
+        task.state = 1;
+        ++running_;
+        lock.unlock();
+        std::exception_ptr error;
+        try {
+            task.run();
+        } catch (...) {
+            error = std::current_exception();
+        }
+        lock.lock();
+        --running_;
+        task.state = 2;
+        --left_;
+        if (error && !error_) error_ = error;
+        changed_.notify_all();
+    }
+}
+
+void TaskGraph::run(Worker* worker) {
+    if (worker) worker->start([this] { drain(); });
+    drain();
+    if (worker) worker->join_quietly();  // (drain catches what the tasks throw)
+    if (error_) std::rethrow_exception(error_);
+}
+
+}  // namespace hh

@@ -1,0 +1,463 @@
+// The contact solve of a world step (World, sim/world.h), in parts the step schedules
+// (World::step): prepare_contacts from the detected contacts alone; build_contact_body per
+// dynamic body once its free solve is done (its responses to the contacts through its
+// black-box solve); solve_contact_group per group of coupled contacts once its bodies are
+// built (projected Gauss-Seidel); apply_contact_body per body once its group is solved (its
+// final velocity solve); finish_contacts (impulses kept for the next step's warm start, forces, statistics).
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <functional>
+#include <map>
+#include <string>
+
+#include "common/clock.h"
+#include "sim/world_contact.h"
+#include "solver/block_ldlt.h"
+
+namespace hh {
+
+namespace {
+// Identity of a contact across steps: its sides' bodies and first vertices (a vertex against
+// a body keeps its identity when the closest triangle changes).
+std::uint64_t contact_key(const Contact& c) {
+    std::uint64_t h = 1469598103934665603ull;
+    auto mix = [&](std::uint64_t v) { h = (h ^ v) * 1099511628211ull; };
+    mix(static_cast<std::uint64_t>(c.a.body));
+    mix(static_cast<std::uint64_t>(c.a.count));
+    for (int k = 0; k < c.a.count; ++k) mix(static_cast<std::uint64_t>(c.a.vertex[k]));
+    mix(static_cast<std::uint64_t>(c.b.body) + 7919);
+    if (c.b.count == 2)
+        for (int k = 0; k < 2; ++k) mix(static_cast<std::uint64_t>(c.b.vertex[k]));
+    return h;
+}
+
+// Kinematic and static bodies: the velocity of a world point carried by the body.
+Vec3 carried_velocity(const Body& b, const Vec3& x) {
+    if (b.kind != BodyKind::Kinematic) return Vec3::Zero();
+    return b.rigid.v_com + b.rigid.omega.cross(x - b.rigid.x_com);
+}
+
+// A contact row's direction in the world: normal, tangent1, tangent2 (rows 3c, 3c + 1, 3c + 2)
+const Vec3& contact_direction(const std::vector<Contact>& contacts, int row) {
+    const Contact& c = contacts[row / 3];
+    return row % 3 == 0 ? c.normal : (row % 3 == 1 ? c.tangent1 : c.tangent2);
+}
+}  // namespace
+
+World::~World() = default;
+
+const std::vector<int>& World::contact_involved() const { return setup_->involved; }
+const std::vector<int>& World::contact_group_bodies(int group) const { return setup_->group_bodies[group]; }
+
+void World::prepare_contacts() {
+    setup_ = std::make_unique<ContactSetup>();
+    ContactSetup& cs = *setup_;
+    cs.start = std::chrono::steady_clock::now();
+    const int nc = cs.nc = static_cast<int>(contacts.size());
+    contact_groups.clear();
+    contact_group_of.assign(nc, -1);
+    contact_slot.assign(nc, -1);
+    contact_bodies.clear();
+    contact_lambda.resize(0);
+    contact_friction.resize(0);
+    if (nc == 0) return;
+    const int rows = cs.rows = 3 * nc;
+    const bool use_patch_warm = !std::getenv("HH_NO_PATCH_WARM");
+    auto direction = [&](int row) -> const Vec3& { return contact_direction(contacts, row); };
+
+    auto& sides = cs.sides;
+    sides.assign(nc, {});
+    std::vector<int>& involved = cs.involved;
+    for (int c = 0; c < nc; ++c)
+        for (int s = 0; s < 2; ++s) {
+            const ContactSide& side = s == 0 ? contacts[c].a : contacts[c].b;
+            if (side.body < 0 || !bodies[side.body]->dynamic()) continue;
+            const Body& b = *bodies[side.body];
+            const double sign = s == 0 ? 1.0 : -1.0;
+            std::vector<ContactTerm>* ts = nullptr;
+            for (auto& e : sides[c])
+                if (e.first == side.body) ts = &e.second;  // self-contact: both sides on one body
+            if (!ts) {
+                sides[c].emplace_back(side.body, std::vector<ContactTerm>());
+                ts = &sides[c].back().second;
+            }
+            for (int k = 0; k < side.count; ++k) {
+                const int v = side.vertex[k];
+                if (b.kind == BodyKind::Rigid) {
+                    ts->push_back({0, sign * side.weight[k], true, b.surface.x[v] - b.rigid.x_com});
+                } else {
+                    const int base = b.kind == BodyKind::Hand ? 6 : 0;
+                    for (int q = 0; q < 4; ++q) {
+                        const int node = b.surface.nodes[v][q];
+                        // a fixed node of a soft body does not move: it takes no impulse
+                        if (b.surface.weights[v][q] == 0 || (b.kind == BodyKind::Soft && b.fixed[node])) continue;
+                        ts->push_back({base + 3 * node, sign * side.weight[k] * b.surface.weights[v][q], false, Vec3::Zero()});
+                    }
+                }
+            }
+            if (std::find(involved.begin(), involved.end(), side.body) == involved.end()) involved.push_back(side.body);
+        }
+    std::sort(involved.begin(), involved.end());
+
+    // Groups: contacts joined by the dynamic bodies they share (union-find over bodies).
+    std::vector<int> parent(bodies.size());
+    for (size_t i = 0; i < parent.size(); ++i) parent[i] = static_cast<int>(i);
+    std::function<int(int)> root = [&](int i) { return parent[i] == i ? i : (parent[i] = root(parent[i])); };
+    for (int c = 0; c < nc; ++c)
+        for (size_t e = 1; e < sides[c].size(); ++e) parent[root(sides[c][e].first)] = root(sides[c][0].first);
+    std::map<int, int> group_of_root;
+    for (int c = 0; c < nc; ++c) {
+        const int r = sides[c].empty() ? -1 - c : root(sides[c][0].first);
+        auto it = group_of_root.find(r);
+        if (it == group_of_root.end()) {
+            it = group_of_root.emplace(r, static_cast<int>(contact_groups.size())).first;
+            contact_groups.emplace_back();
+        }
+        ContactGroup& g = contact_groups[it->second];
+        contact_group_of[c] = it->second;
+        contact_slot[c] = static_cast<int>(g.contacts.size());
+        g.contacts.push_back(c);
+    }
+
+    // The problem's data per contact (global rows)
+    VecX &u_free = cs.u_free, &gap = cs.gap, &friction = cs.friction, &kinetic = cs.kinetic;
+    u_free.setZero(rows);
+    gap.resize(nc);
+    friction.resize(nc);
+    kinetic.resize(nc);
+    for (int c = 0; c < nc; ++c) {
+        const Contact& k = contacts[c];
+        gap[c] = k.distance - settings.contact_thickness;
+        friction[c] = std::sqrt(bodies[k.a.body]->friction * bodies[k.b.body]->friction);
+        kinetic[c] = std::sqrt(bodies[k.a.body]->kinetic_friction * bodies[k.b.body]->kinetic_friction);
+        // kinematic bodies' motion enters as a known relative velocity
+        for (int s = 0; s < 2; ++s) {
+            const ContactSide& side = s == 0 ? k.a : k.b;
+            const Body& b = *bodies[side.body];
+            if (b.kind != BodyKind::Kinematic) continue;
+            const Vec3 p = side.count > 0 ? side.point(b.surface) : k.point;
+            const Vec3 vel = carried_velocity(b, p);
+            for (int d = 0; d < 3; ++d) u_free[3 * c + d] += (s == 0 ? 1.0 : -1.0) * direction(3 * c + d).dot(vel);
+        }
+    }
+
+    cs.group_bodies.resize(contact_groups.size());
+    for (size_t g = 0; g < contact_groups.size(); ++g) {
+        std::vector<int>& gb = cs.group_bodies[g];
+        for (int c : contact_groups[g].contacts)
+            for (const auto& e : sides[c])
+                if (std::find(gb.begin(), gb.end(), e.first) == gb.end()) gb.push_back(e.first);
+        std::sort(gb.begin(), gb.end());
+    }
+    for (int bi : involved) {  // (made here: the bodies are then built side by side)
+        contact_bodies[bi];
+        cs.response[bi];
+        cs.u_body[bi];
+    }
+
+    // Warm start from the previous step's impulses of the same contacts
+    VecX& lambda = cs.lambda;
+    lambda.setZero(rows);
+    for (int c = 0; c < nc; ++c) {
+        auto it = previous_impulse.find(contact_key(contacts[c]));
+        if (it == previous_impulse.end() && use_patch_warm) {
+            // another vertex is the deepest of the same patch now: start from that patch's impulse
+            it = previous_patch_impulse.find(contact_patch_keys[c]);
+            if (it == previous_patch_impulse.end()) continue;
+            ++cs.patch_hits;
+        } else if (it == previous_impulse.end()) {
+            continue;
+        } else {
+            ++cs.warm_hits;
+        }
+        lambda[3 * c] = it->second.dot(contacts[c].normal);
+        lambda[3 * c + 1] = it->second.dot(contacts[c].tangent1);
+        lambda[3 * c + 2] = it->second.dot(contacts[c].tangent2);
+    }
+}
+
+// Per dynamic body: J_b on the unknowns it touches (G), their responses K from batched
+// black-box solves (up to kWidestSolve right-hand sides per pass), its block G K G^T (or G K)
+// of W, and its share of u_free. Writes only the body's own entries.
+void World::build_contact_body(int bi) {
+    ContactSetup& cs = *setup_;
+    const int nc = cs.nc, rows = cs.rows;
+    const auto& sides = cs.sides;
+    auto direction = [&](int row) -> const Vec3& { return contact_direction(contacts, row); };
+    Body& b = *bodies[bi];
+    ContactBody& cb = contact_bodies.at(bi);
+    const int dofs = b.dofs();
+    std::vector<int> touched_mark(dofs, 0);
+    for (int c = 0; c < nc; ++c)
+        for (const auto& e : sides[c]) {
+            if (e.first != bi) continue;
+            for (int d = 0; d < 3; ++d) cb.rows.push_back(3 * c + d);
+            for (const ContactTerm& t : e.second) {
+                if (t.rigid) std::fill(touched_mark.begin(), touched_mark.begin() + 6, 1);
+                else for (int d = 0; d < 3; ++d) touched_mark[t.offset + d] = 1;
+            }
+        }
+    std::vector<int> index_of(dofs, -1);
+    for (int k = 0; k < dofs; ++k)
+        if (touched_mark[k]) {
+            index_of[k] = static_cast<int>(cb.touched.size());
+            cb.touched.push_back(k);
+        }
+    const int nr = static_cast<int>(cb.rows.size()), nt = static_cast<int>(cb.touched.size());
+    cb.local_row.assign(rows, -1);
+    for (int l = 0; l < nr; ++l) cb.local_row[cb.rows[l]] = l;
+    std::vector<Eigen::Triplet<double>> trip;
+    for (int l = 0; l < nr; ++l) {
+        const int row = cb.rows[l];
+        const Vec3& u = direction(row);
+        for (const auto& e : sides[row / 3]) {
+            if (e.first != bi) continue;
+            for (const ContactTerm& t : e.second) {
+                if (t.rigid) {
+                    const Vec3 ru = t.r.cross(u);
+                    for (int d = 0; d < 3; ++d) {
+                        trip.emplace_back(l, index_of[d], t.weight * u[d]);
+                        trip.emplace_back(l, index_of[3 + d], t.weight * ru[d]);
+                    }
+                } else {
+                    for (int d = 0; d < 3; ++d) trip.emplace_back(l, index_of[t.offset + d], t.weight * u[d]);
+                }
+            }
+        }
+    }
+    cb.G.resize(nr, nt);
+    cb.G.setFromTriplets(trip.begin(), trip.end());
+    // watched unknowns: the touched ones, then (hand) the handle nodes' for the coupling model
+    cb.watched = cb.touched;
+    if (b.kind == BodyKind::Hand)
+        for (int node : b.hand_model->handle.nodes)
+            for (int d = 0; d < 3; ++d)
+                if (!touched_mark[6 + 3 * node + d]) cb.watched.push_back(6 + 3 * node + d);
+    for (size_t w = 0; w < cb.watched.size(); ++w) cb.watched_index[cb.watched[w]] = static_cast<int>(w);
+    // basis: whichever needs fewer solves
+    cb.row_basis = nr < nt;
+    const int m = cb.row_basis ? nr : nt;
+    cb.K.resize(cb.watched.size(), m);
+    const Eigen::SparseMatrix<double> gt = cb.G.transpose();  // touched x rows, column-major
+    // the nodes of the watched unknowns: the solves need only their rows (BlockLDLT::solve)
+    std::vector<int> watched_nodes;
+    if (b.kind == BodyKind::Soft)
+        for (int k : cb.watched)
+            if (watched_nodes.empty() || watched_nodes.back() != k / 3) watched_nodes.push_back(k / 3);
+    MatX rhs, x;
+    // the hand's unit columns from its kept response columns, when its solver keeps them
+    const bool units = b.kind == BodyKind::Hand && !cb.row_basis &&
+                       b.hand->hand.apply_inverse_units(cb.touched, cb.watched, cb.K);
+    for (int first = units ? m : 0; first < m; first += kWidestSolve) {  // (as many as a solve pass takes)
+        const int w = std::min(kWidestSolve, m - first);
+        rhs.setZero(dofs, w);
+        for (int j = 0; j < w; ++j) {
+            if (cb.row_basis) {
+                for (Eigen::SparseMatrix<double>::InnerIterator it(gt, first + j); it; ++it)
+                    rhs(cb.touched[it.row()], j) = it.value();
+            } else {
+                rhs(cb.touched[first + j], j) = 1;
+            }
+        }
+        switch (b.kind) {
+            case BodyKind::Hand:  // only the watched rows, straight into K
+                b.hand->hand.apply_inverse_many(rhs, x, &cb.watched);
+                cb.K.middleCols(first, w) = x;
+                continue;
+            case BodyKind::Soft: b.tool->solve_many(rhs, x, 1, &watched_nodes); break;
+            default: x = Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
+        }
+        for (size_t k = 0; k < cb.watched.size(); ++k) cb.K.block(k, first, 1, w) = x.block(cb.watched[k], 0, 1, w);
+    }
+    if (!cb.K.allFinite())  // (the solves above check only the rows they were asked for)
+        throw NumericalError("the contact response of body " + std::to_string(bi) +
+                             " is not finite: reduce the time step or check its material");
+    // u_free, and the body's symmetric response on its basis for the sweeps
+    VecX v_touched(nt);
+    for (int k = 0; k < nt; ++k) v_touched[k] = b.v_free[cb.touched[k]];
+    cs.u_body.at(bi) = cb.G * v_touched;
+    MatX c_b = cb.row_basis ? MatX(cb.G * cb.K.topRows(nt)) : MatX(cb.K.topRows(nt));
+    cs.response.at(bi) = 0.5 * (c_b + c_b.transpose());
+    if (std::getenv("HH_CONTACT_TRACE")) std::fprintf(stderr, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(cs.start));
+}
+
+// One group of coupled contacts (it shares no body with the other groups): its problem on its
+// bodies' responses, and the sweeps.
+// Each group is its own contact problem. The hand's system is not symmetric (spring
+// torques), so neither is W; Gauss-Seidel is only sure to converge on a symmetric one. Its
+// symmetric part differs by terms of the order of the springs' damping times the handle's
+// spin; the velocities below use the true operator.
+void World::solve_contact_group(int group) {
+    ContactSetup& cs = *setup_;
+    for (int bi : cs.group_bodies[group]) {  // the group's part of u_free: its bodies' shares
+        const ContactBody& cb = contact_bodies.at(bi);
+        for (size_t l = 0; l < cb.rows.size(); ++l) cs.u_free[cb.rows[l]] += cs.u_body.at(bi)[l];
+    }
+    ContactGroup& g = contact_groups[group];
+    const int gc = static_cast<int>(g.contacts.size());
+    ReducedContactProblem prob;
+    prob.dt = settings.dt;
+    prob.u_free.resize(3 * gc);
+    prob.gap.resize(gc);
+    prob.friction.resize(gc);
+    prob.kinetic.resize(gc);
+    prob.begin.assign(1, 0);
+    std::map<int, int> slot;  // body -> index in prob.bodies
+    VecX lg(3 * gc);
+    for (int i = 0; i < gc; ++i) {
+        const int c = g.contacts[i];
+        prob.u_free.segment<3>(3 * i) = cs.u_free.segment<3>(3 * c);
+        prob.gap[i] = cs.gap[c];
+        prob.friction[i] = cs.friction[c];
+        prob.kinetic[i] = cs.kinetic[c];
+        lg.segment<3>(3 * i) = cs.lambda.segment<3>(3 * c);
+        for (const auto& e : cs.sides[c]) {
+            const int bi = e.first;
+            auto sl = slot.find(bi);
+            if (sl == slot.end()) {
+                sl = slot.emplace(bi, static_cast<int>(prob.bodies.size())).first;
+                prob.bodies.push_back({std::move(cs.response.at(bi))});
+            }
+            const ContactBody& cb = contact_bodies.at(bi);
+            const int l0 = cb.local_row[3 * c];
+            if (cb.row_basis) {
+                for (int d = 0; d < 3; ++d) prob.entries.push_back({sl->second, l0 + d, Vec3::Unit(d)});
+            } else {
+                const size_t first = prob.entries.size();
+                for (int d = 0; d < 3; ++d)
+                    for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(cb.G, l0 + d); it; ++it) {
+                        size_t k = first;
+                        while (k < prob.entries.size() && prob.entries[k].index != it.col()) ++k;
+                        if (k == prob.entries.size()) prob.entries.push_back({sl->second, static_cast<int>(it.col()), Vec3::Zero()});
+                        prob.entries[k].coefficient[d] += it.value();
+                    }
+            }
+        }
+        prob.begin.push_back(static_cast<int>(prob.entries.size()));
+    }
+    const PgsResult res = solve_pgs(prob, lg, settings.max_iterations, settings.tolerance);
+    g.iterations = res.iterations;
+    g.residual = res.residual;
+    for (int i = 0; i < gc; ++i) cs.lambda.segment<3>(3 * g.contacts[i]) = lg.segment<3>(3 * i);
+}
+
+// v = v* + A^-1 J^T lambda: one more solve per body, once its group is solved
+void World::apply_contact_body(int bi) {
+    const ContactSetup& cs = *setup_;
+    Body& b = *bodies[bi];
+    const ContactBody& cb = contact_bodies.at(bi);
+    VecX lb(cb.rows.size());
+    for (size_t l = 0; l < cb.rows.size(); ++l) lb[l] = cs.lambda[cb.rows[l]];
+    const VecX f = cb.G.transpose() * lb;
+    VecX rhs = VecX::Zero(b.dofs());
+    for (size_t k = 0; k < cb.touched.size(); ++k) rhs[cb.touched[k]] = f[k];
+    switch (b.kind) {
+        case BodyKind::Hand: b.v_new += b.hand->hand.apply_inverse(rhs); break;
+        case BodyKind::Soft:
+            b.tool->r = rhs;
+            b.tool->select_slot(1);
+            b.tool->solve();
+            b.v_new += b.tool->s;
+            break;
+        default: b.v_new += Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
+    }
+}
+
+void World::finish_contacts() {
+    ContactSetup& cs = *setup_;
+    const int nc = cs.nc;
+    if (nc == 0) {
+        previous_impulse.clear();
+        previous_patch_impulse.clear();
+        return;
+    }
+    const VecX& lambda = cs.lambda;
+    stats.contact_groups = static_cast<int>(contact_groups.size());
+    stats.iterations = 0;
+    stats.residual = 0;
+    for (const ContactGroup& g : contact_groups) {
+        stats.iterations = std::max(stats.iterations, g.iterations);
+        stats.residual = std::max(stats.residual, g.residual);
+    }
+    previous_impulse.clear();
+    previous_patch_impulse.clear();
+    for (int c = 0; c < nc; ++c) {
+        const Contact& k = contacts[c];
+        const Vec3 impulse = lambda[3 * c] * k.normal + lambda[3 * c + 1] * k.tangent1 + lambda[3 * c + 2] * k.tangent2;
+        previous_impulse[contact_key(k)] = impulse;
+        previous_patch_impulse[contact_patch_keys[c]] = impulse;
+        bodies[k.a.body]->contact_force += impulse / settings.dt;
+        bodies[k.b.body]->contact_force -= impulse / settings.dt;
+    }
+    contact_lambda = lambda;
+    contact_friction = cs.friction;
+    if (std::getenv("HH_CONTACT_TRACE")) {
+        std::fprintf(stderr, "warm %d patch %d ", cs.warm_hits, cs.patch_hits);
+        std::fprintf(stderr, "contacts %d groups %zu build %.2f sweeps %.2f apply %.2f ms it %d |", nc, contact_groups.size(),
+                     1e3 * stats.t_contact_build, 1e3 * stats.t_contact_sweeps, 1e3 * stats.t_contact_apply, stats.iterations);
+        for (const auto& e : contact_bodies)
+            std::fprintf(stderr, " body %d rows %zu touched %zu %s", e.first, e.second.rows.size(), e.second.touched.size(), e.second.row_basis ? "R" : "D");
+        std::fprintf(stderr, "\n");
+    }
+}
+
+MatX World::contact_delassus(const std::vector<int>& rows) const {
+    const int n = static_cast<int>(rows.size());
+    MatX out = MatX::Zero(n, n);
+    for (const auto& e : contact_bodies) {
+        const ContactBody& cb = e.second;
+        std::vector<int> at, local;  // the asked rows this body takes part in
+        for (int a = 0; a < n; ++a)
+            if (rows[a] >= 0 && rows[a] < static_cast<int>(cb.local_row.size()) && cb.local_row[rows[a]] >= 0) {
+                at.push_back(a);
+                local.push_back(cb.local_row[rows[a]]);
+            }
+        if (at.empty()) continue;
+        const int nt = static_cast<int>(cb.touched.size());
+        const int k = static_cast<int>(at.size());
+        // H = A_b^-1 J_b^T of those rows at the touched unknowns (touched x k)
+        MatX h(nt, k);
+        for (int j = 0; j < k; ++j) {
+            if (cb.row_basis) {
+                h.col(j) = cb.K.col(local[j]).head(nt);
+            } else {
+                h.col(j).setZero();
+                for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(cb.G, local[j]); it; ++it)
+                    h.col(j) += cb.K.col(it.col()).head(nt) * it.value();
+            }
+        }
+        for (int i = 0; i < k; ++i)
+            for (int j = 0; j < k; ++j) {
+                double sum = 0;
+                for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(cb.G, local[i]); it; ++it) sum += it.value() * h(it.col(), j);
+                out(at[i], at[j]) += sum;
+            }
+    }
+    return out;
+}
+
+VecX World::contact_column(int body, int row, const std::vector<int>& unknowns) const {
+    auto it = contact_bodies.find(body);
+    if (it == contact_bodies.end() || row < 0 || row >= static_cast<int>(it->second.local_row.size())) return VecX();
+    const ContactBody& cb = it->second;
+    const int l = cb.local_row[row];
+    if (l < 0) return VecX();
+    VecX out(unknowns.size());
+    for (size_t k = 0; k < unknowns.size(); ++k) {
+        auto w = cb.watched_index.find(unknowns[k]);
+        if (w == cb.watched_index.end())
+            throw InvalidArgument("World::contact_column: that unknown's response was not kept");
+        if (cb.row_basis) out[k] = cb.K(w->second, l);
+        else {
+            double sum = 0;  // G's sparse row l against row w of K
+            for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator g(cb.G, l); g; ++g) sum += g.value() * cb.K(w->second, g.col());
+            out[k] = sum;
+        }
+    }
+    return out;
+}
+
+}  // namespace hh

@@ -1,0 +1,36 @@
+// The data of one step's contact solve, shared by its parts (sim/world_contact.cpp) and held
+// by the World between them (the step runs them as tasks, sim/world.cpp).
+#pragma once
+#include <chrono>
+#include <map>
+#include <utility>
+#include <vector>
+
+#include "sim/world.h"
+
+namespace hh {
+
+// Per contact and dynamic side: the body's unknowns it moves, as (first unknown, weight) terms
+// for flesh nodes (3 unknowns each) or the rigid body's (v, omega) lever arm.
+struct ContactTerm {
+    int offset;
+    double weight;
+    bool rigid;
+    Vec3 r;
+};
+
+// One step's contact solve, from prepare_contacts to finish_contacts.
+struct World::ContactSetup {
+    std::chrono::steady_clock::time_point start;
+    int nc = 0, rows = 0;
+    std::vector<std::vector<std::pair<int, std::vector<ContactTerm>>>> sides;  // contact -> (body, terms)
+    std::vector<int> involved;                   // dynamic bodies, ascending
+    std::vector<std::vector<int>> group_bodies;  // per group: its dynamic bodies, ascending
+    VecX u_free, gap, friction, kinetic;         // per row / contact (u_free: kinematic bodies' part first)
+    VecX lambda;                                 // impulses: the warm start, then the groups' solutions
+    int warm_hits = 0, patch_hits = 0;
+    std::map<int, MatX> response;  // per body: its symmetrized C_b (see ReducedContactProblem)
+    std::map<int, VecX> u_body;    // per body: its share of u_free on its rows
+};
+
+}  // namespace hh
