@@ -229,6 +229,58 @@ TEST(spatial_element_order_keeps_every_element_and_the_forces) {
     CHECK_LT((MatX(ku) - MatX(ks)).cwiseAbs().maxCoeff() / MatX(ku).cwiseAbs().maxCoeff(), 1e-12);
 }
 
+TEST(element_pass_in_parts_equals_the_whole_pass_bit_for_bit) {
+    // split_element_pass: A and B share no node, every element is in one part, A and B about
+    // equal; the parts run in turn (A's and B's nodes zeroed by their own part) give exactly
+    // the whole pass over the same order, as the sums into each entry come in the same order
+    TetMesh mesh = to_mesh(make_box(9, 6, 5, 0.01));
+    CorotationalElements el = precompute_elements(mesh, flesh);
+    order_elements_spatially(mesh, el);
+    const ElementPassParts parts = split_element_pass(mesh, el, mesh.n_nodes);
+    const size_t m = mesh.tets.size();
+    CHECK(parts.end[2] == m);
+    CHECK(parts.end[0] <= parts.end[1] && parts.end[1] <= parts.end[2]);
+    const double a = static_cast<double>(parts.end[0]), b = static_cast<double>(parts.end[1] - parts.end[0]);
+    CHECK_LT(std::abs(a - b), 0.1 * m);         // balanced
+    CHECK_LT(static_cast<double>(m - parts.end[1]), 0.4 * m);  // the seam is the smaller part
+    std::vector<int> owner(mesh.n_nodes, -1);
+    for (int k = 0; k < 2; ++k)
+        for (int i : parts.owned_nodes[k]) {
+            CHECK(owner[i] == -1);
+            owner[i] = k;
+        }
+    for (int i = 0; i < mesh.n_nodes; ++i) CHECK(owner[i] >= 0);
+    for (size_t e = 0; e < parts.end[1]; ++e)
+        for (int k = 0; k < 4; ++k) CHECK(owner[mesh.tets[e][k]] == (e < parts.end[0] ? 0 : 1));
+    const StiffnessPattern pattern = build_stiffness_pattern(mesh);
+    const Mat3 r = quat_to_matrix(quat_from_rotation_vector(Vec3(0.3, 0.5, -0.2)));
+    VecX x(mesh.rest.size());
+    for (int i = 0; i < mesh.n_nodes; ++i) x.segment<3>(3 * i) = r * (Vec3(1.05, 0.97, 1.02).asDiagonal() * mesh.rest.segment<3>(3 * i));
+    VecX f_whole = VecX::Zero(x.size());
+    SpMat k_whole = pattern.matrix;
+    ElementRotations r_whole;
+    const double e_whole = assemble_corotational(mesh, el, x, f_whole, r_whole, pattern, 0.5, k_whole.valuePtr());
+    // the parts, on garbage-filled outputs: each part must zero what it owns
+    VecX f_parts = VecX::Constant(x.size(), 7.0);
+    SpMat k_parts = pattern.matrix;
+    std::fill(k_parts.valuePtr(), k_parts.valuePtr() + k_parts.nonZeros(), 3.0);
+    ElementRotations r_parts;
+    size_rotations(r_parts, m);
+    double e_parts = 0;
+    for (int part = 0; part < 3; ++part) {
+        if (part < 2)
+            for (int i : parts.owned_nodes[part]) {
+                std::fill(k_parts.valuePtr() + k_parts.outerIndexPtr()[3 * i], k_parts.valuePtr() + k_parts.outerIndexPtr()[3 * i + 3], 0.0);
+                f_parts.segment<3>(3 * i).setZero();
+            }
+        e_parts += assemble_corotational(mesh, el, x, f_parts, r_parts, pattern, 0.5, k_parts.valuePtr(),
+                                         part == 0 ? 0 : parts.end[part - 1], parts.end[part]);
+    }
+    CHECK((f_whole - f_parts).cwiseAbs().maxCoeff() == 0);
+    CHECK(std::equal(k_whole.valuePtr(), k_whole.valuePtr() + k_whole.nonZeros(), k_parts.valuePtr()));
+    CHECK_LT(std::abs(e_whole - e_parts), 1e-12 * std::abs(e_whole));  // (the energy's sum is split in three)
+}
+
 TEST(polar_rotation_is_the_rotation_of_the_polar_decomposition) {
     // against the SVD, from cold (identity) and warm starts, small and large rotations
     std::mt19937 rng(43);

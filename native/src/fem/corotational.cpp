@@ -255,18 +255,27 @@ void add_warped_stiffness(const CorotationalElements& elements, const std::vecto
     }
 }
 
-double assemble_corotational(const TetMesh& mesh, const CorotationalElements& elements, const VecX& x, VecX& f,
-                             ElementRotations& rot, const StiffnessPattern& pattern, double scale, double* values) {
-    const size_t m = mesh.tets.size();
+void size_rotations(ElementRotations& rot, size_t m) {
     if (rot.q.size() != m) rot.q.assign(m, quat_identity());
     rot.r.resize(m);
+}
+
+double assemble_corotational(const TetMesh& mesh, const CorotationalElements& elements, const VecX& x, VecX& f,
+                             ElementRotations& rot, const StiffnessPattern& pattern, double scale, double* values) {
+    size_rotations(rot, mesh.tets.size());
+    return assemble_corotational(mesh, elements, x, f, rot, pattern, scale, values, 0, mesh.tets.size());
+}
+
+double assemble_corotational(const TetMesh& mesh, const CorotationalElements& elements, const VecX& x, VecX& f,
+                             ElementRotations& rot, const StiffnessPattern& pattern, double scale, double* values,
+                             size_t begin, size_t end) {
     const double lambda = elements.lambda, mu = elements.mu;
     const double* xs = x.data();
     double* fs = f.data();
     double energy = 0;
     // whole batches of 4 or 8 elements on SIMD lanes when the CPU has them, the rest here
-    const size_t first = assemble_corotational_simd(mesh, elements, xs, fs, rot, pattern, scale, values, energy);
-    for (size_t e = first; e < m; ++e) {
+    const size_t first = assemble_corotational_simd(mesh, elements, xs, fs, rot, pattern, scale, values, energy, begin, end);
+    for (size_t e = first; e < end; ++e) {
         const auto& t = mesh.tets[e];
         const Vec3 x0 = Eigen::Map<const Vec3>(xs + 3 * t[0]);
         Mat3 ds;

@@ -84,5 +84,11 @@ void add_warped_stiffness(const CorotationalElements& elements, const std::vecto
 // scale * R Ke R^T added to values through the pattern's compact offsets. Returns the energy.
 double assemble_corotational(const TetMesh& mesh, const CorotationalElements& elements, const VecX& x, VecX& f,
                              ElementRotations& rotations, const StiffnessPattern& pattern, double scale, double* values);
+// The same over elements [begin, end) only, the rotations already sized for the mesh
+// (size_rotations): parts of the pass that touch disjoint nodes may run at the same time.
+void size_rotations(ElementRotations& rotations, size_t elements);
+double assemble_corotational(const TetMesh& mesh, const CorotationalElements& elements, const VecX& x, VecX& f,
+                             ElementRotations& rotations, const StiffnessPattern& pattern, double scale, double* values,
+                             size_t begin, size_t end);
 
 }  // namespace hh

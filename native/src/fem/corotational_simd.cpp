@@ -216,25 +216,27 @@ __attribute__((always_inline)) inline void element_batch(const TetMesh& mesh, co
 template <int L>
 __attribute__((always_inline)) inline size_t run_batches(const TetMesh& mesh, const CorotationalElements& el, const double* xs,
                                                          double* fs, ElementRotations& rot, const StiffnessPattern& pattern,
-                                                         double scale, double* values, double& energy) {
+                                                         double scale, double* values, double& energy, size_t begin,
+                                                         size_t end) {
     typename Lanes<L>::V sum = typename Lanes<L>::V{};
-    const size_t whole = mesh.tets.size() / L * L;
-    for (size_t e0 = 0; e0 < whole; e0 += L) element_batch<L>(mesh, el, xs, fs, rot, pattern, scale, values, e0, sum);
+    const size_t whole = begin + (end - begin) / L * L;
+    for (size_t e0 = begin; e0 < whole; e0 += L) element_batch<L>(mesh, el, xs, fs, rot, pattern, scale, values, e0, sum);
     for (int l = 0; l < L; ++l) energy += sum[l];
     return whole;
 }
 
 __attribute__((target("avx2,fma"))) size_t run_avx2(const TetMesh& mesh, const CorotationalElements& el, const double* xs,
                                                     double* fs, ElementRotations& rot, const StiffnessPattern& pattern,
-                                                    double scale, double* values, double& energy) {
-    return run_batches<4>(mesh, el, xs, fs, rot, pattern, scale, values, energy);
+                                                    double scale, double* values, double& energy, size_t begin, size_t end) {
+    return run_batches<4>(mesh, el, xs, fs, rot, pattern, scale, values, energy, begin, end);
 }
 
 __attribute__((target("avx512f,avx512vl,avx512dq,avx2,fma"))) size_t run_avx512(const TetMesh& mesh, const CorotationalElements& el,
                                                                                const double* xs, double* fs, ElementRotations& rot,
                                                                                const StiffnessPattern& pattern, double scale,
-                                                                               double* values, double& energy) {
-    return run_batches<8>(mesh, el, xs, fs, rot, pattern, scale, values, energy);
+                                                                               double* values, double& energy, size_t begin,
+                                                                               size_t end) {
+    return run_batches<8>(mesh, el, xs, fs, rot, pattern, scale, values, energy, begin, end);
 }
 
 }  // namespace
@@ -242,15 +244,16 @@ __attribute__((target("avx512f,avx512vl,avx512dq,avx2,fma"))) size_t run_avx512(
 
 size_t assemble_corotational_simd(const TetMesh& mesh, const CorotationalElements& elements, const double* x, double* f,
                                   ElementRotations& rotations, const StiffnessPattern& pattern, double scale,
-                                  double* values, double& energy) {
+                                  double* values, double& energy, size_t begin, size_t end) {
 #if defined(__GNUC__) && defined(__x86_64__)
     const int level = active_simd_level();
-    if (level == 2) return run_avx512(mesh, elements, x, f, rotations, pattern, scale, values, energy);
-    if (level == 1) return run_avx2(mesh, elements, x, f, rotations, pattern, scale, values, energy);
+    if (level == 2) return run_avx512(mesh, elements, x, f, rotations, pattern, scale, values, energy, begin, end);
+    if (level == 1) return run_avx2(mesh, elements, x, f, rotations, pattern, scale, values, energy, begin, end);
 #else
     (void)mesh, (void)elements, (void)x, (void)f, (void)rotations, (void)pattern, (void)scale, (void)values, (void)energy;
+    (void)end;
 #endif
-    return 0;
+    return begin;
 }
 
 }  // namespace hh

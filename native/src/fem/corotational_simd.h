@@ -9,12 +9,12 @@
 
 namespace hh {
 
-// Runs the leading elements in whole batches of lanes: rotations (warm-started polar
-// decomposition; inverted elements fall back to the scalar SVD path), forces added to f,
-// scale * R Ke R^T added to values, the elastic energy added to energy. Returns how many
-// elements it handled (0 without SIMD); the caller does the rest.
+// Runs the leading elements of [begin, end) in whole batches of lanes: rotations
+// (warm-started polar decomposition; inverted elements fall back to the scalar SVD path),
+// forces added to f, scale * R Ke R^T added to values, the elastic energy added to energy.
+// Returns the first element it did not handle (begin without SIMD); the caller does the rest.
 size_t assemble_corotational_simd(const TetMesh& mesh, const CorotationalElements& elements, const double* x, double* f,
                                   ElementRotations& rotations, const StiffnessPattern& pattern, double scale,
-                                  double* values, double& energy);
+                                  double* values, double& energy, size_t begin, size_t end);
 
 }  // namespace hh

@@ -53,4 +53,60 @@ void order_elements_spatially(TetMesh& mesh, CorotationalElements& elements) {
     permute(elements.gradients, order);
 }
 
+namespace {
+constexpr size_t kLanes = 8;  // AVX-512 lanes; a multiple of AVX2's 4
+}  // namespace
+
+ElementPassParts split_element_pass(TetMesh& mesh, CorotationalElements& elements, int n_nodes) {
+    const size_t m = mesh.tets.size();
+    ElementPassParts parts;
+    std::vector<char> in_a(n_nodes, 0);
+    // A's end: where A and B come out about equal (B loses the seam, so A is a bit under half)
+    auto b_size = [&](size_t end_a) {
+        std::fill(in_a.begin(), in_a.end(), 0);
+        for (size_t e = 0; e < end_a; ++e)
+            for (int a = 0; a < 4; ++a) in_a[mesh.tets[e][a]] = 1;
+        size_t count = 0;
+        for (size_t e = end_a; e < m; ++e) {
+            bool touches_a = false;
+            for (int a = 0; a < 4; ++a) touches_a = touches_a || in_a[mesh.tets[e][a]];
+            count += !touches_a;
+        }
+        return count;
+    };
+    size_t lo = 0, hi = m / 2;  // b_size(lo) >= lo; find the largest such end_a
+    while (hi - lo > 1) {
+        const size_t mid = (lo + hi) / 2;
+        (b_size(mid) >= mid ? lo : hi) = mid;
+    }
+    // whole SIMD batches (kLanes, the widest): the parts then run the same batches as one
+    // pass over the whole order would, and give the same sums bit for bit
+    const size_t half = (b_size(hi) >= hi ? hi : lo) / kLanes * kLanes;
+    b_size(half);  // (leaves in_a for A = [0, half))
+    std::vector<size_t> order, seam;
+    order.reserve(m);
+    for (size_t e = 0; e < half; ++e) order.push_back(e);
+    for (size_t e = half; e < m; ++e) {
+        bool touches_a = false;
+        for (int a = 0; a < 4; ++a) touches_a = touches_a || in_a[mesh.tets[e][a]];
+        (touches_a ? seam : order).push_back(e);
+    }
+    parts.end[0] = half;
+    while ((order.size() - half) % kLanes) {  // B's last elements to the seam (S may touch any node)
+        seam.insert(seam.begin(), order.back());
+        order.pop_back();
+    }
+    std::sort(seam.begin(), seam.end());  // (the seam in the spatial order too)
+    parts.end[1] = order.size();
+    order.insert(order.end(), seam.begin(), seam.end());
+    parts.end[2] = m;
+    permute(mesh.tets, order);
+    permute(elements.rest_inverse, order);
+    permute(elements.volume, order);
+    permute(elements.stiffness, order);
+    permute(elements.gradients, order);
+    for (int i = 0; i < n_nodes; ++i) parts.owned_nodes[in_a[i] ? 0 : 1].push_back(i);
+    return parts;
+}
+
 }  // namespace hh

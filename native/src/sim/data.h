@@ -36,8 +36,13 @@ struct Data : FleshState {
 void reset(const Model& model, Data& data);
 void configure_solver(const Model& model, Data& data);
 
-// Fills data.hand (Ah, At, Aht, Ath, r) with the system of Eq. 7 for one step of dt.
+// Fills data.hand (Ah, At, Aht, Ath, r) with the system of Eq. 7 for one step of dt. In
+// stages (the world runs parts 0 and 1 of the element pass on two threads, formulate_flesh):
+// formulate_begin, formulate_pass for parts 0, 1, 2, formulate_end.
 void formulate(const Model& model, Data& data);
+void formulate_begin(const Model& model, Data& data);
+void formulate_pass(const Model& model, Data& data, int part);
+void formulate_end(const Model& model, Data& data);
 // Advances x, v and the handle from the velocities s = (v_h, v_t) solved for.
 void integrate(const Model& model, Data& data, const VecX& s);
 // One step: formulate, solve by Schur complement (or the monolithic reference), integrate.

@@ -12,13 +12,20 @@ struct FleshState {
     ElementRotations rotations;
     VecX f_elastic;
     double elastic_energy = 0;
+    double part_energy[3] = {0, 0, 0};  // of the element pass's parts (flesh_pass)
 };
 
 void reset_flesh(const Flesh& flesh, FleshState& state);
 
-// Fills tool.A (pattern from flesh.pattern) and bt; marks the matrix changed.
+// Fills tool.A (pattern from flesh.pattern) and bt; marks the matrix changed. In stages:
+// begin_flesh, then flesh_pass for parts 0 and 1 (A and B of flesh.passes: disjoint nodes, so
+// two threads may run them at the same time), then part 2 (the seam), then end_flesh.
 void formulate_flesh(const Flesh& flesh, FleshState& state, double dt, const Vec3& gravity, double alpha,
                      double beta, DeformableSystem& tool, Eigen::Ref<VecX> bt);
+void begin_flesh(const Flesh& flesh, FleshState& state, DeformableSystem& tool);
+void flesh_pass(const Flesh& flesh, FleshState& state, double dt, double beta, DeformableSystem& tool, int part);
+void end_flesh(const Flesh& flesh, FleshState& state, double dt, const Vec3& gravity, double alpha, DeformableSystem& tool,
+               Eigen::Ref<VecX> bt);
 
 // Adds a 3x3 block to node i's diagonal block of A (pattern offsets from flesh).
 void add_node_block(const Flesh& flesh, int node, const Mat3& block, double* values);

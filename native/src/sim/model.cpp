@@ -95,6 +95,7 @@ Flesh build_flesh(const double* rest_positions, int n_nodes, const int* tets, in
     f.elements = precompute_elements(f.mesh, material);  // validates, naming tets in the user's order
     f.masses = lumped_masses(f.mesh, f.elements, material.density);
     order_elements_spatially(f.mesh, f.elements);
+    f.passes = split_element_pass(f.mesh, f.elements, n_nodes);
     f.pattern = build_stiffness_pattern(f.mesh);
     return f;
 }

@@ -1,6 +1,7 @@
 // The static part of a simulation (MuJoCo's mjModel in spirit): rest mesh, material,
 // element data, lumped masses, handle and springs, parameters. Built once, validated.
 #pragma once
+#include "fem/element_order.h"
 #include "coupling/springs.h"
 #include "fem/corotational.h"
 #include "haptic_hand.h"
@@ -14,6 +15,7 @@ struct Flesh {
     CorotationalElements elements;
     VecX masses;  // lumped, per node
     StiffnessPattern pattern;
+    ElementPassParts passes;  // the element pass in parts two threads can share (fem/element_order.h)
 };
 
 // Validates the mesh (indices, finite coordinates, every node in a tet, orientation) and

@@ -47,6 +47,21 @@ void coupling_wrench(const Model& model, const Data& data, Vec3& force, Vec3& to
 }
 
 void formulate(const Model& model, Data& data) {
+    formulate_begin(model, data);
+    for (int part = 0; part < 3; ++part) formulate_pass(model, data, part);
+    formulate_end(model, data);
+}
+
+void formulate_begin(const Model& model, Data& data) {
+    data.hand.r.resize(6 + 3 * model.mesh.n_nodes);
+    begin_flesh(model, data, data.tool);
+}
+
+void formulate_pass(const Model& model, Data& data, int part) {
+    flesh_pass(model, data, model.params.dt, model.params.rayleigh_beta, data.tool, part);
+}
+
+void formulate_end(const Model& model, Data& data) {
     const hh_params& p = model.params;
     const double dt = p.dt;
     const int n = model.mesh.n_nodes;
@@ -54,9 +69,8 @@ void formulate(const Model& model, Data& data) {
 
     // Deformable block (shared with every soft body), then the springs' part of A_t and b_t.
     VecX& r = data.hand.r;
-    r.resize(6 + 3 * n);
     auto bt = r.tail(3 * n);
-    formulate_flesh(model, data, dt, g, p.rayleigh_alpha, p.rayleigh_beta, data.tool, bt);
+    end_flesh(model, data, dt, g, p.rayleigh_alpha, data.tool, bt);
     assemble_coupling(p.spring_stiffness, p.spring_damping, dt, model.handle.nodes, model.handle.r_body,
                       data.x, data.v, data.h, data.coupling);
     const CouplingBlocks& cb = data.coupling;

@@ -38,6 +38,7 @@ struct Body {
     // hand
     std::unique_ptr<Model> hand_model;
     std::unique_ptr<Data> hand;
+    double pass_seconds[3] = {0, 0, 0};  // s, this step: formulate_begin, element pass parts 0 and 1 (World::step)
     // soft body
     std::unique_ptr<Flesh> flesh;
     FleshState state;
