@@ -198,7 +198,8 @@ typedef struct hh_world_stats {
     double min_distance;    /* m: smallest signed distance of a detected pair after the step (inf: none) */
     double residual;        /* m/s: largest constraint violation left by the contact solver */
     int iterations;         /* Gauss-Seidel sweeps */
-    double t_detection, t_dynamics, t_contact, t_total; /* s */
+    double t_detection, t_dynamics, t_contact, t_total; /* s: the parts' own costs (they overlap
+                                                          on two threads) and the step's wall time */
 } hh_world_stats;
 
 void hh_default_world_params(hh_world_params* params);

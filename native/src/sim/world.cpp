@@ -1,16 +1,12 @@
 #include "sim/world.h"
 #include "sim/world_contact.h"
-#include "solver/block_ldlt.h"
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
-#include <functional>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <limits>
-#include <map>
 #include <string>
 
 #include "common/clock.h"
@@ -31,7 +27,6 @@ int Body::dofs() const {
 World::World(const WorldSettings& s) : settings(s) {
     if (settings.threads > 1) worker_ = std::make_unique<Worker>();
 }
-
 
 int World::add(std::unique_ptr<Body> body) {
     bodies.push_back(std::move(body));
@@ -165,64 +160,62 @@ void World::reduce_contacts() {
 
 void World::solve_free(Body& b) {
     const double dt = settings.dt;
-    {
-        switch (b.kind) {
-            case BodyKind::Hand: {
-                // (formulate_begin and the element pass's parts 0 and 1 ran already, as tasks of
-                // World::step that two threads can share; b.pass_seconds holds their cost)
-                const auto t0 = std::chrono::steady_clock::now();
-                formulate_pass(*b.hand_model, *b.hand, 2);
-                formulate_end(*b.hand_model, *b.hand);
-                hh_step_stats& st = b.hand->stats;
-                st = hh_step_stats{};
-                const double before = b.pass_seconds[0] + b.pass_seconds[1] + b.pass_seconds[2];
-                st.t_assembly = before + seconds_since(t0);
-                b.hand->tool.reset_counters();
-                b.hand->hand.solve();
-                st.t_deformable = b.hand->hand.t_deformable;
-                st.t_schur = b.hand->hand.t_schur;
-                st.cg_iterations = b.hand->tool.iterations;
-                st.max_residual = b.hand->tool.max_residual;
-                st.t_total = before + seconds_since(t0);
-                b.v_free = b.hand->hand.s;
-                break;
-            }
-            case BodyKind::Soft: {
-                const int n3 = 3 * b.flesh->mesh.n_nodes;
-                b.soft_rhs.resize(n3);
-                formulate_flesh(*b.flesh, b.state, dt, settings.gravity, b.alpha, b.beta, *b.tool, b.soft_rhs);
-                // fixed nodes: identity rows and columns, zero right-hand side (velocity 0)
-                double* values = b.tool->A.valuePtr();
-                for (int off : b.fixed_entries) values[off] = 0;
-                for (int i = 0; i < b.flesh->mesh.n_nodes; ++i)
-                    if (b.fixed[i]) {
-                        add_node_block(*b.flesh, i, Mat3::Identity(), values);
-                        b.soft_rhs.segment<3>(3 * i).setZero();
-                    }
-                b.tool->r = b.soft_rhs;
-                b.tool->select_slot(0);
-                b.tool->solve();
-                b.v_free = b.tool->s;
-                break;
-            }
-            case BodyKind::Rigid: {
-                const Mat3 r = quat_to_matrix(b.rigid.q);
-                const Mat3 inertia = r * b.inertia_body * r.transpose();
-                RigidSystem& rs = *b.rigid_system;
-                rs.A.setZero();
-                rs.A.topLeftCorner<3, 3>() = b.mass * Mat3::Identity();
-                rs.A.bottomRightCorner<3, 3>() = inertia;
-                rs.r.head<3>() = b.mass * (b.rigid.v_com + dt * settings.gravity);
-                rs.r.tail<3>() = inertia * b.rigid.omega - dt * b.rigid.omega.cross(inertia * b.rigid.omega);
-                rs.solve();
-                b.v_free = rs.s;
-                break;
-            }
-            default: b.v_free.resize(0);
+    switch (b.kind) {
+        case BodyKind::Hand: {
+            // (formulate_begin and the element pass's parts 0 and 1 ran already, as tasks of
+            // World::step that two threads can share; b.pass_seconds holds their cost)
+            const auto t0 = std::chrono::steady_clock::now();
+            formulate_pass(*b.hand_model, *b.hand, 2);
+            formulate_end(*b.hand_model, *b.hand);
+            hh_step_stats& st = b.hand->stats;
+            st = hh_step_stats{};
+            const double before = b.pass_seconds[0] + b.pass_seconds[1] + b.pass_seconds[2];
+            st.t_assembly = before + seconds_since(t0);
+            b.hand->tool.reset_counters();
+            b.hand->hand.solve();
+            st.t_deformable = b.hand->hand.t_deformable;
+            st.t_schur = b.hand->hand.t_schur;
+            st.cg_iterations = b.hand->tool.iterations;
+            st.max_residual = b.hand->tool.max_residual;
+            st.t_total = before + seconds_since(t0);
+            b.v_free = b.hand->hand.s;
+            break;
         }
-        b.v_new = b.v_free;
-        b.contact_force.setZero();
+        case BodyKind::Soft: {
+            const int n3 = 3 * b.flesh->mesh.n_nodes;
+            b.soft_rhs.resize(n3);
+            formulate_flesh(*b.flesh, b.state, dt, settings.gravity, b.alpha, b.beta, *b.tool, b.soft_rhs);
+            // fixed nodes: identity rows and columns, zero right-hand side (velocity 0)
+            double* values = b.tool->A.valuePtr();
+            for (int off : b.fixed_entries) values[off] = 0;
+            for (int i = 0; i < b.flesh->mesh.n_nodes; ++i)
+                if (b.fixed[i]) {
+                    add_node_block(*b.flesh, i, Mat3::Identity(), values);
+                    b.soft_rhs.segment<3>(3 * i).setZero();
+                }
+            b.tool->r = b.soft_rhs;
+            b.tool->select_slot(0);
+            b.tool->solve();
+            b.v_free = b.tool->s;
+            break;
+        }
+        case BodyKind::Rigid: {
+            const Mat3 r = quat_to_matrix(b.rigid.q);
+            const Mat3 inertia = r * b.inertia_body * r.transpose();
+            RigidSystem& rs = *b.rigid_system;
+            rs.A.setZero();
+            rs.A.topLeftCorner<3, 3>() = b.mass * Mat3::Identity();
+            rs.A.bottomRightCorner<3, 3>() = inertia;
+            rs.r.head<3>() = b.mass * (b.rigid.v_com + dt * settings.gravity);
+            rs.r.tail<3>() = inertia * b.rigid.omega - dt * b.rigid.omega.cross(inertia * b.rigid.omega);
+            rs.solve();
+            b.v_free = rs.s;
+            break;
+        }
+        default: b.v_free.resize(0);
     }
+    b.v_new = b.v_free;
+    b.contact_force.setZero();
 }
 
 void World::integrate() {

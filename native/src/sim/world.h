@@ -6,7 +6,6 @@
 // solve (Delassus operator W = J A^-1 J^T, projected Gauss-Seidel), then all bodies advance.
 #pragma once
 #include <cstdint>
-#include <functional>
 #include <map>
 #include <memory>
 #include <unordered_map>
