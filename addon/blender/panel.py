@@ -81,7 +81,7 @@ class HAPTIC_HAND_PT_material(_Panel, bpy.types.Panel):
                      "angular_stiffness", "angular_damping"):
             col.prop(s, name)
         col.separator()
-        for name in ("time_step", "contact_thickness", "friction", "self_collision"):
+        for name in ("time_step", "contact_thickness", "friction", "self_collision", "world_threads"):
             col.prop(s, name)
 
 

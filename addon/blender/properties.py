@@ -135,6 +135,10 @@ class HapticSceneSettings(bpy.types.PropertyGroup):
                                      description="Gap kept between surfaces (m)")
     friction: FloatProperty(name="Hand friction", default=0.5, min=0.0, soft_max=2.0)
     self_collision: BoolProperty(name="Self collision", default=True, description="Fingers collide")
+    world_threads: IntProperty(name="Simulation threads", default=2, min=1, max=2,
+                               description="Threads of each visual-loop step: 2 runs collision detection and the "
+                                           "other bodies beside the hand's solve (same results as 1); the haptic "
+                                           "loop has its own thread either way")
     # --- device ---
     device: EnumProperty(name="Device", items=DEVICES, default="SIMULATED")
     device_file: StringProperty(name="Recording", subtype="FILE_PATH",

@@ -208,7 +208,7 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
         "springs": {"stiffness": s.spring_stiffness, "damping": s.spring_damping},
         "coupling": {"stiffness": s.coupling_stiffness, "damping": s.coupling_damping,
                      "angular_stiffness": s.angular_stiffness, "angular_damping": s.angular_damping},
-        "contact": {"thickness": s.contact_thickness},
+        "contact": {"thickness": s.contact_thickness, "threads": s.world_threads},
         "dt": 1.0 / rate,
         "frames": f1 - f0,
         "gravity": list(bscene.gravity) if bscene.use_gravity else [0.0, 0.0, 0.0],

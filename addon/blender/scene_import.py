@@ -86,6 +86,7 @@ def build(context, path, frame_start: int = 1) -> dict:
     s.angular_stiffness, s.angular_damping = c["angular_stiffness"], c["angular_damping"]
     s.contact_thickness, s.friction, s.self_collision = data["contact"]["thickness"], hand["friction"], \
         hand["self_collision"]
+    s.world_threads = data["contact"]["threads"]
     t = hand["tetrahedralize"]
     s.edge_length_fac, s.coarsen, s.epsilon = t["edge_length_fac"], t["coarsen"], t["epsilon"]
     s.time_step = scene.dt

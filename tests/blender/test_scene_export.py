@@ -34,6 +34,8 @@ def test_bunny_scene_exports_to_the_sample_scene(addon, built_scenes, tmp_path):
         for key in ("material", "springs", "coupling"):
             for k, v in sample.data[key].items():
                 assert got.data[key][k] == pytest.approx(v, rel=1e-6), (key, k)
+        assert got.data["contact"]["thickness"] == pytest.approx(sample.data["contact"]["thickness"])
+        assert got.data["contact"]["threads"] == sample.data["contact"]["threads"] == 2
         # the device: the target empty keyed along the trajectory, sampled every frame
         com = np.array([0.01, -0.02, -0.05])
         a, b = got.trajectory(com), sample.trajectory(com)
@@ -51,6 +53,13 @@ def test_bunny_scene_exports_to_the_sample_scene(addon, built_scenes, tmp_path):
     finally:
         export.cleanup()
     assert export.folder is None
+    # the simulation threads the user picked reach the scene
+    context.scene.haptic_hand.world_threads = 1
+    export = scene_export.export(context)
+    try:
+        assert export.scene.data["contact"]["threads"] == 1
+    finally:
+        export.cleanup()
 
 
 def test_moving_colliders_follow_their_animation(addon, built_scenes, tmp_path):
