@@ -282,6 +282,17 @@ void World::step() {
     // hand), then takes the other bodies, their responses and the groups that do not involve
     // the hand (letters resting on the ground) while the hand's solve goes on. Every task
     // writes only its own results, so the step is the same on one thread as on two.
+    // Priorities among ready tasks: the hand's element pass first (its two parts are what lets
+    // both threads start at once), then detection and the preparation that unlock the contact
+    // work, then the free solves, the responses and the sweeps, largest first within each kind.
+    constexpr double kElementPass = 5e9, kDetection = 4e9, kPrepare = 3e9, kFreeSolve = 2e9, kResponses = 1e9,
+                     kSweeps = 5e8;
+    // runs f and writes its wall time to `seconds` (each task its own slot: no two write one)
+    auto timed = [](double& seconds, const auto& f) {
+        const auto t = std::chrono::steady_clock::now();
+        f();
+        seconds = seconds_since(t);
+    };
     const size_t n = bodies.size();
     std::vector<double> free_seconds(n, 0.0), build_seconds(n, 0.0), apply_seconds(n, 0.0);
     std::vector<double> group_seconds;
@@ -292,73 +303,46 @@ void World::step() {
         std::vector<int> after;
         if (bodies[i]->kind == BodyKind::Hand) {
             // the hand's element pass (a sixth of its step for the 17000-tet hand) in two parts
-            // on disjoint nodes, first of all, one per thread (fem/element_order.h)
+            // on disjoint nodes, one per thread (fem/element_order.h)
             Body& b = *bodies[i];
-            const auto t = clock::now();
-            formulate_begin(*b.hand_model, *b.hand);
-            b.pass_seconds[0] = seconds_since(t);
+            timed(b.pass_seconds[0], [&b] { formulate_begin(*b.hand_model, *b.hand); });
             for (int part = 0; part < 2; ++part)
                 after.push_back(graph.add(
-                    [&b, part] {
-                        const auto tp = clock::now();
-                        formulate_pass(*b.hand_model, *b.hand, part);
-                        b.pass_seconds[1 + part] = seconds_since(tp);
-                    },
-                    {}, 5e9));
+                    [&b, part, &timed] { timed(b.pass_seconds[1 + part], [&b, part] { formulate_pass(*b.hand_model, *b.hand, part); }); },
+                    {}, kElementPass));
         }
-        free_task[i] = graph.add(
-            [&, i] {
-                const auto t = clock::now();
-                solve_free(*bodies[i]);
-                free_seconds[i] = seconds_since(t);
-            },
-            after, 2e9 + bodies[i]->dofs());
+        free_task[i] = graph.add([&, i] { timed(free_seconds[i], [&] { solve_free(*bodies[i]); }); }, after,
+                                 kFreeSolve + bodies[i]->dofs());
     }
     const int detection = graph.add(
         [&] {
-            const auto t = clock::now();
-            detect();
-            reduce_contacts();
-            stats.t_detection = seconds_since(t);
+            timed(stats.t_detection, [&] {
+                detect();
+                reduce_contacts();
+            });
         },
-        {}, 4e9);
+        {}, kDetection);
     graph.add(
         [&] {
-            const auto t = clock::now();
-            prepare_contacts();
-            prepare_seconds = seconds_since(t);
+            timed(prepare_seconds, [&] { prepare_contacts(); });
             std::vector<int> build_task(n, -1);
             for (int bi : contact_involved())
-                build_task[bi] = graph.add(
-                    [&, bi] {
-                        const auto tb = clock::now();
-                        build_contact_body(bi);
-                        build_seconds[bi] = seconds_since(tb);
-                    },
-                    {free_task[bi]}, 1e9 + bodies[bi]->dofs());
+                build_task[bi] = graph.add([&, bi] { timed(build_seconds[bi], [&] { build_contact_body(bi); }); },
+                                           {free_task[bi]}, kResponses + bodies[bi]->dofs());
             group_seconds.assign(contact_groups.size(), 0.0);
             for (size_t g = 0; g < contact_groups.size(); ++g) {
                 const std::vector<int>& members = contact_group_bodies(static_cast<int>(g));
                 std::vector<int> after;
                 for (int bi : members) after.push_back(build_task[bi]);
-                const int group_task = graph.add(
-                    [&, g] {
-                        const auto tg = clock::now();
-                        solve_contact_group(static_cast<int>(g));
-                        group_seconds[g] = seconds_since(tg);
-                    },
-                    after, 5e8 + static_cast<double>(contact_groups[g].contacts.size()));
+                const int group_task =
+                    graph.add([&, g] { timed(group_seconds[g], [&] { solve_contact_group(static_cast<int>(g)); }); },
+                              after, kSweeps + static_cast<double>(contact_groups[g].contacts.size()));
                 for (int bi : members)
-                    graph.add(
-                        [&, bi] {
-                            const auto ta = clock::now();
-                            apply_contact_body(bi);
-                            apply_seconds[bi] = seconds_since(ta);
-                        },
-                        {group_task}, static_cast<double>(bodies[bi]->dofs()));
+                    graph.add([&, bi] { timed(apply_seconds[bi], [&] { apply_contact_body(bi); }); }, {group_task},
+                              static_cast<double>(bodies[bi]->dofs()));
             }
         },
-        {detection}, 3e9);
+        {detection}, kPrepare);
     graph.run(worker_.get());
     const auto t_finish = clock::now();
     finish_contacts();
