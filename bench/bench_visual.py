@@ -59,7 +59,7 @@ def solver_label(solver: dict | None) -> str:
 # The hand: the procedural hand surface (its collision surface, embedded in the tets) filled by
 # pytetwild near the target count. Settings (coarsen, epsilon, edge_length_fac) are tried in
 # order until the count is within TOLERANCE; the closest is kept. Counts seen on the procedural
-# hand (pytetwild varies from run to run): 350 -> 383; 1700 -> 1621; 3500 -> 3709; 17000 ->
+# hand (pytetwild varies from run to run): 350 -> 383; 1700 -> 1621; 3500 -> 3709, 4101; 17000 ->
 # 15553 (0.03), 19041 (0.025).
 HAND_SETTINGS = {
     350: [(True, 0.017, 0.5), (True, 0.015, 0.5), (True, 0.018, 0.55)],
