@@ -356,6 +356,7 @@ void World::step() {
     stats.t_contact_apply = seconds_since(t_finish);
     for (double s : apply_seconds) stats.t_contact_apply += s;
     stats.t_contact = stats.t_contact_build + stats.t_contact_sweeps + stats.t_contact_apply;
+    trace_contacts();
     integrate();
     stats.contacts = static_cast<int>(contacts.size());
     stats.min_distance = std::numeric_limits<double>::infinity();  // no pair within reach

@@ -167,6 +167,7 @@ private:
     void solve_contact_group(int group);
     void apply_contact_body(int body);
     void finish_contacts();
+    void trace_contacts() const;
     const std::vector<int>& contact_involved() const;               // (after prepare_contacts)
     const std::vector<int>& contact_group_bodies(int group) const;  // (after prepare_contacts)
     void integrate();

@@ -41,6 +41,10 @@ Vec3 carried_velocity(const Body& b, const Vec3& x) {
 }
 
 // A contact row's direction in the world: normal, tangent1, tangent2 (rows 3c, 3c + 1, 3c + 2)
+// HH_CONTACT_TRACE set: every step prints its contact solve's parts to stderr (read once, at
+// load: the per-frame path does not consult the environment)
+const bool kContactTrace = std::getenv("HH_CONTACT_TRACE") != nullptr;
+
 const Vec3& contact_direction(const std::vector<Contact>& contacts, int row) {
     const Contact& c = contacts[row / 3];
     return row % 3 == 0 ? c.normal : (row % 3 == 1 ? c.tangent1 : c.tangent2);
@@ -65,7 +69,6 @@ void World::prepare_contacts() {
     contact_friction.resize(0);
     if (nc == 0) return;
     const int rows = cs.rows = 3 * nc;
-    const bool use_patch_warm = !std::getenv("HH_NO_PATCH_WARM");
     auto direction = [&](int row) -> const Vec3& { return contact_direction(contacts, row); };
 
     auto& sides = cs.sides;
@@ -163,13 +166,11 @@ void World::prepare_contacts() {
     lambda.setZero(rows);
     for (int c = 0; c < nc; ++c) {
         auto it = previous_impulse.find(contact_key(contacts[c]));
-        if (it == previous_impulse.end() && use_patch_warm) {
+        if (it == previous_impulse.end()) {
             // another vertex is the deepest of the same patch now: start from that patch's impulse
             it = previous_patch_impulse.find(contact_patch_keys[c]);
             if (it == previous_patch_impulse.end()) continue;
             ++cs.patch_hits;
-        } else if (it == previous_impulse.end()) {
-            continue;
         } else {
             ++cs.warm_hits;
         }
@@ -281,7 +282,7 @@ void World::build_contact_body(int bi) {
     cs.u_body.at(bi) = cb.G * v_touched;
     MatX c_b = cb.row_basis ? MatX(cb.G * cb.K.topRows(nt)) : MatX(cb.K.topRows(nt));
     cs.response.at(bi) = 0.5 * (c_b + c_b.transpose());
-    if (std::getenv("HH_CONTACT_TRACE")) std::fprintf(stderr, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(cs.start));
+    if (kContactTrace) std::fprintf(stderr, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(cs.start));
 }
 
 // One group of coupled contacts (it shares no body with the other groups): its problem on its
@@ -394,14 +395,18 @@ void World::finish_contacts() {
     }
     contact_lambda = lambda;
     contact_friction = cs.friction;
-    if (std::getenv("HH_CONTACT_TRACE")) {
-        std::fprintf(stderr, "warm %d patch %d ", cs.warm_hits, cs.patch_hits);
-        std::fprintf(stderr, "contacts %d groups %zu build %.2f sweeps %.2f apply %.2f ms it %d |", nc, contact_groups.size(),
-                     1e3 * stats.t_contact_build, 1e3 * stats.t_contact_sweeps, 1e3 * stats.t_contact_apply, stats.iterations);
-        for (const auto& e : contact_bodies)
-            std::fprintf(stderr, " body %d rows %zu touched %zu %s", e.first, e.second.rows.size(), e.second.touched.size(), e.second.row_basis ? "R" : "D");
-        std::fprintf(stderr, "\n");
-    }
+}
+
+// The step's contact solve, for HH_CONTACT_TRACE: called once the step has summed its parts' times
+void World::trace_contacts() const {
+    if (!kContactTrace || !setup_) return;
+    const ContactSetup& cs = *setup_;
+    std::fprintf(stderr, "warm %d patch %d ", cs.warm_hits, cs.patch_hits);
+    std::fprintf(stderr, "contacts %zu groups %zu build %.2f sweeps %.2f apply %.2f ms it %d |", contacts.size(), contact_groups.size(),
+                 1e3 * stats.t_contact_build, 1e3 * stats.t_contact_sweeps, 1e3 * stats.t_contact_apply, stats.iterations);
+    for (const auto& e : contact_bodies)
+        std::fprintf(stderr, " body %d rows %zu touched %zu %s", e.first, e.second.rows.size(), e.second.touched.size(), e.second.row_basis ? "R" : "D");
+    std::fprintf(stderr, "\n");
 }
 
 MatX World::contact_delassus(const std::vector<int>& rows) const {
