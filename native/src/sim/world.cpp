@@ -294,7 +294,8 @@ void World::step() {
         seconds = seconds_since(t);
     };
     const size_t n = bodies.size();
-    std::vector<double> free_seconds(n, 0.0), build_seconds(n, 0.0), apply_seconds(n, 0.0);
+    std::vector<double> free_seconds(n, 0.0), apply_seconds(n, 0.0);
+    std::vector<std::vector<double>> build_part_seconds(n);
     std::vector<double> group_seconds;
     double prepare_seconds = 0;
     TaskGraph graph;
@@ -325,10 +326,27 @@ void World::step() {
     graph.add(
         [&] {
             timed(prepare_seconds, [&] { prepare_contacts(); });
+            // per body: begin, its solves in shares (side by side on two threads), finish; each
+            // part's time in its own slot (summed into t_contact_build after the run)
             std::vector<int> build_task(n, -1);
-            for (int bi : contact_involved())
-                build_task[bi] = graph.add([&, bi] { timed(build_seconds[bi], [&] { build_contact_body(bi); }); },
-                                           {free_task[bi]}, kResponses + bodies[bi]->dofs());
+            for (int bi : contact_involved()) {
+                const int parts = contact_body_parts(bi);
+                build_part_seconds[bi].assign(parts + 2, 0.0);
+                const double priority = kResponses + bodies[bi]->dofs();
+                const int begin = graph.add(
+                    [&, bi] { timed(build_part_seconds[bi][0], [&] { begin_contact_body(bi); }); }, {free_task[bi]},
+                    priority);
+                std::vector<int> shares;
+                for (int part = 0; part < parts; ++part)
+                    shares.push_back(graph.add(
+                        [&, bi, part, parts] {
+                            timed(build_part_seconds[bi][1 + part], [&] { solve_contact_body(bi, part, parts); });
+                        },
+                        {begin}, priority));
+                build_task[bi] = graph.add(
+                    [&, bi, parts] { timed(build_part_seconds[bi][1 + parts], [&] { finish_contact_body(bi); }); }, shares,
+                    priority);
+            }
             group_seconds.assign(contact_groups.size(), 0.0);
             for (size_t g = 0; g < contact_groups.size(); ++g) {
                 const std::vector<int>& members = contact_group_bodies(static_cast<int>(g));
@@ -351,7 +369,8 @@ void World::step() {
     for (const auto& b : bodies)
         if (b->kind == BodyKind::Hand) stats.t_dynamics += b->pass_seconds[0] + b->pass_seconds[1] + b->pass_seconds[2];
     stats.t_contact_build = prepare_seconds;
-    for (double s : build_seconds) stats.t_contact_build += s;
+    for (const auto& parts : build_part_seconds)
+        for (double s : parts) stats.t_contact_build += s;
     for (double s : group_seconds) stats.t_contact_sweeps += s;
     stats.t_contact_apply = seconds_since(t_finish);
     for (double s : apply_seconds) stats.t_contact_apply += s;

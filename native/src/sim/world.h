@@ -121,6 +121,7 @@ public:
         std::vector<int> contacts;  // contact indices, ascending
         int iterations = 0;         // Gauss-Seidel sweeps this group took
         double residual = 0;        // m/s, left by them
+        double columns_seconds = 0; // s: of the sweeps' time, forming their response columns
     };
     // One dynamic body's part: its response to impulses on the unknowns the contacts act on.
     struct ContactBody {
@@ -163,7 +164,12 @@ private:
     struct ContactSetup;
     std::unique_ptr<ContactSetup> setup_;
     void prepare_contacts();
-    void build_contact_body(int body);
+    // a body's responses in three kinds of part: begin (its unknowns and J_b), the black-box
+    // solves in contact_body_parts shares that may run side by side, finish (C_b, u_free)
+    int contact_body_parts(int body) const;  // (after prepare_contacts)
+    void begin_contact_body(int body);
+    void solve_contact_body(int body, int part, int parts);
+    void finish_contact_body(int body);
     void solve_contact_group(int group);
     void apply_contact_body(int body);
     void finish_contacts();

@@ -29,6 +29,13 @@ struct World::ContactSetup {
     VecX u_free, gap, friction, kinetic;         // per row / contact (u_free: kinematic bodies' part first)
     VecX lambda;                                 // impulses: the warm start, then the groups' solutions
     int warm_hits = 0, patch_hits = 0;
+    // per body, between the parts of its build (begin_contact_body .. finish_contact_body)
+    struct Build {
+        Eigen::SparseMatrix<double> gt;  // G^T: touched x rows, column-major
+        std::vector<int> watched_nodes;  // soft body: the nodes of the watched unknowns
+        int first = 0;                   // K's columns from here on come from the solves
+    };
+    std::map<int, Build> build;
     std::map<int, MatX> response;  // per body: its symmetrized C_b (see ReducedContactProblem)
     std::map<int, VecX> u_body;    // per body: its share of u_free on its rows
 };

@@ -817,12 +817,28 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
     solve_node_major(b, w, warp, single, nullptr);
 }
 
+// The solves' scratch is per thread, not per factor: solves on one factor may run on two
+// threads at once (a soft body's contact responses split between the world's threads,
+// World::step), and the factor itself is only read. Each thread's buffers grow to the largest
+// solve it has made and are then reused (no allocation per solve once warm).
+namespace {
+struct SolveScratch {
+    std::vector<double> work, packed, gather;
+    std::vector<unsigned char> wanted_node, wanted_sn;
+};
+SolveScratch& scratch() {
+    thread_local SolveScratch s;
+    return s;
+}
+}  // namespace
+
 void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, bool single,
                                  const unsigned char* wanted) const {
     if (!(w == 1 || w == 4 || w == 8 || (supernodal_ && (w == 16 || w == 32))))
         throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8 (16 or 32: supernodal form only)");
-    work_.resize(static_cast<size_t>(3) * n_ * w);
-    double* x = work_.data();
+    std::vector<double>& work = scratch().work;
+    work.resize(static_cast<size_t>(3) * n_ * w);
+    double* x = work.data();
     if (w == 1) warp_permute<1, true>(n_, order_.data(), warp, b, x);
     else if (w == 4) warp_permute<4, true>(n_, order_.data(), warp, b, x);
     else if (w == 16) warp_permute<16, true>(n_, order_.data(), warp, b, x);
@@ -860,17 +876,19 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp) const { solve(b, w
 // (and, for the supernodal form, over supernodes: a supernode's rows below are ancestors of
 // all of its nodes, so a supernode holding a wanted node only reads wanted ones).
 const unsigned char* BlockLDLT::wanted_mask(const std::vector<int>& nodes) const {
-    wanted_node_.assign(n_, 0);
+    std::vector<unsigned char>& wanted_node = scratch().wanted_node;
+    wanted_node.assign(n_, 0);
     for (int old : nodes) {
         if (old < 0 || old >= n_) throw std::logic_error("BlockLDLT::solve: a wanted node out of range");
-        for (int i = inverse_[old]; i >= 0 && !wanted_node_[i]; i = parent_[i]) wanted_node_[i] = 1;
+        for (int i = inverse_[old]; i >= 0 && !wanted_node[i]; i = parent_[i]) wanted_node[i] = 1;
     }
-    if (!supernodal_) return wanted_node_.data();
+    if (!supernodal_) return wanted_node.data();
     const int ns = supernodes();
-    wanted_sn_.assign(ns, 0);
+    std::vector<unsigned char>& wanted_sn = scratch().wanted_sn;
+    wanted_sn.assign(ns, 0);
     for (int j = 0; j < ns; ++j)
-        for (int i = sn_start_[j]; i < sn_start_[j + 1] && !wanted_sn_[j]; ++i) wanted_sn_[j] = wanted_node_[i];
-    return wanted_sn_.data();
+        for (int i = sn_start_[j]; i < sn_start_[j + 1] && !wanted_sn[j]; ++i) wanted_sn[j] = wanted_node[i];
+    return wanted_sn.data();
 }
 
 void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes) const {
@@ -883,19 +901,20 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<
     for (Eigen::Index first = 0; first < b.cols(); first += most) {
         const int k = static_cast<int>(std::min<Eigen::Index>(most, b.cols() - first));
         const int w = k == 1 ? 1 : (k <= 4 ? 4 : (k <= 8 ? 8 : (k <= 16 ? 16 : 32)));  // padded
-        packed_.resize(static_cast<size_t>(3) * n_ * w);
+        std::vector<double>& packed = scratch().packed;
+        packed.resize(static_cast<size_t>(3) * n_ * w);
         const double* in[32];
         for (int j = 0; j < k; ++j) in[j] = b.col(first + j).data();
         for (int e = 0; e < 3 * n_; ++e) {
-            double* row = packed_.data() + static_cast<size_t>(w) * e;
+            double* row = packed.data() + static_cast<size_t>(w) * e;
             for (int j = 0; j < k; ++j) row[j] = in[j][e];
             for (int j = k; j < w; ++j) row[j] = 0.0;
         }
-        solve_node_major(packed_.data(), w, warp, false, wanted);
+        solve_node_major(packed.data(), w, warp, false, wanted);
         double* out[32];
         for (int j = 0; j < k; ++j) out[j] = b.col(first + j).data();
         for (int e = 0; e < 3 * n_; ++e) {
-            const double* row = packed_.data() + static_cast<size_t>(w) * e;
+            const double* row = packed.data() + static_cast<size_t>(w) * e;
             for (int j = 0; j < k; ++j) out[j][e] = row[j];
         }
     }
@@ -905,7 +924,8 @@ void BlockLDLT::solve_supernodal(double* x, int w, bool single, const unsigned c
     const int ns = supernodes();
     size_t most = 0;
     for (int j = 0; j < ns; ++j) most = std::max<size_t>(most, sn_rows_ptr_[j + 1] - sn_rows_ptr_[j]);
-    gather_.resize(3 * most * w + 64);
+    std::vector<double>& gather = scratch().gather;
+    gather.resize(3 * most * w + 64);
     const SupernodalFactor f{ns,
                              sn_start_.data(),
                              sn_rows_ptr_.data(),
@@ -917,7 +937,7 @@ void BlockLDLT::solve_supernodal(double* x, int w, bool single, const unsigned c
                              sn_diag_ptr_.data(),
                              single ? sn_diag_inverse_.data() : nullptr,
                              wanted};
-    supernodal_solve_dispatch(f, x, w, gather_.data());
+    supernodal_solve_dispatch(f, x, w, gather.data());
 }
 
 }  // namespace hh

@@ -89,18 +89,15 @@ private:
     std::vector<std::vector<BlockRef>> lower_;  // lower pattern of permuted A by column (row >= column)
     std::vector<int> relmap_, link_head_, link_next_, sn_pos_;
     std::vector<double> update_;
-    mutable std::vector<double> gather_;
     void analyze_supernodes();
     void factorize_supernodal(const SpMat& a);
     void factorize_up_looking(const SpMat& a);
     void solve_supernodal(double* x, int w, bool single, const unsigned char* wanted) const;
     void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, bool single, const unsigned char* wanted) const;
     const unsigned char* wanted_mask(const std::vector<int>& nodes) const;
-    mutable std::vector<unsigned char> wanted_node_, wanted_sn_;
     bool keep_single_ = false, single_valid_ = false, factored_ = false;
     void make_single();
     double factor_flops_ = 0;
-    mutable std::vector<double> work_, packed_;
     // workspaces of factorize()
     std::vector<Mat3> y_;
     std::vector<int> flag_, pattern_;

@@ -282,15 +282,21 @@ bool DeformableSystem::response_blocks(const std::vector<int>& nodes, std::vecto
     return true;
 }
 
+bool DeformableSystem::prepare_concurrent_solves() {
+    Impl& m = *impl_;
+    if (m.solver != DeformableSolver::Cholesky) return false;
+    if (!factor_valid_) {
+        if (!m.cholesky.analysed()) m.analyze_per_step(A);
+        m.cholesky.factorize(A);
+        ++factorizations;
+        factor_valid_ = true;
+    }
+    return true;
+}
+
 void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes) {
     Impl& m = *impl_;
-    if (m.solver == DeformableSolver::Cholesky) {
-        if (!factor_valid_) {
-            if (!m.cholesky.analysed()) m.analyze_per_step(A);
-            m.cholesky.factorize(A);
-            ++factorizations;
-            factor_valid_ = true;
-        }
+    if (prepare_concurrent_solves()) {
         x = b;
         m.cholesky.solve(x, nullptr, wanted_nodes);
     } else if (m.solver == DeformableSolver::ConjugateGradient) {

@@ -48,6 +48,11 @@ public:
     // wanted_nodes (Cholesky only; ignored by the other solvers): only the rows of these nodes
     // of X are asked for, the others are left unspecified (BlockLDLT::solve).
     void solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes = nullptr);
+    // Cholesky: factors the step's matrix now if that is not done yet; after it, solve_many
+    // only reads the factor, so calls on different right-hand sides may run on two threads at
+    // once (a soft body's contact responses, World::step). Returns whether that holds (false
+    // for the iterative solvers, whose warm-start slots each call writes).
+    bool prepare_concurrent_solves();
     // X = the step's response operator applied to B, for the contact responses (the Delassus
     // operator and the impulses' velocities): with Cholesky and CG the solve above (slots 8 and
     // up); with ReusedCholesky the warped factor itself, W Af^-1 W^T, one pass and no CG. That
