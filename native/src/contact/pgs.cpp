@@ -146,9 +146,11 @@ constexpr double kDependent = 1e-6;    // pivot / diagonal below which a row cou
 constexpr int kSubspaceMaxActive = 64;
 // Sweeps between full ones, with the open contacts left out in between (see sweep)
 constexpr int kFullEvery = 10;
-// ... and the settled ones: a contact whose own residual is within this fraction of the worst
-// (and within the tolerance) is left out until the next full sweep (see sweep)
-constexpr double kHotFraction = 0.03;
+// ... and, where the subspace step cannot run (more active contacts than it takes), the
+// settled ones too: a contact whose own residual is within the tolerance or this fraction of
+// the worst sits out until the next full sweep, every kFullEveryLarge sweeps (see sweep)
+constexpr double kHotFraction = 0.1;
+constexpr int kFullEveryLarge = 30;
 // Response columns (all bodies, double) above which the sweeps use single-precision copies
 constexpr size_t kSingleColumnsBytes = size_t(6) << 20;
 
@@ -400,16 +402,20 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
     // exactly the full ones. (Measured on recorded bunny frames, the margin mattered: open by
     // 1e-3 m/s left 4.4 ms of 6.1, by the tolerance 3.2 ms; a full sweep every 5 or 20 sweeps
     // made little difference.)
-    // Settled contacts are left out in between too: those whose own residual at the full sweep
-    // is within the tolerance or within kHotFraction of the worst. Where the sweeps are slow
-    // (the 10x bunny ends every frame at the cap) the error sits in a few groups of 2-5 nearly
-    // dependent contacts (the eigen-directions of W that carry most of the hand's impulse
-    // error), while most contacts the sweeps visit are already far closer than the worst.
-    // Measured on 60 recorded 10x bunny frames at 300 sweeps: 93 contacts a sweep instead of
-    // 386, 36 ms instead of 70, the hand's generalized impulse as far from the converged one as
-    // before (1-4%); a fraction of 0.01 took 40 ms, 0.1 32 ms with a larger residual left.
+    // Where the subspace step cannot run (more active contacts than it takes), settled contacts
+    // are left out in between too: those whose own residual at the full sweep is within the
+    // tolerance or within kHotFraction of the worst; full sweeps then come every
+    // kFullEveryLarge sweeps. There (the 10x bunny ends every frame at the cap) the error sits
+    // in a few groups of 2-5 nearly dependent contacts (the eigen-directions of W that carry
+    // most of the hand's impulse error), while most contacts the sweeps visit are already far
+    // closer than the worst. Measured on 60 recorded 10x bunny frames at 300 sweeps (one
+    // thread): 70 ms before; leaving out those within 3% of the worst, 36 ms (93 contacts a
+    // sweep instead of 386); with the partial sweeps focused (ReducedOp::focus) 32 ms; within
+    // 10% and full sweeps every 30, 23 ms. The residual left at the cap, and the hand's
+    // generalized impulse's distance from the converged one (1-4%), stayed as they were.
     const double open_margin = tolerance;
     int next_full = 0;
+    bool large = false;  // more active contacts than the subspace step takes (at the last full sweep)
     for (int it = 0, pass = 0; it < max_iterations; ++it) {
         const bool full = it >= next_full;
         if (full && it > 0) op.refresh(lambda);
@@ -448,12 +454,13 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             // out slowed them (60 contacts on one element: 127 -> 155 sweeps)
             int active = 0;
             for (int i = 0; i < c; ++i) active += lambda[3 * i] > 0;
-            const double settled = active > kSubspaceMaxActive ? std::max(tolerance, kHotFraction * result.residual) : -1.0;
+            large = active > kSubspaceMaxActive;
+            const double settled = large ? std::max(tolerance, kHotFraction * result.residual) : -1.0;
             for (int i = 0; i < c; ++i)
                 if ((lambda[3 * i] > 0 || lambda[3 * i + 1] != 0 || lambda[3 * i + 2] != 0 || !(u[i][0] + bias[i] > open_margin)) &&
                     own[i] > settled)
                     live.push_back(i);
-            next_full = it + kFullEvery;
+            next_full = it + (large ? kFullEveryLarge : kFullEvery);
             op.focus(live, lambda);
         }
         // every decision below (stop, subspace step, keep a step) on the residual of every contact
@@ -483,7 +490,9 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
                 next_full = it + 1;  // the step may close left-out contacts: the sweep after it visits all
                 continue;
             }
-            next_step = it + 1 + interval;  // no step (no active contact, or too many): not before then
+            // no step (no active contact, or too many): not before then (with too many, not
+            // before the next full sweep: each step decision costs a residual on every contact)
+            next_step = it + 1 + (large ? kFullEveryLarge : interval);
         }
         if (result.residual > tolerance && it + 1 < max_iterations) continue;
         if (pass++ > 0) break;
@@ -557,55 +566,19 @@ struct ReducedOp {
     std::vector<MatX> hc;
     std::vector<std::vector<std::pair<int, int>>> focus_parts;
     std::vector<Mat3> blocks;
-    std::vector<MatX> h;                                   // per body: m_b x 3 (its contacts)
-    std::vector<Eigen::MatrixXf> hs;
-    std::vector<std::vector<std::pair<int, int>>> parts;  // per contact: (body, first column in h[body])
-    ReducedOp(const ReducedContactProblem& p, const VecX& lambda) : p(p) {
+    const std::vector<MatX>& h;                                  // (see ReducedColumns)
+    const std::vector<Eigen::MatrixXf>& hs;
+    const std::vector<std::vector<std::pair<int, int>>>& parts;
+    ReducedOp(const ReducedColumns& columns, const VecX& lambda)
+        : p(columns.p), h(columns.h), hs(columns.hs), parts(columns.parts) {
         const int c = static_cast<int>(p.gap.size());
-        const int nb = static_cast<int>(p.bodies.size());
-        std::vector<int> columns(nb, 0);
-        parts.resize(c);
-        for (int i = 0; i < c; ++i)
-            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
-                const int b = p.entries[e].body;
-                bool seen = false;
-                for (const auto& q : parts[i]) seen = seen || q.first == b;
-                if (!seen) {
-                    parts[i].emplace_back(b, columns[b]);
-                    columns[b] += 3;
-                }
-            }
-        h.resize(nb);
-        for (int b = 0; b < nb; ++b) h[b].setZero(p.bodies[b].C.rows(), columns[b]);
         blocks.assign(c, Mat3::Zero());
-        for (int i = 0; i < c; ++i)
-            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
-                const auto& a = p.entries[e];
-                int first = 0;
-                for (const auto& q : parts[i])
-                    if (q.first == a.body) first = q.second;
-                MatX& hb = h[a.body];
-                add_outer_three(hb.data() + hb.rows() * first, p.bodies[a.body].C.col(a.index).data(), hb.rows(), hb.rows(),
-                                a.coefficient[0], a.coefficient[1], a.coefficient[2]);
-            }
         for (int i = 0; i < c; ++i)
             for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
                 const auto& a = p.entries[e];
                 for (const auto& q : parts[i])
                     if (q.first == a.body) blocks[i] += a.coefficient * h[a.body].row(a.index).segment<3>(q.second);
             }
-        // Single-precision copies of the columns when they outgrow the caches: a sweep then
-        // streams them from memory, and half the bytes is most of the sweep's time (10x bunny:
-        // ~950 contacts on ~590 unknowns, 13 MB of columns; sweeps 37.5 -> 30.5 ms a frame).
-        // The velocities are kept in double and recomputed exactly every full sweep (refresh),
-        // so the single-precision round-off (~1e-7 relative) does not accumulate; the paper
-        // bunny's ~2 MB stay double (the copy cost more than it saved there).
-        size_t bytes = 0;
-        for (int b = 0; b < nb; ++b) bytes += sizeof(double) * static_cast<size_t>(h[b].size());
-        if (p.single_columns == 1 || (p.single_columns < 0 && bytes > kSingleColumnsBytes)) {
-            hs.resize(nb);
-            for (int b = 0; b < nb; ++b) hs[b] = h[b].cast<float>();
-        }
         reset(lambda);
     }
     void reset(const VecX& lambda) {
@@ -748,15 +721,73 @@ void reduced_velocities(const ReducedContactProblem& p, const VecX& lambda, std:
 
 }  // namespace
 
+ReducedColumns::ReducedColumns(const ReducedContactProblem& p) : p(p) {
+    const int c = static_cast<int>(p.gap.size());
+    const int nb = static_cast<int>(p.bodies.size());
+    std::vector<int> columns(nb, 0);
+    parts.resize(c);
+    for (int i = 0; i < c; ++i)
+        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
+            const int b = p.entries[e].body;
+            bool seen = false;
+            for (const auto& q : parts[i]) seen = seen || q.first == b;
+            if (!seen) {
+                parts[i].emplace_back(b, columns[b]);
+                columns[b] += 3;
+            }
+        }
+    h.resize(nb);
+    size_t bytes = 0;
+    for (int b = 0; b < nb; ++b) {
+        h[b].resize(p.bodies[b].C.rows(), columns[b]);  // (each contact's share zeroes its own)
+        bytes += sizeof(double) * static_cast<size_t>(h[b].size());
+    }
+    // Single-precision copies of the columns when they outgrow the caches: a sweep then
+    // streams them from memory, and half the bytes is most of the sweep's time (10x bunny:
+    // ~950 contacts on ~590 unknowns, 13 MB of columns; sweeps 37.5 -> 30.5 ms a frame).
+    // The velocities are kept in double and recomputed exactly from time to time (refresh),
+    // so the single-precision round-off (~1e-7 relative) does not accumulate; the paper
+    // bunny's ~2 MB stay double (the copy cost more than it saved there).
+    if (p.single_columns == 1 || (p.single_columns < 0 && bytes > kSingleColumnsBytes)) {
+        hs.resize(nb);
+        for (int b = 0; b < nb; ++b) hs[b].resize(h[b].rows(), h[b].cols());
+    }
+}
+
+void ReducedColumns::form(int part, int parts_count) {
+    const int c = static_cast<int>(p.gap.size());
+    for (int i = part; i < c; i += parts_count) {
+        for (const auto& q : parts[i]) h[q.first].middleCols(q.second, 3).setZero();
+        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
+            const auto& a = p.entries[e];
+            int first = 0;
+            for (const auto& q : parts[i])
+                if (q.first == a.body) first = q.second;
+            MatX& hb = h[a.body];
+            add_outer_three(hb.data() + hb.rows() * first, p.bodies[a.body].C.col(a.index).data(), hb.rows(), hb.rows(),
+                            a.coefficient[0], a.coefficient[1], a.coefficient[2]);
+        }
+        if (!hs.empty())
+            for (const auto& q : parts[i]) hs[q.first].middleCols(q.second, 3) = h[q.first].middleCols(q.second, 3).cast<float>();
+    }
+}
+
 PgsResult solve_pgs(const ReducedContactProblem& p, VecX& lambda, int max_iterations, double tolerance) {
+    const auto t0 = std::chrono::steady_clock::now();
+    ReducedColumns columns(p);
+    columns.form(0, 1);
+    const double seconds = seconds_since(t0);
+    PgsResult result = solve_pgs(p, columns, lambda, max_iterations, tolerance);
+    result.columns_seconds = seconds;
+    return result;
+}
+
+PgsResult solve_pgs(const ReducedContactProblem& p, const ReducedColumns& columns, VecX& lambda, int max_iterations,
+                    double tolerance) {
     const int c = static_cast<int>(p.gap.size());
     start(c, lambda);
-    const auto t0 = std::chrono::steady_clock::now();
-    ReducedOp op(p, lambda);
-    const double columns = seconds_since(t0);
-    PgsResult result = sweep(op, c, p.gap, p.friction, p.kinetic, p.dt, p.recovery_speed, lambda, max_iterations, tolerance);
-    result.columns_seconds = columns;
-    return result;
+    ReducedOp op(columns, lambda);
+    return sweep(op, c, p.gap, p.friction, p.kinetic, p.dt, p.recovery_speed, lambda, max_iterations, tolerance);
 }
 
 MatX ReducedContactProblem::delassus() const {

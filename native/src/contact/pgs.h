@@ -15,6 +15,7 @@
 //   y_b = C_b P_b^T lambda instead of u, so W is never formed: a contact costs ~12 m_b per
 //   body it touches instead of 3 x 3c, and forming W (3c x 3c x ~12) is skipped.
 #pragma once
+#include <utility>
 #include <vector>
 
 #include "common/types.h"
@@ -53,6 +54,20 @@ struct ReducedContactProblem {
     MatX delassus() const;
 };
 
+// The sweeps' response columns on the reduced form: per contact and dynamic body it touches,
+// the three columns H = C_b P_b^T (m_b x 3), and single-precision copies of them when they
+// outgrow the caches. Formed in shares (every parts-th contact; each contact's columns are its
+// own), which the world runs on its two threads side by side; solve_pgs forms them itself
+// when not given them.
+struct ReducedColumns {
+    explicit ReducedColumns(const ReducedContactProblem& p);  // lays them out (no arithmetic yet)
+    void form(int part, int parts);
+    const ReducedContactProblem& p;
+    std::vector<MatX> h;                                  // per body: m_b x 3 (its contacts)
+    std::vector<Eigen::MatrixXf> hs;                      // per body: h in single precision, or none
+    std::vector<std::vector<std::pair<int, int>>> parts;  // per contact: (body, first column in h[body])
+};
+
 struct PgsResult {
     int iterations = 0;
     double residual = 0;  // m/s: largest violation of the conditions above (see solve_pgs)
@@ -63,5 +78,8 @@ struct PgsResult {
 // contacts); out, the impulses. Sweeps end when every condition holds to `tolerance` m/s.
 PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, double tolerance);
 PgsResult solve_pgs(const ReducedContactProblem& p, VecX& lambda, int max_iterations, double tolerance);
+// the same on columns formed beforehand (every share of them)
+PgsResult solve_pgs(const ReducedContactProblem& p, const ReducedColumns& columns, VecX& lambda, int max_iterations,
+                    double tolerance);
 
 }  // namespace hh

@@ -296,7 +296,7 @@ void World::step() {
     const size_t n = bodies.size();
     std::vector<double> free_seconds(n, 0.0), apply_seconds(n, 0.0);
     std::vector<std::vector<double>> build_part_seconds(n);
-    std::vector<double> group_seconds;
+    std::vector<std::vector<double>> group_seconds;
     double prepare_seconds = 0;
     TaskGraph graph;
     std::vector<int> free_task(n);
@@ -347,14 +347,25 @@ void World::step() {
                     [&, bi, parts] { timed(build_part_seconds[bi][1 + parts], [&] { finish_contact_body(bi); }); }, shares,
                     priority);
             }
-            group_seconds.assign(contact_groups.size(), 0.0);
+            // per group: setup, its columns in shares (side by side), the sweeps; each part's
+            // time in its own slot (the sweeps' time is the three kinds together)
+            group_seconds.assign(contact_groups.size(), std::vector<double>(2 + kColumnShares, 0.0));
             for (size_t g = 0; g < contact_groups.size(); ++g) {
                 const std::vector<int>& members = contact_group_bodies(static_cast<int>(g));
                 std::vector<int> after;
                 for (int bi : members) after.push_back(build_task[bi]);
-                const int group_task =
-                    graph.add([&, g] { timed(group_seconds[g], [&] { solve_contact_group(static_cast<int>(g)); }); },
-                              after, kSweeps + static_cast<double>(contact_groups[g].contacts.size()));
+                const double priority = kSweeps + static_cast<double>(contact_groups[g].contacts.size());
+                const int gi = static_cast<int>(g);
+                const int setup = graph.add([&, gi] { timed(group_seconds[gi][0], [&] { setup_contact_group(gi); }); },
+                                            after, priority);
+                std::vector<int> shares;
+                for (int part = 0; part < kColumnShares; ++part)
+                    shares.push_back(graph.add(
+                        [&, gi, part] { timed(group_seconds[gi][1 + part], [&] { form_contact_columns(gi, part); }); },
+                        {setup}, priority));
+                const int group_task = graph.add(
+                    [&, gi] { timed(group_seconds[gi][1 + kColumnShares], [&] { solve_contact_group(gi); }); }, shares,
+                    priority);
                 for (int bi : members)
                     graph.add([&, bi] { timed(apply_seconds[bi], [&] { apply_contact_body(bi); }); }, {group_task},
                               static_cast<double>(bodies[bi]->dofs()));
@@ -371,7 +382,8 @@ void World::step() {
     stats.t_contact_build = prepare_seconds;
     for (const auto& parts : build_part_seconds)
         for (double s : parts) stats.t_contact_build += s;
-    for (double s : group_seconds) stats.t_contact_sweeps += s;
+    for (const auto& parts : group_seconds)
+        for (double s : parts) stats.t_contact_sweeps += s;
     stats.t_contact_apply = seconds_since(t_finish);
     for (double s : apply_seconds) stats.t_contact_apply += s;
     stats.t_contact = stats.t_contact_build + stats.t_contact_sweeps + stats.t_contact_apply;

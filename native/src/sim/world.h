@@ -170,6 +170,10 @@ private:
     void begin_contact_body(int body);
     void solve_contact_body(int body, int part, int parts);
     void finish_contact_body(int body);
+    // a group's sweeps in parts too: setup (its problem), the columns in shares, the sweeps
+    static constexpr int kColumnShares = 2;
+    void setup_contact_group(int group);
+    void form_contact_columns(int group, int part);
     void solve_contact_group(int group);
     void apply_contact_body(int body);
     void finish_contacts();

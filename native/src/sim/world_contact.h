@@ -3,6 +3,7 @@
 #pragma once
 #include <chrono>
 #include <map>
+#include <memory>
 #include <utility>
 #include <vector>
 
@@ -37,6 +38,15 @@ struct World::ContactSetup {
     };
     std::map<int, Build> build;
     std::map<int, MatX> response;  // per body: its symmetrized C_b (see ReducedContactProblem)
+    // per group, between setup_contact_group and solve_contact_group: its problem, impulses
+    // (the warm start) and the sweeps' columns, formed in shares (form_contact_columns)
+    struct GroupSolve {
+        ReducedContactProblem problem;
+        VecX lambda;
+        std::unique_ptr<ReducedColumns> columns;
+        std::vector<double> form_seconds;  // per share
+    };
+    std::vector<GroupSolve> group_solve;
     std::map<int, VecX> u_body;    // per body: its share of u_free on its rows
 };
 
