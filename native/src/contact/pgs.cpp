@@ -461,7 +461,9 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
                     own[i] > settled)
                     live.push_back(i);
             next_full = it + (large ? kFullEveryLarge : kFullEvery);
-            op.focus(live, lambda);
+            // (on small problems the focus's copies cost more than they save: paper bunny
+            // contact 4.4 -> 4.8 ms a frame)
+            if (large) op.focus(live, lambda);
         }
         // every decision below (stop, subspace step, keep a step) on the residual of every contact
         const bool deciding = pending || result.residual <= tolerance || it + 1 >= max_iterations || it + 1 >= next_step;

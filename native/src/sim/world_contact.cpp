@@ -20,6 +20,9 @@
 namespace hh {
 
 namespace {
+// Response columns (double) above which a group's are formed in shares (setup_contact_group)
+constexpr size_t kSharedColumnsBytes = size_t(4) << 20;
+
 // Identity of a contact across steps: its sides' bodies and first vertices (a vertex against
 // a body keeps its identity when the closest triangle changes).
 std::uint64_t contact_key(const Contact& c) {
@@ -382,10 +385,21 @@ void World::setup_contact_group(int group) {
     }
     gs.columns = std::make_unique<ReducedColumns>(prob);
     gs.form_seconds.assign(kColumnShares, 0.0);
+    // small groups' columns at once, here: handing a share to the other thread costs more
+    // than it saves (paper bunny, ~1 MB of columns: contact 4.2 -> 4.5 ms a frame)
+    size_t bytes = 0;
+    for (const MatX& h : gs.columns->h) bytes += sizeof(double) * static_cast<size_t>(h.size());
+    gs.shared = bytes > kSharedColumnsBytes;
+    if (!gs.shared) {
+        const auto t0 = std::chrono::steady_clock::now();
+        gs.columns->form(0, 1);
+        gs.form_seconds[0] = seconds_since(t0);
+    }
 }
 
 void World::form_contact_columns(int group, int part) {
     ContactSetup::GroupSolve& gs = setup_->group_solve[group];
+    if (!gs.shared) return;
     const auto t0 = std::chrono::steady_clock::now();
     gs.columns->form(part, kColumnShares);
     gs.form_seconds[part] = seconds_since(t0);

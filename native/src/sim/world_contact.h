@@ -45,6 +45,7 @@ struct World::ContactSetup {
         VecX lambda;
         std::unique_ptr<ReducedColumns> columns;
         std::vector<double> form_seconds;  // per share
+        bool shared = false;               // formed in shares (else all at setup)
     };
     std::vector<GroupSolve> group_solve;
     std::map<int, VecX> u_body;    // per body: its share of u_free on its rows
