@@ -20,6 +20,9 @@
 namespace hh {
 
 namespace {
+// Shares of a soft body's contact responses (build_contact_body): more than the two threads,
+// so that the thread done with the hand's responses still finds some to take
+constexpr int kSoftResponseShares = 4;
 // Response columns (double) above which a group's are formed in shares (setup_contact_group)
 constexpr size_t kSharedColumnsBytes = size_t(4) << 20;
 
@@ -196,7 +199,7 @@ void World::prepare_contacts() {
 // write their warm starts and kept columns).
 int World::contact_body_parts(int bi) const {
     const Body& b = *bodies[bi];
-    return b.kind == BodyKind::Soft && b.tool->solver() == DeformableSolver::Cholesky ? 2 : 1;
+    return b.kind == BodyKind::Soft && b.tool->solver() == DeformableSolver::Cholesky ? kSoftResponseShares : 1;
 }
 
 void World::begin_contact_body(int bi) {
