@@ -556,9 +556,9 @@ void reduced_velocities(const ReducedContactProblem& p, const VecX& lambda, std:
 struct ReducedOp {
     const ReducedContactProblem& p;
     std::vector<VecX> y, f;
-    // focus: per body, entry -> index in S_b (or -1), y on S_b, and per focused contact and
-    // body its three columns on S_b (`focus_parts`: per contact, (body, first column), -1 when
-    // not focused)
+    // focus: per body, entry -> index in S_b (or -1) and back, y on S_b, and per focused
+    // contact and body its three columns on S_b (`focus_parts`: per contact, (body, first
+    // column in hc[body]); only the focused contacts' are current)
     bool focused = false;
     int refreshes = 0;
     std::vector<int> focus_live;
