@@ -20,9 +20,9 @@
 namespace hh {
 
 namespace {
-// Shares of a soft body's contact responses (build_contact_body): more than the two threads,
-// so that the thread done with the hand's responses still finds some to take
-constexpr int kSoftResponseShares = 4;
+// Shares of a body's contact responses (begin_contact_body): more than the two threads, so that
+// the thread done with one body's still finds some of the other's to take
+constexpr int kResponseShares = 4;
 // Response columns (double) above which a group's are formed in shares (setup_contact_group)
 constexpr size_t kSharedColumnsBytes = size_t(4) << 20;
 
@@ -192,14 +192,24 @@ void World::prepare_contacts() {
 // black-box solves (up to kWidestSolve right-hand sides per pass), its block G K G^T (or G K)
 // of W, and its share of u_free. Writes only the body's own entries.
 //
-// A soft body on the per-step Cholesky factor splits its solves in two shares, one per
-// thread: its factor is only read by them (DeformableSystem::prepare_concurrent_solves). In the
-// 10x bunny scene the bunny's ~500 solves were ~10 ms on one thread while the other, done with
-// the hand's, waited. Other bodies take one share (the hand's and the iterative solvers' calls
-// write their warm starts and kept columns).
+// A body on the per-step Cholesky factor (a soft body, or the hand through its tool under the
+// Schur complement) splits its solves in kResponseShares shares that run side by side: the
+// factor is only read by them (DeformableSystem::prepare_concurrent_solves). In the 10x bunny
+// scene the bunny's ~500 solves were ~10 ms on one thread while the other, done with the
+// hand's, waited. Bodies on the iterative or the reused solver take one share (their calls
+// write warm starts and kept columns).
+namespace {
+// The flesh system a body's responses are solved through, or none (rigid bodies)
+DeformableSystem* response_system(Body& b) {
+    if (b.kind == BodyKind::Soft) return b.tool.get();
+    if (b.kind == BodyKind::Hand) return &b.hand->hand.tool;
+    return nullptr;
+}
+}  // namespace
+
 int World::contact_body_parts(int bi) const {
-    const Body& b = *bodies[bi];
-    return b.kind == BodyKind::Soft && b.tool->solver() == DeformableSolver::Cholesky ? kSoftResponseShares : 1;
+    const DeformableSystem* system = response_system(*bodies[bi]);
+    return system && system->solver() == DeformableSolver::Cholesky ? kResponseShares : 1;
 }
 
 void World::begin_contact_body(int bi) {
@@ -274,7 +284,7 @@ void World::begin_contact_body(int bi) {
     const bool units = b.kind == BodyKind::Hand && !cb.row_basis &&
                        b.hand->hand.apply_inverse_units(cb.touched, cb.watched, cb.K);
     build.first = units ? m : 0;
-    if (b.kind == BodyKind::Soft && contact_body_parts(bi) > 1) b.tool->prepare_concurrent_solves();
+    if (contact_body_parts(bi) > 1) response_system(b)->prepare_concurrent_solves();
 }
 
 // Share `part` of `parts` of the body's solves: every parts-th batch of kWidestSolve columns
