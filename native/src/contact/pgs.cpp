@@ -1,12 +1,9 @@
 #include "contact/pgs.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <unordered_map>
-
-#include "common/clock.h"
 
 namespace hh {
 
@@ -775,13 +772,9 @@ void ReducedColumns::form(int part, int parts_count) {
 }
 
 PgsResult solve_pgs(const ReducedContactProblem& p, VecX& lambda, int max_iterations, double tolerance) {
-    const auto t0 = std::chrono::steady_clock::now();
     ReducedColumns columns(p);
     columns.form(0, 1);
-    const double seconds = seconds_since(t0);
-    PgsResult result = solve_pgs(p, columns, lambda, max_iterations, tolerance);
-    result.columns_seconds = seconds;
-    return result;
+    return solve_pgs(p, columns, lambda, max_iterations, tolerance);
 }
 
 PgsResult solve_pgs(const ReducedContactProblem& p, const ReducedColumns& columns, VecX& lambda, int max_iterations,

@@ -71,7 +71,6 @@ struct ReducedColumns {
 struct PgsResult {
     int iterations = 0;
     double residual = 0;  // m/s: largest violation of the conditions above (see solve_pgs)
-    double columns_seconds = 0;  // of the solve's time: forming the sweeps' response columns (reduced form)
 };
 
 // lambda: in, a warm start when it has 3c entries (the previous step's impulses of the same
