@@ -736,7 +736,6 @@ ReducedColumns::ReducedColumns(const ReducedContactProblem& p) : p(p) {
             }
         }
     h.resize(nb);
-    size_t bytes = 0;
     for (int b = 0; b < nb; ++b) {
         h[b].resize(p.bodies[b].C.rows(), columns[b]);  // (each contact's share zeroes its own)
         bytes += sizeof(double) * static_cast<size_t>(h[b].size());

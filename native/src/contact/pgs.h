@@ -66,6 +66,7 @@ struct ReducedColumns {
     std::vector<MatX> h;                                  // per body: m_b x 3 (its contacts)
     std::vector<Eigen::MatrixXf> hs;                      // per body: h in single precision, or none
     std::vector<std::vector<std::pair<int, int>>> parts;  // per contact: (body, first column in h[body])
+    size_t bytes = 0;                                     // of h
 };
 
 struct PgsResult {

@@ -121,7 +121,6 @@ public:
         std::vector<int> contacts;  // contact indices, ascending
         int iterations = 0;         // Gauss-Seidel sweeps this group took
         double residual = 0;        // m/s, left by them
-        double columns_seconds = 0; // s: of the sweeps' time, forming their response columns
     };
     // One dynamic body's part: its response to impulses on the unknowns the contacts act on.
     struct ContactBody {

@@ -271,14 +271,13 @@ void World::begin_contact_body(int bi) {
     cb.row_basis = nr < nt;
     const int m = cb.row_basis ? nr : nt;
     cb.K.resize(cb.watched.size(), m);
-    const Eigen::SparseMatrix<double> gt = cb.G.transpose();  // touched x rows, column-major
     // the nodes of the watched unknowns: the solves need only their rows (BlockLDLT::solve)
     std::vector<int> watched_nodes;
     if (b.kind == BodyKind::Soft)
         for (int k : cb.watched)
             if (watched_nodes.empty() || watched_nodes.back() != k / 3) watched_nodes.push_back(k / 3);
     ContactSetup::Build& build = cs.build.at(bi);
-    build.gt = gt;
+    build.gt = cb.G.transpose();
     build.watched_nodes = std::move(watched_nodes);
     // the hand's unit columns from its kept response columns, when its solver keeps them
     const bool units = b.kind == BodyKind::Hand && !cb.row_basis &&
@@ -400,9 +399,7 @@ void World::setup_contact_group(int group) {
     gs.form_seconds.assign(kColumnShares, 0.0);
     // small groups' columns at once, here: handing a share to the other thread costs more
     // than it saves (paper bunny, ~1 MB of columns: contact 4.2 -> 4.5 ms a frame)
-    size_t bytes = 0;
-    for (const MatX& h : gs.columns->h) bytes += sizeof(double) * static_cast<size_t>(h.size());
-    gs.shared = bytes > kSharedColumnsBytes;
+    gs.shared = gs.columns->bytes > kSharedColumnsBytes;
     if (!gs.shared) {
         const auto t0 = std::chrono::steady_clock::now();
         gs.columns->form(0, 1);
@@ -425,8 +422,6 @@ void World::solve_contact_group(int group) {
     const PgsResult res = solve_pgs(gs.problem, *gs.columns, gs.lambda, settings.max_iterations, settings.tolerance);
     g.iterations = res.iterations;
     g.residual = res.residual;
-    g.columns_seconds = 0;
-    for (double t : gs.form_seconds) g.columns_seconds += t;
     for (size_t i = 0; i < g.contacts.size(); ++i) cs.lambda.segment<3>(3 * g.contacts[i]) = gs.lambda.segment<3>(3 * i);
     gs.columns.reset();  // (tens of MB in the 10x scenes)
 }
@@ -488,8 +483,9 @@ void World::trace_contacts() const {
     if (!kContactTrace || !setup_) return;
     const ContactSetup& cs = *setup_;
     std::fprintf(stderr, "warm %d patch %d ", cs.warm_hits, cs.patch_hits);
-    double columns = 0;
-    for (const ContactGroup& g : contact_groups) columns += g.columns_seconds;
+    double columns = 0;  // (of the sweeps' time)
+    for (const auto& gs : cs.group_solve)
+        for (double t : gs.form_seconds) columns += t;
     std::fprintf(stderr, "contacts %zu groups %zu build %.2f sweeps %.2f (columns %.2f) apply %.2f ms it %d |", contacts.size(),
                  contact_groups.size(), 1e3 * stats.t_contact_build, 1e3 * stats.t_contact_sweeps, 1e3 * columns,
                  1e3 * stats.t_contact_apply, stats.iterations);
