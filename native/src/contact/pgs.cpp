@@ -564,20 +564,12 @@ struct ReducedOp {
     std::vector<VecX> ys;
     std::vector<MatX> hc;
     std::vector<std::vector<std::pair<int, int>>> focus_parts;
-    std::vector<Mat3> blocks;
+    const std::vector<Mat3>& blocks;
     const std::vector<MatX>& h;                                  // (see ReducedColumns)
     const std::vector<Eigen::MatrixXf>& hs;
     const std::vector<std::vector<std::pair<int, int>>>& parts;
     ReducedOp(const ReducedColumns& columns, const VecX& lambda)
-        : p(columns.p), h(columns.h), hs(columns.hs), parts(columns.parts) {
-        const int c = static_cast<int>(p.gap.size());
-        blocks.assign(c, Mat3::Zero());
-        for (int i = 0; i < c; ++i)
-            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
-                const auto& a = p.entries[e];
-                for (const auto& q : parts[i])
-                    if (q.first == a.body) blocks[i] += a.coefficient * h[a.body].row(a.index).segment<3>(q.second);
-            }
+        : p(columns.p), blocks(columns.blocks), h(columns.h), hs(columns.hs), parts(columns.parts) {
         reset(lambda);
     }
     void reset(const VecX& lambda) {
@@ -659,8 +651,15 @@ struct ReducedOp {
         Mat3 out = Mat3::Zero();
         for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
             const auto& a = p.entries[e];
-            for (const auto& q : parts[j])
-                if (q.first == a.body) out += a.coefficient * h[a.body].row(a.index).segment<3>(q.second);
+            if (hs.empty()) {
+                for (const auto& q : parts[j])
+                    if (q.first == a.body) out += a.coefficient * h[a.body].row(a.index).segment<3>(q.second);
+                continue;
+            }
+            // (single-precision columns keep no double copy: from C itself, as delassus())
+            for (int g = p.begin[j]; g < p.begin[j + 1]; ++g)
+                if (p.entries[g].body == a.body)
+                    out += p.bodies[a.body].C(a.index, p.entries[g].index) * a.coefficient * p.entries[g].coefficient.transpose();
         }
         return out;
     }
@@ -674,12 +673,12 @@ struct ReducedOp {
             return;
         }
         for (const auto& q : parts[i]) {
-            const MatX& hb = h[q.first];
             if (!hs.empty()) {
                 const Eigen::MatrixXf& hf = hs[q.first];
                 add_three_columns_single(y[q.first].data(), hf.data() + hf.rows() * q.second, hf.rows(), hf.rows(), delta[0], delta[1], delta[2]);
                 continue;
             }
+            const MatX& hb = h[q.first];
             add_three_columns(y[q.first].data(), hb.data() + hb.rows() * q.second, hb.rows(), hb.rows(), delta[0], delta[1], delta[2]);
         }
     }
@@ -735,38 +734,52 @@ ReducedColumns::ReducedColumns(const ReducedContactProblem& p) : p(p) {
                 columns[b] += 3;
             }
         }
-    h.resize(nb);
-    for (int b = 0; b < nb; ++b) {
-        h[b].resize(p.bodies[b].C.rows(), columns[b]);  // (each contact's share zeroes its own)
-        bytes += sizeof(double) * static_cast<size_t>(h[b].size());
-    }
-    // Single-precision copies of the columns when they outgrow the caches: a sweep then
-    // streams them from memory, and half the bytes is most of the sweep's time (10x bunny:
-    // ~950 contacts on ~590 unknowns, 13 MB of columns; sweeps 37.5 -> 30.5 ms a frame).
-    // The velocities are kept in double and recomputed exactly from time to time (refresh),
-    // so the single-precision round-off (~1e-7 relative) does not accumulate; the paper
-    // bunny's ~2 MB stay double (the copy cost more than it saved there).
-    if (p.single_columns == 1 || (p.single_columns < 0 && bytes > kSingleColumnsBytes)) {
-        hs.resize(nb);
-        for (int b = 0; b < nb; ++b) hs[b].resize(h[b].rows(), h[b].cols());
+    for (int b = 0; b < nb; ++b) bytes += sizeof(double) * static_cast<size_t>(p.bodies[b].C.rows()) * columns[b];
+    blocks.assign(c, Mat3::Zero());
+    // The columns in single precision when they outgrow the caches: a sweep then streams
+    // them from memory, and half the bytes is most of the sweep's time (10x bunny: ~950
+    // contacts on ~590 unknowns, 13 MB of columns; sweeps 37.5 -> 30.5 ms a frame). The
+    // velocities are kept in double and recomputed exactly from time to time (refresh), so
+    // the single-precision round-off (~1e-7 relative) does not accumulate; the paper bunny's
+    // ~2 MB stay double (the copy cost more than it saved there). No double copy is kept
+    // then: each contact's columns are formed in double in a scratch and rounded (the copy
+    // was written and read once: 9 MB a 10x bunny frame); each contact's own 3x3 block of W is
+    // taken from its columns as they are formed, the subspace step's blocks between contacts
+    // from C itself.
+    const bool single = p.single_columns == 1 || (p.single_columns < 0 && bytes > kSingleColumnsBytes);
+    (single ? static_cast<void>(hs.resize(nb)) : h.resize(nb));
+    for (int b = 0; b < nb; ++b) {  // (each contact's share writes its own columns)
+        if (single) hs[b].resize(p.bodies[b].C.rows(), columns[b]);
+        else h[b].resize(p.bodies[b].C.rows(), columns[b]);
     }
 }
 
 void ReducedColumns::form(int part, int parts_count) {
     const int c = static_cast<int>(p.gap.size());
+    const bool single = !hs.empty();
+    MatX scratch;  // single: one contact's columns on one body, in double
     for (int i = part; i < c; i += parts_count) {
-        for (const auto& q : parts[i]) h[q.first].middleCols(q.second, 3).setZero();
-        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
-            const auto& a = p.entries[e];
-            int first = 0;
-            for (const auto& q : parts[i])
-                if (q.first == a.body) first = q.second;
-            MatX& hb = h[a.body];
-            add_outer_three(hb.data() + hb.rows() * first, p.bodies[a.body].C.col(a.index).data(), hb.rows(), hb.rows(),
-                            a.coefficient[0], a.coefficient[1], a.coefficient[2]);
+        for (const auto& q : parts[i]) {
+            const int b = q.first;
+            const long m = p.bodies[b].C.rows();
+            double* hb;
+            if (single) {
+                scratch.setZero(m, 3);
+                hb = scratch.data();
+            } else {
+                h[b].middleCols(q.second, 3).setZero();
+                hb = h[b].data() + m * q.second;
+            }
+            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
+                const auto& a = p.entries[e];
+                if (a.body == b) add_outer_three(hb, p.bodies[b].C.col(a.index).data(), m, m, a.coefficient[0], a.coefficient[1], a.coefficient[2]);
+            }
+            // the contact's diagonal block of W: its rows of its own columns
+            const Eigen::Map<const MatX> hi(hb, m, 3);
+            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e)
+                if (p.entries[e].body == b) blocks[i] += p.entries[e].coefficient * hi.row(p.entries[e].index);
+            if (single) hs[b].middleCols(q.second, 3) = scratch.cast<float>();
         }
-        if (!hs.empty())
-            for (const auto& q : parts[i]) hs[q.first].middleCols(q.second, 3) = h[q.first].middleCols(q.second, 3).cast<float>();
     }
 }
 

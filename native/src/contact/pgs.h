@@ -55,7 +55,7 @@ struct ReducedContactProblem {
 };
 
 // The sweeps' response columns on the reduced form: per contact and dynamic body it touches,
-// the three columns H = C_b P_b^T (m_b x 3), and single-precision copies of them when they
+// the three columns H = C_b P_b^T (m_b x 3), in double, or in single precision only when they
 // outgrow the caches. Formed in shares (every parts-th contact; each contact's columns are its
 // own), which the world runs on its two threads side by side; solve_pgs forms them itself
 // when not given them.
@@ -63,10 +63,11 @@ struct ReducedColumns {
     explicit ReducedColumns(const ReducedContactProblem& p);  // lays them out (no arithmetic yet)
     void form(int part, int parts);
     const ReducedContactProblem& p;
-    std::vector<MatX> h;                                  // per body: m_b x 3 (its contacts)
-    std::vector<Eigen::MatrixXf> hs;                      // per body: h in single precision, or none
+    std::vector<MatX> h;                                  // per body: m_b x 3 (its contacts), or none
+    std::vector<Eigen::MatrixXf> hs;                      // per body: the same in single precision, or none
     std::vector<std::vector<std::pair<int, int>>> parts;  // per contact: (body, first column in h[body])
-    size_t bytes = 0;                                     // of h
+    std::vector<Mat3> blocks;                             // per contact: its 3x3 diagonal block of W
+    size_t bytes = 0;                                     // of the columns in double
 };
 
 struct PgsResult {

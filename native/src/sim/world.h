@@ -153,7 +153,19 @@ public:
 
 private:
     void update_points(Body& b);
-    void detect();
+    // Detection in parts (step runs them as tasks): the pairs to look at and each body's
+    // reach, each body's surface, each pair, then every pair's contacts gathered and reduced.
+    struct DetectionJob {
+        int a, b;      // bodies (a == b: self-contact)
+        double reach;  // m
+        std::vector<Contact> found;
+    };
+    std::vector<DetectionJob> detection_jobs_;
+    std::vector<double> surface_reach_;  // per body: its tree's margin
+    void begin_detection();
+    void update_body_surface(int body);
+    void detect_job(int job);
+    void finish_detection();
     void reduce_contacts();
     void solve_free(Body& b);
     // The contact solve in parts (sim/world_contact.cpp), scheduled by step as tasks: prepare
