@@ -862,6 +862,36 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
     else warp_permute<8, false>(n_, order_.data(), warp, x, b);
 }
 
+void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& rows, const std::vector<int>& wanted_nodes,
+                            double* out, long ld) const {
+    const unsigned char* wanted = wanted_mask(wanted_nodes);
+    const int most = supernodal_ ? kWidestSolve : 8;
+    std::vector<double>& work = scratch().work;
+    for (int first = 0; first < k; first += most) {
+        const int c = std::min(most, k - first);
+        const int w = c == 1 ? 1 : (c <= 4 ? 4 : (c <= 8 ? 8 : (c <= 16 ? 16 : 32)));  // padded
+        // straight in the factor's node order (node i's 3 x w values at 3 w i): no full-length
+        // right-hand side to build, permute and copy back
+        work.assign(static_cast<size_t>(3) * n_ * w, 0.0);
+        double* x = work.data();
+        auto at = [&](int unknown) {
+            if (unknown < 0 || unknown >= 3 * n_) throw std::logic_error("BlockLDLT::solve_units: an unknown out of range");
+            return static_cast<size_t>(w) * (3 * static_cast<size_t>(inverse_[unknown / 3]) + unknown % 3);
+        };
+        for (int j = 0; j < c; ++j) x[at(units[first + j]) + j] = 1.0;
+        if (supernodal_) {
+            solve_supernodal(x, w, false, wanted);
+        } else {
+            const Factor<double> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data(), wanted};
+            solve_dispatch(f, x, w);
+        }
+        for (int j = 0; j < c; ++j) {
+            double* o = out + static_cast<size_t>(first + j) * ld;
+            for (size_t r = 0; r < rows.size(); ++r) o[r] = x[at(rows[r]) + j];
+        }
+    }
+}
+
 VecX BlockLDLT::solve(const VecX& b) const {
     MatX x = b;
     solve(x, nullptr);

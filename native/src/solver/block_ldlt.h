@@ -43,6 +43,12 @@ public:
     // inverse at a few touched nodes: with unit right-hand sides the forward pass already skips
     // all but the paths above them, so a column costs its paths instead of all of L.
     void solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes) const;
+    // Columns of A^-1 for unit right-hand sides: out[r + j ld] = (A^-1)(rows[r], units[j]) for
+    // j < k (scalar unknowns, original numbering), without the full-length columns. The nodes of
+    // `rows` and of `units` must be among wanted_nodes (the backward pass visits them and their
+    // ancestors only; the other rows are never computed). The contact responses' solves.
+    void solve_units(const int* units, int k, const std::vector<int>& rows, const std::vector<int>& wanted_nodes,
+                     double* out, long ld) const;
     // The same on node-major storage: x holds n nodes x 3 x w values (w = 1, 4 or 8; node i's
     // 3 x w block at x + 3 w i, row-major), in the matrix's own node order. single: with the
     // single-precision copy of the factor (half the memory traffic; the arithmetic stays

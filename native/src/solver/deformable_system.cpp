@@ -294,6 +294,18 @@ bool DeformableSystem::prepare_concurrent_solves() {
     return true;
 }
 
+bool DeformableSystem::solve_units(const int* units, int k, const std::vector<int>& rows, double* out, long ld) {
+    if (!prepare_concurrent_solves()) return false;
+    std::vector<int> nodes;  // of the rows and the units (ascending, each once)
+    nodes.reserve(rows.size() + k);
+    for (int r : rows) nodes.push_back(r / 3);
+    for (int j = 0; j < k; ++j) nodes.push_back(units[j] / 3);
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    impl_->cholesky.solve_units(units, k, rows, nodes, out, ld);
+    return true;
+}
+
 void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes) {
     Impl& m = *impl_;
     if (prepare_concurrent_solves()) {

@@ -53,6 +53,11 @@ public:
     // once (a soft body's contact responses, World::step). Returns whether that holds (false
     // for the iterative solvers, whose warm-start slots each call writes).
     bool prepare_concurrent_solves();
+    // Cholesky (false otherwise, and out untouched): columns of A^-1 for unit right-hand sides
+    // at the given rows only, out[r + j ld] = (A^-1)(rows[r], units[j]) (BlockLDLT::solve_units):
+    // the contact responses of solve_many's unit columns without their full length. Only reads
+    // the factor (after prepare_concurrent_solves), so calls may run side by side.
+    bool solve_units(const int* units, int k, const std::vector<int>& rows, double* out, long ld);
     // X = the step's response operator applied to B, for the contact responses (the Delassus
     // operator and the impulses' velocities): with Cholesky and CG the solve above (slots 8 and
     // up); with ReusedCholesky the warped factor itself, W Af^-1 W^T, one pass and no CG. That

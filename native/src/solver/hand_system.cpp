@@ -110,6 +110,44 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
     }
 }
 
+bool HandSystem::apply_inverse_unit_columns(const int* units, int k, const std::vector<int>& rows, Eigen::Ref<MatX> out) {
+    // the flesh rows asked for: the rows' own, then the coupled nodes' (Aht reads those)
+    std::vector<int> flesh_rows_at;
+    for (int row : rows)
+        if (row >= 6) flesh_rows_at.push_back(row - 6);
+    const size_t own = flesh_rows_at.size();
+    for (int node : coupled_nodes)
+        for (int d = 0; d < 3; ++d) flesh_rows_at.push_back(3 * node + d);
+    // unit columns on the flesh (a handle unknown's has no flesh part: zero)
+    std::vector<int> flesh_units, column_of;
+    for (int j = 0; j < k; ++j)
+        if (units[j] >= 6) {
+            flesh_units.push_back(units[j] - 6);
+            column_of.push_back(j);
+        }
+    MatX flesh = MatX::Zero(static_cast<Eigen::Index>(flesh_rows_at.size()), k);
+    MatX solved(static_cast<Eigen::Index>(flesh_rows_at.size()), static_cast<Eigen::Index>(flesh_units.size()));
+    if (!flesh_units.empty() &&
+        !tool.solve_units(flesh_units.data(), static_cast<int>(flesh_units.size()), flesh_rows_at, solved.data(), solved.rows()))
+        return false;
+    for (size_t q = 0; q < column_of.size(); ++q) flesh.col(column_of[q]) = solved.col(static_cast<Eigen::Index>(q));
+    Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
+    Eigen::Matrix<double, 6, Eigen::Dynamic> vh(6, k);
+    for (int j = 0; j < k; ++j) {
+        Vec6 rh = Vec6::Zero();
+        if (units[j] < 6) rh[units[j]] = 1.0;
+        Vec6 aht = Vec6::Zero();  // Aht x_t at the coupled nodes
+        for (size_t q = 0; q < coupled_nodes.size(); ++q)
+            aht += Aht[q] * flesh.block<3, 1>(static_cast<Eigen::Index>(own + 3 * q), j);
+        vh.col(j) = schur.solve(Vec6(rh - aht));
+    }
+    MatX flesh_rows = MatX::Zero(static_cast<Eigen::Index>(rows.size()), k);
+    for (size_t i = 0, f = 0; i < rows.size(); ++i)
+        if (rows[i] >= 6) flesh_rows.row(static_cast<Eigen::Index>(i)) = flesh.row(static_cast<Eigen::Index>(f++));
+    eq12_on_rows(rows, flesh_rows, vh, out);
+    return true;
+}
+
 void HandSystem::eq12_on_rows(const std::vector<int>& rows, const MatX& flesh_rows,
                               const Eigen::Matrix<double, 6, Eigen::Dynamic>& vh, Eigen::Ref<MatX> out) const {
     for (size_t i = 0; i < rows.size(); ++i) {

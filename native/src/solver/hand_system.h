@@ -39,6 +39,11 @@ public:
     // The same operator as apply_inverse_many's. False (out untouched) when the tool keeps no
     // columns (other solvers).
     bool apply_inverse_units(const std::vector<int>& unknowns, const std::vector<int>& rows, MatX& out);
+    // apply_inverse_many for the unit right-hand sides e_u (u = units[j], j < k) at `rows` only,
+    // into out (rows x k): the tool's unit solves without full-length columns
+    // (DeformableSystem::solve_units), then Eq. 12 on the rows. False (out untouched) unless the
+    // tool is on the step's Cholesky factor; then it only reads, so calls may run side by side.
+    bool apply_inverse_unit_columns(const int* units, int k, const std::vector<int>& rows, Eigen::Ref<MatX> out);
     double t_deformable = 0;  // s spent in tool solves during the last solve()
     double t_schur = 0;       // s spent forming and solving the Schur complement
 
