@@ -1,4 +1,5 @@
 // The block LDL^T solver against a dense solve, on the warped-stiffness systems it is built for.
+#include <algorithm>
 #include <random>
 
 #include "box_mesh.h"
@@ -361,5 +362,40 @@ TEST(solves_asked_for_some_nodes_give_those_rows_of_the_inverse_in_both_forms) {
         const std::vector<int> one = {0};
         f.solve(x, nullptr, &one);
         CHECK((x - inverse * b).cwiseAbs().maxCoeff() > 1e-6 * (inverse * b).cwiseAbs().maxCoeff());
+    }
+}
+
+TEST(unit_solves_at_asked_rows_give_those_entries_of_the_inverse_in_both_forms) {
+    // solve_units (the contact responses' path): unit right-hand sides placed straight in the
+    // factor's node order and only the asked rows read back. Every entry must be A^-1's, at
+    // every SIMD level, in both forms, for counts within one pass, padded, and past one pass;
+    // the rows are a scattered set (not sorted, some of a node only) and the units among them.
+    const SpMat a = system_matrix(7, 5, 4, 25);
+    const int n3 = static_cast<int>(a.rows());
+    const MatX inverse = MatX(a).ldlt().solve(MatX::Identity(n3, n3));
+    const double scale = inverse.cwiseAbs().maxCoeff();
+    std::vector<int> rows = {n3 - 1, 0, 1, 2, 3 * 17 + 1, n3 / 2, n3 / 3, 2 * n3 / 3 + 2, 100, 101, 59};
+    std::vector<int> units;
+    for (int j = 0; j < 40; ++j) units.push_back((37 * j + 5) % n3);
+    std::vector<int> nodes;
+    for (int r : rows) nodes.push_back(r / 3);
+    for (int u : units) nodes.push_back(u / 3);
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    for (bool supernodal : {false, true}) {
+        const BlockLDLT f = factored(a, supernodal);
+        for (int level = 0; level <= detected_simd_level(); ++level) {
+            simd_level_override() = level;
+            for (int k : {1, 3, 8, 13, 32, 40}) {
+                const long ld = static_cast<long>(rows.size()) + 2;  // a leading dimension past the rows
+                std::vector<double> out(ld * k, 7.0);
+                f.solve_units(units.data(), k, rows, nodes, out.data(), ld);
+                for (int j = 0; j < k; ++j)
+                    for (size_t r = 0; r < rows.size(); ++r)
+                        CHECK_LT(std::abs(out[r + j * ld] - inverse(rows[r], units[j])) / scale, 1e-12);
+                for (int j = 0; j < k; ++j) CHECK(out[rows.size() + j * ld] == 7.0);  // nothing written past the rows
+            }
+        }
+        simd_level_override() = -1;
     }
 }

@@ -268,6 +268,16 @@ TEST(hand_apply_inverse_many_on_chosen_rows_equals_the_full_solve) {
     CHECK_LT((full.col(3) - mono).cwiseAbs().maxCoeff(), 1e-8 * mono.cwiseAbs().maxCoeff());
     MatX units;  // a factor made every step keeps no columns: the contact build solves instead
     CHECK(!d.hand.apply_inverse_units({7, 8}, rows, units));
+    // ... with unit columns straight at the rows (handle unknowns 0-5 among them): A^-1's
+    // columns at those rows, checked against the full solve of the identity's columns
+    const std::vector<int> unit_at = {7, 8, 0, 5, static_cast<int>(n) - 1, 19, 40, 12, 13, 3, 30};
+    MatX e = MatX::Zero(n, static_cast<Eigen::Index>(unit_at.size()));
+    for (size_t j = 0; j < unit_at.size(); ++j) e(unit_at[j], static_cast<Eigen::Index>(j)) = 1.0;
+    MatX via_full, via_units = MatX::Constant(static_cast<Eigen::Index>(rows.size()), e.cols(), 7.0);
+    d.hand.apply_inverse_many(e, via_full);
+    CHECK(d.hand.apply_inverse_unit_columns(unit_at.data(), static_cast<int>(unit_at.size()), rows, via_units));
+    for (size_t i = 0; i < rows.size(); ++i)
+        CHECK_LT((via_units.row(i) - via_full.row(rows[i])).cwiseAbs().maxCoeff(), 1e-12 * via_full.cwiseAbs().maxCoeff());
 }
 
 TEST(reused_cholesky_policy_counts_work_so_runs_repeat_exactly) {
