@@ -239,27 +239,43 @@ void World::begin_contact_body(int bi) {
     const int nr = static_cast<int>(cb.rows.size()), nt = static_cast<int>(cb.touched.size());
     cb.local_row.assign(rows, -1);
     for (int l = 0; l < nr; ++l) cb.local_row[cb.rows[l]] = l;
-    std::vector<Eigen::Triplet<double>> trip;
+    // G straight in compressed row form, each row's terms on one unknown summed in the order
+    // they come (as setFromTriplets would; it and the transpose the solves no longer need cost
+    // ~0.5 ms of the 10x bunny's build, before its solves could start)
+    std::vector<int> outer(nr + 1, 0), inner;
+    std::vector<double> values;
+    std::vector<std::pair<int, double>> terms;
     for (int l = 0; l < nr; ++l) {
         const int row = cb.rows[l];
         const Vec3& u = direction(row);
+        terms.clear();
         for (const auto& e : sides[row / 3]) {
             if (e.first != bi) continue;
             for (const ContactTerm& t : e.second) {
                 if (t.rigid) {
                     const Vec3 ru = t.r.cross(u);
                     for (int d = 0; d < 3; ++d) {
-                        trip.emplace_back(l, index_of[d], t.weight * u[d]);
-                        trip.emplace_back(l, index_of[3 + d], t.weight * ru[d]);
+                        terms.emplace_back(index_of[d], t.weight * u[d]);
+                        terms.emplace_back(index_of[3 + d], t.weight * ru[d]);
                     }
                 } else {
-                    for (int d = 0; d < 3; ++d) trip.emplace_back(l, index_of[t.offset + d], t.weight * u[d]);
+                    for (int d = 0; d < 3; ++d) terms.emplace_back(index_of[t.offset + d], t.weight * u[d]);
                 }
             }
         }
+        std::stable_sort(terms.begin(), terms.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+        for (size_t k = 0; k < terms.size(); ++k) {
+            if (k > 0 && terms[k].first == terms[k - 1].first) {
+                values.back() += terms[k].second;
+                continue;
+            }
+            inner.push_back(terms[k].first);
+            values.push_back(terms[k].second);
+        }
+        outer[l + 1] = static_cast<int>(inner.size());
     }
-    cb.G.resize(nr, nt);
-    cb.G.setFromTriplets(trip.begin(), trip.end());
+    cb.G = Eigen::Map<const Eigen::SparseMatrix<double, Eigen::RowMajor>>(nr, nt, static_cast<Eigen::Index>(inner.size()),
+                                                                         outer.data(), inner.data(), values.data());
     // watched unknowns: the touched ones, then (hand) the handle nodes' for the coupling model
     cb.watched = cb.touched;
     if (b.kind == BodyKind::Hand)
@@ -277,7 +293,7 @@ void World::begin_contact_body(int bi) {
         for (int k : cb.watched)
             if (watched_nodes.empty() || watched_nodes.back() != k / 3) watched_nodes.push_back(k / 3);
     ContactSetup::Build& build = cs.build.at(bi);
-    build.gt = cb.G.transpose();
+    if (cb.row_basis) build.gt = cb.G.transpose();  // (unit columns need none)
     build.watched_nodes = std::move(watched_nodes);
     // the hand's unit columns from its kept response columns, when its solver keeps them
     const bool units = b.kind == BodyKind::Hand && !cb.row_basis &&
@@ -342,8 +358,13 @@ void World::finish_contact_body(int bi) {
     VecX v_touched(nt);
     for (int k = 0; k < nt; ++k) v_touched[k] = b.v_free[cb.touched[k]];
     cs.u_body.at(bi) = cb.G * v_touched;
-    MatX c_b = cb.row_basis ? MatX(cb.G * cb.K.topRows(nt)) : MatX(cb.K.topRows(nt));
-    cs.response.at(bi) = 0.5 * (c_b + c_b.transpose());
+    MatX& response = cs.response.at(bi);
+    if (cb.row_basis) {
+        const MatX c_b = cb.G * cb.K.topRows(nt);
+        response = 0.5 * (c_b + c_b.transpose());
+    } else {
+        response = 0.5 * (cb.K.topRows(nt) + cb.K.topRows(nt).transpose());
+    }
     if (kContactTrace) std::fprintf(stderr, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(cs.start));
 }
 
