@@ -360,23 +360,28 @@ void World::step() {
     graph.add(
         [&] {
             timed(prepare_seconds, [&] { prepare_contacts(); });
-            // per body: begin, its solves in shares (side by side on two threads), finish; each
-            // part's time in its own slot (summed into t_contact_build after the run)
+            // per body: begin (beside its free solve), ready, its solves in shares (side by side
+            // on two threads), finish; each part's time in its own slot (summed into
+            // t_contact_build after the run)
             std::vector<int> build_task(n, -1);
             for (int bi : contact_involved()) {
                 const int parts = contact_body_parts(bi);
-                build_part_seconds[bi].assign(parts + 2, 0.0);
+                build_part_seconds[bi].assign(parts + 3, 0.0);
                 const double priority = kResponses + bodies[bi]->dofs();
+                // (the begin, bookkeeping on the contacts alone, may run beside the body's free
+                // solve; its solves then wait for both)
                 const int begin = graph.add(
-                    [&, bi] { timed(build_part_seconds[bi][0], [&] { begin_contact_body(bi); }); }, {free_task[bi]},
-                    priority);
+                    [&, bi] { timed(build_part_seconds[bi][0], [&] { begin_contact_body(bi); }); }, {}, priority);
+                const int ready = graph.add(
+                    [&, bi, parts] { timed(build_part_seconds[bi][2 + parts], [&] { ready_contact_body(bi); }); },
+                    {begin, free_task[bi]}, priority);
                 std::vector<int> shares;
                 for (int part = 0; part < parts; ++part)
                     shares.push_back(graph.add(
                         [&, bi, part, parts] {
                             timed(build_part_seconds[bi][1 + part], [&] { solve_contact_body(bi, part, parts); });
                         },
-                        {begin}, priority));
+                        {ready}, priority));
                 build_task[bi] = graph.add(
                     [&, bi, parts] { timed(build_part_seconds[bi][1 + parts], [&] { finish_contact_body(bi); }); }, shares,
                     priority);

@@ -178,7 +178,8 @@ private:
     // a body's responses in three kinds of part: begin (its unknowns and J_b), the black-box
     // solves in contact_body_parts shares that may run side by side, finish (C_b, u_free)
     int contact_body_parts(int body) const;  // (after prepare_contacts)
-    void begin_contact_body(int body);
+    void begin_contact_body(int body);  // (reads only the contacts: may run beside the body's free solve)
+    void ready_contact_body(int body);  // after both: the body's factor ready for solves side by side
     void solve_contact_body(int body, int part, int parts);
     void finish_contact_body(int body);
     // a group's sweeps in parts too: setup (its problem), the columns in shares, the sweeps

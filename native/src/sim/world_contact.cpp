@@ -20,7 +20,7 @@
 namespace hh {
 
 namespace {
-// Shares of a body's contact responses (begin_contact_body): more than the two threads, so that
+// Shares of a body's contact responses (solve_contact_body): more than the two threads, so that
 // the thread done with one body's still finds some of the other's to take
 constexpr int kResponseShares = 4;
 // Response columns (double) above which a group's are formed in shares (setup_contact_group)
@@ -295,10 +295,16 @@ void World::begin_contact_body(int bi) {
     ContactSetup::Build& build = cs.build.at(bi);
     if (cb.row_basis) build.gt = cb.G.transpose();  // (unit columns need none)
     build.watched_nodes = std::move(watched_nodes);
+}
+
+// Once the body's free solve is done too (its system, factor and Schur complement are the step's)
+void World::ready_contact_body(int bi) {
+    Body& b = *bodies[bi];
+    ContactBody& cb = contact_bodies.at(bi);
     // the hand's unit columns from its kept response columns, when its solver keeps them
     const bool units = b.kind == BodyKind::Hand && !cb.row_basis &&
                        b.hand->hand.apply_inverse_units(cb.touched, cb.watched, cb.K);
-    build.first = units ? m : 0;
+    setup_->build.at(bi).first = units ? static_cast<int>(cb.K.cols()) : 0;
     if (contact_body_parts(bi) > 1) response_system(b)->prepare_concurrent_solves();
 }
 
