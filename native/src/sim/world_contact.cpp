@@ -90,8 +90,10 @@ void World::prepare_contacts() {
             for (auto& e : sides[c])
                 if (e.first == side.body) ts = &e.second;  // self-contact: both sides on one body
             if (!ts) {
+                if (sides[c].empty()) sides[c].reserve(2);  // (at most two bodies: few allocations)
                 sides[c].emplace_back(side.body, std::vector<ContactTerm>());
                 ts = &sides[c].back().second;
+                ts->reserve(4 * side.count);
             }
             for (int k = 0; k < side.count; ++k) {
                 const int v = side.vertex[k];
@@ -398,6 +400,8 @@ void World::setup_contact_group(int group) {
     prob.friction.resize(gc);
     prob.kinetic.resize(gc);
     prob.begin.assign(1, 0);
+    prob.begin.reserve(gc + 1);
+    prob.entries.reserve(static_cast<size_t>(24) * gc);  // (a vertex and a triangle's nodes: up to 16 x 3 unknowns)
     std::map<int, int> slot;  // body -> index in prob.bodies
     VecX& lg = gs.lambda;
     lg.resize(3 * gc);
