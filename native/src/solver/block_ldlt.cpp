@@ -825,6 +825,7 @@ namespace {
 struct SolveScratch {
     std::vector<double> work, packed, gather;
     std::vector<unsigned char> wanted_node, wanted_sn;
+    std::vector<int> dirty;
 };
 SolveScratch& scratch() {
     thread_local SolveScratch s;
@@ -865,14 +866,33 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
 void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& rows, const std::vector<int>& wanted_nodes,
                             double* out, long ld) const {
     const unsigned char* wanted = wanted_mask(wanted_nodes);
+    // The nodes a pass may leave nonzero: the wanted ones and their ancestors (the backward
+    // pass), which hold the units' ancestors (the forward pass); with supernodes, whole
+    // supernodes. Between passes of one width only they are zeroed again, not all 3n x w.
+    std::vector<int>& dirty = scratch().dirty;
+    dirty.clear();
+    if (!supernodal_) {
+        for (int i = 0; i < n_; ++i)
+            if (scratch().wanted_node[i]) dirty.push_back(i);
+    } else {
+        for (int j = 0; j < supernodes(); ++j)
+            if (scratch().wanted_sn[j])
+                for (int i = sn_start_[j]; i < sn_start_[j + 1]; ++i) dirty.push_back(i);
+    }
     const int most = supernodal_ ? kWidestSolve : 8;
     std::vector<double>& work = scratch().work;
+    int zeroed = 0;  // the width work was last laid out and cleared for
     for (int first = 0; first < k; first += most) {
         const int c = std::min(most, k - first);
         const int w = c == 1 ? 1 : (c <= 4 ? 4 : (c <= 8 ? 8 : (c <= 16 ? 16 : 32)));  // padded
         // straight in the factor's node order (node i's 3 x w values at 3 w i): no full-length
         // right-hand side to build, permute and copy back
-        work.assign(static_cast<size_t>(3) * n_ * w, 0.0);
+        if (w != zeroed) {
+            work.assign(static_cast<size_t>(3) * n_ * w, 0.0);
+            zeroed = w;
+        } else {
+            for (int i : dirty) std::fill_n(work.data() + static_cast<size_t>(3) * w * i, 3 * w, 0.0);
+        }
         double* x = work.data();
         auto at = [&](int unknown) {
             if (unknown < 0 || unknown >= 3 * n_) throw std::logic_error("BlockLDLT::solve_units: an unknown out of range");
