@@ -770,10 +770,9 @@ ReducedColumns::ReducedColumns(const ReducedContactProblem& p) : p(p) {
     // taken from its columns as they are formed, the subspace step's blocks between contacts
     // from C itself.
     const bool single = p.single_columns == 1 || (p.single_columns < 0 && bytes > kSingleColumnsBytes);
-    (single ? static_cast<void>(hs.resize(nb)) : h.resize(nb));
     for (int b = 0; b < nb; ++b) {  // (each contact's share writes its own columns)
-        if (single) hs[b].resize(p.bodies[b].C.rows(), columns[b]);
-        else h[b].resize(p.bodies[b].C.rows(), columns[b]);
+        if (single) hs.emplace_back(p.bodies[b].C.rows(), columns[b]);
+        else h.emplace_back(p.bodies[b].C.rows(), columns[b]);
     }
 }
 
