@@ -280,6 +280,24 @@ TEST(hand_apply_inverse_many_on_chosen_rows_equals_the_full_solve) {
         CHECK_LT((via_units.row(i) - via_full.row(rows[i])).cwiseAbs().maxCoeff(), 1e-12 * via_full.cwiseAbs().maxCoeff());
 }
 
+TEST(hand_unit_columns_decline_a_tool_that_is_not_on_the_step_s_factor) {
+    // apply_inverse_unit_columns solves only on the step's own Cholesky factor; with CG or the
+    // reused factor it must say so (the contact build then solves as before) and leave out as it was
+    for (int solver : {HH_SOLVER_CG, HH_SOLVER_REUSED_CHOLESKY}) {
+        const BoxMesh b = make_box(4, 3, 2, 0.01);
+        hh_params p = box_params();
+        p.solver = solver;
+        p.cg_tolerance = 1e-10;
+        const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
+        Data d(m);
+        solve_perturbed(m, d, 9);
+        const std::vector<int> rows = {40, 2, 7}, units = {7, 40};
+        MatX out = MatX::Constant(3, 2, 7.0);
+        CHECK(!d.hand.apply_inverse_unit_columns(units.data(), 2, rows, out));
+        CHECK(out.isConstant(7.0));
+    }
+}
+
 TEST(reused_cholesky_policy_counts_work_so_runs_repeat_exactly) {
     // the refactorization policy counts passes over the factor instead of timing them: two runs
     // of the same scenario factor at the same steps and end on identical states
