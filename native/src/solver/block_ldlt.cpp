@@ -827,11 +827,27 @@ struct SolveScratch {
     std::vector<unsigned char> wanted_node, wanted_sn;
     std::vector<int> dirty;
 };
+// Lanes of a solve pass for k right-hand sides: the kernels' widths (1, 4, 8; 16, 32 supernodal)
+int padded_width(int k) { return k == 1 ? 1 : (k <= 4 ? 4 : (k <= 8 ? 8 : (k <= 16 ? 16 : 32))); }
 SolveScratch& scratch() {
     thread_local SolveScratch s;
     return s;
 }
 }  // namespace
+
+// The forward, diagonal and backward passes on x in the factor's own node order
+void BlockLDLT::solve_in_order(double* x, int w, bool single, const unsigned char* wanted) const {
+    if (single && !single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
+    if (supernodal_) {
+        solve_supernodal(x, w, single, wanted);
+    } else if (single) {
+        const Factor<float> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_single_.data(), d_inverse_single_.data(), wanted};
+        solve_dispatch(f, x, w);
+    } else {
+        const Factor<double> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data(), wanted};
+        solve_dispatch(f, x, w);
+    }
+}
 
 void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, bool single,
                                  const unsigned char* wanted) const {
@@ -845,17 +861,7 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
     else if (w == 16) warp_permute<16, true>(n_, order_.data(), warp, b, x);
     else if (w == 32) warp_permute<32, true>(n_, order_.data(), warp, b, x);
     else warp_permute<8, true>(n_, order_.data(), warp, b, x);
-    if (supernodal_) {
-        if (single && !single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
-        solve_supernodal(x, w, single, wanted);
-    } else if (single) {
-        if (!single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
-        const Factor<float> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_single_.data(), d_inverse_single_.data(), wanted};
-        solve_dispatch(f, x, w);
-    } else {
-        const Factor<double> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data(), wanted};
-        solve_dispatch(f, x, w);
-    }
+    solve_in_order(x, w, single, wanted);
     if (w == 1) warp_permute<1, false>(n_, order_.data(), warp, x, b);
     else if (w == 4) warp_permute<4, false>(n_, order_.data(), warp, x, b);
     else if (w == 16) warp_permute<16, false>(n_, order_.data(), warp, x, b);
@@ -884,7 +890,7 @@ void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& row
     int zeroed = 0;  // the width work was last laid out and cleared for
     for (int first = 0; first < k; first += most) {
         const int c = std::min(most, k - first);
-        const int w = c == 1 ? 1 : (c <= 4 ? 4 : (c <= 8 ? 8 : (c <= 16 ? 16 : 32)));  // padded
+        const int w = padded_width(c);
         // straight in the factor's node order (node i's 3 x w values at 3 w i): no full-length
         // right-hand side to build, permute and copy back
         if (w != zeroed) {
@@ -899,12 +905,7 @@ void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& row
             return static_cast<size_t>(w) * (3 * static_cast<size_t>(inverse_[unknown / 3]) + unknown % 3);
         };
         for (int j = 0; j < c; ++j) x[at(units[first + j]) + j] = 1.0;
-        if (supernodal_) {
-            solve_supernodal(x, w, false, wanted);
-        } else {
-            const Factor<double> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_.empty() ? nullptr : lx_[0].data(), d_inverse_[0].data(), wanted};
-            solve_dispatch(f, x, w);
-        }
+        solve_in_order(x, w, false, wanted);
         for (int j = 0; j < c; ++j) {
             double* o = out + static_cast<size_t>(first + j) * ld;
             for (size_t r = 0; r < rows.size(); ++r) o[r] = x[at(rows[r]) + j];
@@ -950,7 +951,7 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<
     const int most = supernodal_ ? kWidestSolve : 8;
     for (Eigen::Index first = 0; first < b.cols(); first += most) {
         const int k = static_cast<int>(std::min<Eigen::Index>(most, b.cols() - first));
-        const int w = k == 1 ? 1 : (k <= 4 ? 4 : (k <= 8 ? 8 : (k <= 16 ? 16 : 32)));  // padded
+        const int w = padded_width(k);
         std::vector<double>& packed = scratch().packed;
         packed.resize(static_cast<size_t>(3) * n_ * w);
         const double* in[32];

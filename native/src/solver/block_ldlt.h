@@ -99,6 +99,7 @@ private:
     void factorize_supernodal(const SpMat& a);
     void factorize_up_looking(const SpMat& a);
     void solve_supernodal(double* x, int w, bool single, const unsigned char* wanted) const;
+    void solve_in_order(double* x, int w, bool single, const unsigned char* wanted) const;
     void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, bool single, const unsigned char* wanted) const;
     const unsigned char* wanted_mask(const std::vector<int>& nodes) const;
     bool keep_single_ = false, single_valid_ = false, factored_ = false;
