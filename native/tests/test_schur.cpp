@@ -275,9 +275,45 @@ TEST(hand_apply_inverse_many_on_chosen_rows_equals_the_full_solve) {
     for (size_t j = 0; j < unit_at.size(); ++j) e(unit_at[j], static_cast<Eigen::Index>(j)) = 1.0;
     MatX via_full, via_units = MatX::Constant(static_cast<Eigen::Index>(rows.size()), e.cols(), 7.0);
     d.hand.apply_inverse_many(e, via_full);
+    // (the handle here is free, Aht is not zero: the handle's response to the units needs them prepared)
+    bool refused = false;
+    try {
+        d.hand.apply_inverse_unit_columns(unit_at.data(), static_cast<int>(unit_at.size()), rows, via_units);
+    } catch (const InvalidArgument&) {
+        refused = true;
+    }
+    CHECK(refused);
+    d.hand.prepare_unit_columns(unit_at);
     CHECK(d.hand.apply_inverse_unit_columns(unit_at.data(), static_cast<int>(unit_at.size()), rows, via_units));
     for (size_t i = 0; i < rows.size(); ++i)
         CHECK_LT((via_units.row(i) - via_full.row(rows[i])).cwiseAbs().maxCoeff(), 1e-12 * via_full.cwiseAbs().maxCoeff());
+}
+
+TEST(hand_handle_columns_are_the_flesh_solves_of_ath_and_aht_transposed) {
+    // what the handle-space linearization reads: rows of A_t^-1 [Ath | aht^T] at chosen flesh
+    // unknowns, against a separate sparse factorization of A_t; aht is any 6x3 block per
+    // coupled node (the true one when the step zeroed the system's)
+    const BoxMesh b = make_box(4, 3, 2, 0.01);
+    const hh_params p = box_params();
+    const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
+    Data d(m);
+    solve_perturbed(m, d, 8);
+    const Eigen::Index n3 = d.tool.A.rows();
+    std::vector<Mat63> aht(d.hand.coupled_nodes.size());
+    for (Mat63& block : aht) block = Mat63::Random();
+    MatX columns = MatX::Zero(n3, 12);
+    for (size_t q = 0; q < aht.size(); ++q) {
+        columns.block<3, 6>(3 * d.hand.coupled_nodes[q], 0) = d.hand.Ath[q];
+        columns.block<3, 6>(3 * d.hand.coupled_nodes[q], 6) = aht[q].transpose();
+    }
+    Eigen::SimplicialLDLT<SpMat> ref(d.tool.A);
+    const MatX expected = ref.solve(columns);
+    const std::vector<int> unknowns = {6 + 40, 6 + 2, 6 + 7, static_cast<int>(n3) + 5, 6 + 19};
+    MatX out;
+    d.hand.handle_columns(unknowns, aht, out);
+    CHECK(out.rows() == 5 && out.cols() == 12);
+    for (size_t i = 0; i < unknowns.size(); ++i)
+        CHECK_LT((out.row(i) - expected.row(unknowns[i] - 6)).cwiseAbs().maxCoeff(), 1e-10 * expected.cwiseAbs().maxCoeff());
 }
 
 TEST(hand_unit_columns_decline_a_tool_that_is_not_on_the_step_s_factor) {

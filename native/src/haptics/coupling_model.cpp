@@ -83,30 +83,21 @@ CouplingModel linearize_coupling(const World& world, int hand) {
                 g(where[3 * c + 2], a) = lambda[3 * c + 2] / lambda[3 * c];
             }
         }
-        // the hand's unknowns at the handle nodes (flesh, after the handle's 6)
-        std::vector<int> handle_unknowns;
-        for (int node : nodes)
-            for (int k = 0; k < 3; ++k) handle_unknowns.push_back(6 + 3 * node + k);
         MatX hr = MatX::Zero(na, 6), hl = MatX::Zero(6, nr);
         const MatX w_rows = world.contact_delassus(rows);  // the step's W on those rows (unsymmetrized)
         MatX wa(na, na);
         for (int a = 0; a < na; ++a) wa.row(a) = w_rows.row(where[held[a]]) * g;
         bool touches_hand = false;
         for (int r = 0; r < nr; ++r) {
-            // A^-1 J^T of the row at the handle nodes (its handle part is zero: it is prescribed)
-            const VecX col = world.contact_column(hand, rows[r], handle_unknowns);
-            if (col.size() == 0) continue;
+            // the row's response A^-1 J^T e_r read at the handle nodes (its handle part is zero:
+            // the handle is prescribed) through Ath^T and Aht; the world forms both from At's
+            // symmetry without those rows (World::contact_handle_terms)
+            Vec6 hr_row, aht_col;
+            if (!world.contact_handle_terms(hand, rows[r], hr_row, aht_col)) continue;
             touches_hand = true;
-            Vec6 aht_col = Vec6::Zero();
-            Vec6 hr_row = Vec6::Zero();
-            for (std::size_t j = 0; j < nodes.size(); ++j) {
-                const Vec3 s = col.segment<3>(3 * j);
-                hr_row += cb.ath[j].transpose() * s;  // (J At^-1 Ath) of the row, At symmetric
-                aht_col += cb.aht[j] * s;
-            }
-            hl.col(r) = aht_col;
+            hl.col(r) = aht_col;  // Aht At^-1 J^T e_r
             for (int a = 0; a < na; ++a)
-                if (held[a] == rows[r]) hr.row(a) = hr_row.transpose();
+                if (held[a] == rows[r]) hr.row(a) = hr_row.transpose();  // (J At^-1 Ath) of the row
         }
         if (touches_hand && na > 0) {
             // Redundant contacts make W_a singular; a compliance of 1e-9 of its largest

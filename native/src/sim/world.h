@@ -126,12 +126,13 @@ public:
     struct ContactBody {
         std::vector<int> rows;      // global contact rows the body takes part in, ascending
         std::vector<int> touched;   // the body's unknowns those rows act on, ascending
-        std::vector<int> watched;   // unknowns whose response is kept: `touched`, then extra ones (the hand's handle nodes)
         bool row_basis = false;     // K's columns: per row (A^-1 J_b^T e_row) or per touched unknown (A^-1 e_k)
-        MatX K;                     // watched x (rows or touched): those columns at the watched unknowns
+        MatX K;                     // touched x (rows or touched): those columns at the touched unknowns
         Eigen::SparseMatrix<double, Eigen::RowMajor> G;  // rows x touched: J_b on the touched unknowns
         std::vector<int> local_row;  // per global row: index in `rows`, or -1
-        std::unordered_map<int, int> watched_index;
+        // the hand with a prescribed handle: per row, J_b A_t^-1 [Ath | Aht^T] (rows x 12, the
+        // true Aht), for the handle-space linearization (contact_handle_terms); else empty
+        MatX handle_terms;
     };
     std::vector<ContactGroup> contact_groups;
     std::vector<int> contact_group_of;  // per contact: its group
@@ -142,10 +143,11 @@ public:
     // Entries of the last step's W (unsymmetrized) for the given global rows: zero between
     // rows of different groups.
     MatX contact_delassus(const std::vector<int>& rows) const;
-    // The column A_b^-1 J_b^T e_row of the last step at the body's given unknowns (empty when
-    // the body is not in that row). The unknowns must be touched by the contacts or watched
-    // (for the hand: its handle nodes' flesh unknowns); throws otherwise.
-    VecX contact_column(int body, int row, const std::vector<int>& unknowns) const;
+    // The hand (prescribed handle) in a contact row of the last step: what the handle-space
+    // linearization reads from the row's response A^-1 J^T e_row at the handle nodes, without
+    // those rows (At symmetric): through_ath = Ath^T A_t^-1 J^T e_row = (J A_t^-1 Ath)_row^T and
+    // through_aht = Aht A_t^-1 J^T e_row. False when the hand is not in that row.
+    bool contact_handle_terms(int body, int row, Vec6& through_ath, Vec6& through_aht) const;
     double time = 0;  // s: simulated time, advanced by step()
 
     int add(std::unique_ptr<Body> body);

@@ -278,25 +278,18 @@ void World::begin_contact_body(int bi) {
     }
     cb.G = Eigen::Map<const Eigen::SparseMatrix<double, Eigen::RowMajor>>(nr, nt, static_cast<Eigen::Index>(inner.size()),
                                                                          outer.data(), inner.data(), values.data());
-    // watched unknowns: the touched ones, then (hand) the handle nodes' for the coupling model
-    cb.watched = cb.touched;
-    if (b.kind == BodyKind::Hand)
-        for (int node : b.hand_model->handle.nodes)
-            for (int d = 0; d < 3; ++d)
-                if (!touched_mark[6 + 3 * node + d]) cb.watched.push_back(6 + 3 * node + d);
-    for (size_t w = 0; w < cb.watched.size(); ++w) cb.watched_index[cb.watched[w]] = static_cast<int>(w);
     // basis: whichever needs fewer solves
     cb.row_basis = nr < nt;
     const int m = cb.row_basis ? nr : nt;
-    cb.K.resize(cb.watched.size(), m);
-    // the nodes of the watched unknowns: the solves need only their rows (BlockLDLT::solve)
-    std::vector<int> watched_nodes;
+    cb.K.resize(nt, m);
+    // the nodes of the touched unknowns: the solves need only their rows (BlockLDLT::solve)
+    std::vector<int> touched_nodes;
     if (b.kind == BodyKind::Soft)
-        for (int k : cb.watched)
-            if (watched_nodes.empty() || watched_nodes.back() != k / 3) watched_nodes.push_back(k / 3);
+        for (int k : cb.touched)
+            if (touched_nodes.empty() || touched_nodes.back() != k / 3) touched_nodes.push_back(k / 3);
     ContactSetup::Build& build = cs.build.at(bi);
     if (cb.row_basis) build.gt = cb.G.transpose();  // (unit columns need none)
-    build.watched_nodes = std::move(watched_nodes);
+    build.touched_nodes = std::move(touched_nodes);
 }
 
 // Once the body's free solve is done too (its system, factor and Schur complement are the step's)
@@ -305,7 +298,17 @@ void World::ready_contact_body(int bi) {
     ContactBody& cb = contact_bodies.at(bi);
     // the hand's unit columns from its kept response columns, when its solver keeps them
     const bool units = b.kind == BodyKind::Hand && !cb.row_basis &&
-                       b.hand->hand.apply_inverse_units(cb.touched, cb.watched, cb.K);
+                       b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
+    if (b.kind == BodyKind::Hand) {
+        if (!cb.row_basis && !units) b.hand->hand.prepare_unit_columns(cb.touched);
+        // the handle-space linearization's terms (haptics/coupling_model.cpp): twelve solves
+        // here instead of every contact response at the handle nodes
+        if (b.hand->device.prescribed) {
+            MatX at_touched;
+            b.hand->hand.handle_columns(cb.touched, b.hand->coupling.aht, at_touched);
+            cb.handle_terms = cb.G * at_touched;
+        }
+    }
     setup_->build.at(bi).first = units ? static_cast<int>(cb.K.cols()) : 0;
     if (contact_body_parts(bi) > 1) response_system(b)->prepare_concurrent_solves();
 }
@@ -323,15 +326,15 @@ void World::solve_contact_body(int bi, int part, int parts) {
     MatX rhs, x;
     for (int first = build.first + part * kWidestSolve; first < m; first += parts * kWidestSolve) {
         const int w = std::min(kWidestSolve, m - first);
-        // unit columns on the step's Cholesky factor: solved straight at the watched rows (the
+        // unit columns on the step's Cholesky factor: solved straight at the touched rows (the
         // full-length right-hand sides and solutions, built, copied and permuted per column, were
         // ~a third of these solves' time in the 10x bunny scene)
         if (!cb.row_basis) {
             const int* units = cb.touched.data() + first;
             double* out = cb.K.data() + static_cast<size_t>(first) * cb.K.rows();
-            if (b.kind == BodyKind::Hand && b.hand->hand.apply_inverse_unit_columns(units, w, cb.watched, cb.K.middleCols(first, w)))
+            if (b.kind == BodyKind::Hand && b.hand->hand.apply_inverse_unit_columns(units, w, cb.touched, cb.K.middleCols(first, w)))
                 continue;
-            if (b.kind == BodyKind::Soft && b.tool->solve_units(units, w, cb.watched, out, cb.K.rows())) continue;
+            if (b.kind == BodyKind::Soft && b.tool->solve_units(units, w, cb.touched, out, cb.K.rows())) continue;
         }
         rhs.setZero(dofs, w);
         for (int j = 0; j < w; ++j) {
@@ -343,14 +346,14 @@ void World::solve_contact_body(int bi, int part, int parts) {
             }
         }
         switch (b.kind) {
-            case BodyKind::Hand:  // only the watched rows, straight into K
-                b.hand->hand.apply_inverse_many(rhs, x, &cb.watched);
+            case BodyKind::Hand:  // only the touched rows, straight into K
+                b.hand->hand.apply_inverse_many(rhs, x, &cb.touched);
                 cb.K.middleCols(first, w) = x;
                 continue;
-            case BodyKind::Soft: b.tool->solve_many(rhs, x, 1, &build.watched_nodes); break;
+            case BodyKind::Soft: b.tool->solve_many(rhs, x, 1, &build.touched_nodes); break;
             default: x = Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
         }
-        for (size_t k = 0; k < cb.watched.size(); ++k) cb.K.block(k, first, 1, w) = x.block(cb.watched[k], 0, 1, w);
+        for (size_t k = 0; k < cb.touched.size(); ++k) cb.K.block(k, first, 1, w) = x.block(cb.touched[k], 0, 1, w);
     }
 }
 
@@ -368,10 +371,10 @@ void World::finish_contact_body(int bi) {
     cs.u_body.at(bi) = cb.G * v_touched;
     MatX& response = cs.response.at(bi);
     if (cb.row_basis) {
-        const MatX c_b = cb.G * cb.K.topRows(nt);
+        const MatX c_b = cb.G * cb.K;
         response = 0.5 * (c_b + c_b.transpose());
     } else {
-        response = 0.5 * (cb.K.topRows(nt) + cb.K.topRows(nt).transpose());
+        response = 0.5 * (cb.K + cb.K.transpose());
     }
     if (kContactTrace) std::fprintf(stderr, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(cs.start));
 }
@@ -553,11 +556,11 @@ MatX World::contact_delassus(const std::vector<int>& rows) const {
         MatX h(nt, k);
         for (int j = 0; j < k; ++j) {
             if (cb.row_basis) {
-                h.col(j) = cb.K.col(local[j]).head(nt);
+                h.col(j) = cb.K.col(local[j]);
             } else {
                 h.col(j).setZero();
                 for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(cb.G, local[j]); it; ++it)
-                    h.col(j) += cb.K.col(it.col()).head(nt) * it.value();
+                    h.col(j) += cb.K.col(it.col()) * it.value();
             }
         }
         for (int i = 0; i < k; ++i)
@@ -570,25 +573,17 @@ MatX World::contact_delassus(const std::vector<int>& rows) const {
     return out;
 }
 
-VecX World::contact_column(int body, int row, const std::vector<int>& unknowns) const {
+bool World::contact_handle_terms(int body, int row, Vec6& through_ath, Vec6& through_aht) const {
     auto it = contact_bodies.find(body);
-    if (it == contact_bodies.end() || row < 0 || row >= static_cast<int>(it->second.local_row.size())) return VecX();
+    if (it == contact_bodies.end() || row < 0 || row >= static_cast<int>(it->second.local_row.size())) return false;
     const ContactBody& cb = it->second;
     const int l = cb.local_row[row];
-    if (l < 0) return VecX();
-    VecX out(unknowns.size());
-    for (size_t k = 0; k < unknowns.size(); ++k) {
-        auto w = cb.watched_index.find(unknowns[k]);
-        if (w == cb.watched_index.end())
-            throw InvalidArgument("World::contact_column: that unknown's response was not kept");
-        if (cb.row_basis) out[k] = cb.K(w->second, l);
-        else {
-            double sum = 0;  // G's sparse row l against row w of K
-            for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator g(cb.G, l); g; ++g) sum += g.value() * cb.K(w->second, g.col());
-            out[k] = sum;
-        }
-    }
-    return out;
+    if (l < 0) return false;
+    if (cb.handle_terms.rows() != static_cast<Eigen::Index>(cb.rows.size()))
+        throw InvalidArgument("World::contact_handle_terms: the body is not a hand with a prescribed handle");
+    through_ath = cb.handle_terms.row(l).head<6>().transpose();
+    through_aht = cb.handle_terms.row(l).tail<6>().transpose();
+    return true;
 }
 
 }  // namespace hh

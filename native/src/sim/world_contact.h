@@ -33,7 +33,7 @@ struct World::ContactSetup {
     // per body, between the parts of its build (begin_contact_body .. finish_contact_body)
     struct Build {
         Eigen::SparseMatrix<double> gt;  // G^T: touched x rows, column-major
-        std::vector<int> watched_nodes;  // soft body: the nodes of the watched unknowns
+        std::vector<int> touched_nodes;  // soft body: the nodes of the touched unknowns
         int first = 0;                   // K's columns from here on come from the solves
     };
     std::map<int, Build> build;

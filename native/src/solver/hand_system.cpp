@@ -25,6 +25,7 @@ void HandSystem::solve() {
     const Vec6 bh = r.head<6>();
     t_deformable = 0;
     t_schur = 0;
+    std::fill(aht_prepared_.begin(), aht_prepared_.end(), 0);  // (a new step's At and Aht)
 
     // Right-hand sides: b_t (Eq. 13) and the columns of Ath (Schur complement)
     rhs_.setZero(n3, 7);
@@ -84,12 +85,13 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
     out.resize(rows ? static_cast<Eigen::Index>(rows->size()) : 6 + n3, k);
     Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
     // With asked rows, the tool solves only need the flesh at their nodes and at the coupled
-    // nodes (Aht reads those): the factor's backward pass skips the rest.
+    // nodes (Aht reads those, unless it is zero): the factor's backward pass skips the rest.
+    const bool coupled = !aht_zero();
     std::vector<int> wanted;
     if (rows) {
         for (int row : *rows)
             if (row >= 6) wanted.push_back((row - 6) / 3);
-        wanted.insert(wanted.end(), coupled_nodes.begin(), coupled_nodes.end());
+        if (coupled) wanted.insert(wanted.end(), coupled_nodes.begin(), coupled_nodes.end());
     }
     MatX flesh;
     for (Eigen::Index first = 0; first < k; first += kWidestSolve) {  // (as many as a pass takes)
@@ -97,7 +99,7 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
         tool.solve_response(rhs.block(6, first, n3, w), flesh, rows ? &wanted : nullptr);
         Eigen::Matrix<double, 6, Eigen::Dynamic> vh(6, w);
         for (Eigen::Index j = 0; j < w; ++j)
-            vh.col(j) = schur.solve(Vec6(rhs.col(first + j).head<6>() - aht_times(flesh.col(j))));
+            vh.col(j) = schur.solve(Vec6(rhs.col(first + j).head<6>() - (coupled ? aht_times(flesh.col(j)) : Vec6::Zero())));
         if (!rows) {
             out.block(0, first, 6, w) = vh;
             out.block(6, first, n3, w).noalias() = flesh - response_ * vh;  // Eq. 12 for every column
@@ -110,14 +112,47 @@ void HandSystem::apply_inverse_many(const MatX& rhs, MatX& out, const std::vecto
     }
 }
 
+bool HandSystem::aht_zero() const {
+    for (const Mat63& block : Aht)
+        if (!block.isZero(0)) return false;
+    return true;
+}
+
+MatX HandSystem::response_at(const MatX& columns, const std::vector<int>& unknowns) {
+    std::vector<int> nodes;
+    for (int u : unknowns) nodes.push_back((u - 6) / 3);
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    MatX solved;
+    tool.solve_response(columns, solved, &nodes);
+    MatX out(static_cast<Eigen::Index>(unknowns.size()), columns.cols());
+    for (size_t i = 0; i < unknowns.size(); ++i) out.row(static_cast<Eigen::Index>(i)) = solved.row(unknowns[i] - 6);
+    return out;
+}
+
+void HandSystem::prepare_unit_columns(const std::vector<int>& units) {
+    if (aht_zero()) return;
+    const Eigen::Index n3 = tool.A.rows();
+    MatX aht_t = MatX::Zero(n3, 6);  // Aht^T, 3n x 6
+    for (size_t q = 0; q < coupled_nodes.size(); ++q) aht_t.middleRows<3>(3 * coupled_nodes[q]) = Aht[q].transpose();
+    std::vector<int> flesh;
+    for (int u : units)
+        if (u >= 6) flesh.push_back(u);
+    // indexed by the flesh unknown (rows elsewhere unused)
+    aht_response_.resize(n3, 6);
+    aht_prepared_.resize(n3, 0);
+    const MatX at = response_at(aht_t, flesh);
+    for (size_t i = 0; i < flesh.size(); ++i) {
+        aht_response_.row(flesh[i] - 6) = at.row(static_cast<Eigen::Index>(i));
+        aht_prepared_[flesh[i] - 6] = 1;
+    }
+}
+
 bool HandSystem::apply_inverse_unit_columns(const int* units, int k, const std::vector<int>& rows, Eigen::Ref<MatX> out) {
-    // the flesh rows asked for: the rows' own, then the coupled nodes' (Aht reads those)
+    // the flesh rows asked for (the handle's response to each unit comes from aht_response_)
     std::vector<int> flesh_rows_at;
     for (int row : rows)
         if (row >= 6) flesh_rows_at.push_back(row - 6);
-    const size_t own = flesh_rows_at.size();
-    for (int node : coupled_nodes)
-        for (int d = 0; d < 3; ++d) flesh_rows_at.push_back(3 * node + d);
     // unit columns on the flesh (a handle unknown's has no flesh part: zero)
     std::vector<int> flesh_units, column_of;
     for (int j = 0; j < k; ++j)
@@ -125,27 +160,40 @@ bool HandSystem::apply_inverse_unit_columns(const int* units, int k, const std::
             flesh_units.push_back(units[j] - 6);
             column_of.push_back(j);
         }
-    MatX flesh = MatX::Zero(static_cast<Eigen::Index>(flesh_rows_at.size()), k);
+    const bool coupled = !aht_zero();
+    if (coupled && tool.solver() == DeformableSolver::Cholesky)
+        for (int u : flesh_units)
+            if (u >= static_cast<int>(aht_prepared_.size()) || !aht_prepared_[u])
+                throw InvalidArgument("HandSystem::apply_inverse_unit_columns: unit not prepared (prepare_unit_columns)");
+    MatX flesh_rows = MatX::Zero(static_cast<Eigen::Index>(rows.size()), k);
     MatX solved(static_cast<Eigen::Index>(flesh_rows_at.size()), static_cast<Eigen::Index>(flesh_units.size()));
     if (!flesh_units.empty() &&
         !tool.solve_units(flesh_units.data(), static_cast<int>(flesh_units.size()), flesh_rows_at, solved.data(), solved.rows()))
         return false;
-    for (size_t q = 0; q < column_of.size(); ++q) flesh.col(column_of[q]) = solved.col(static_cast<Eigen::Index>(q));
+    for (size_t q = 0; q < column_of.size(); ++q)
+        for (size_t i = 0, f = 0; i < rows.size(); ++i)
+            if (rows[i] >= 6) flesh_rows(static_cast<Eigen::Index>(i), column_of[q]) = solved(static_cast<Eigen::Index>(f++), static_cast<Eigen::Index>(q));
     Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
     Eigen::Matrix<double, 6, Eigen::Dynamic> vh(6, k);
     for (int j = 0; j < k; ++j) {
         Vec6 rh = Vec6::Zero();
         if (units[j] < 6) rh[units[j]] = 1.0;
-        Vec6 aht = Vec6::Zero();  // Aht x_t at the coupled nodes
-        for (size_t q = 0; q < coupled_nodes.size(); ++q)
-            aht += Aht[q] * flesh.block<3, 1>(static_cast<Eigen::Index>(own + 3 * q), j);
-        vh.col(j) = schur.solve(Vec6(rh - aht));
+        // Aht A_t^-1 e_u = (A_t^-1 Aht^T)^T e_u, At symmetric (prepare_unit_columns)
+        if (units[j] >= 6 && coupled) rh -= aht_response_.row(units[j] - 6).transpose();
+        vh.col(j) = schur.solve(rh);
     }
-    MatX flesh_rows = MatX::Zero(static_cast<Eigen::Index>(rows.size()), k);
-    for (size_t i = 0, f = 0; i < rows.size(); ++i)
-        if (rows[i] >= 6) flesh_rows.row(static_cast<Eigen::Index>(i)) = flesh.row(static_cast<Eigen::Index>(f++));
     eq12_on_rows(rows, flesh_rows, vh, out);
     return true;
+}
+
+void HandSystem::handle_columns(const std::vector<int>& unknowns, const std::vector<Mat63>& aht, MatX& out) {
+    const Eigen::Index n3 = tool.A.rows();
+    MatX columns = MatX::Zero(n3, 12);  // [Ath | aht^T]
+    for (size_t q = 0; q < coupled_nodes.size(); ++q) {
+        columns.block<3, 6>(3 * coupled_nodes[q], 0) = Ath[q];
+        columns.block<3, 6>(3 * coupled_nodes[q], 6) = aht[q].transpose();
+    }
+    out = response_at(columns, unknowns);
 }
 
 void HandSystem::eq12_on_rows(const std::vector<int>& rows, const MatX& flesh_rows,

@@ -43,7 +43,22 @@ public:
     // into out (rows x k): the tool's unit solves without full-length columns
     // (DeformableSystem::solve_units), then Eq. 12 on the rows. False (out untouched) unless the
     // tool is on the step's Cholesky factor; then it only reads, so calls may run side by side.
+    // Before them: what apply_inverse_unit_columns needs besides each unit's own solve. Eq. 12
+    // takes the handle's response to a flesh unit e_u from Aht A_t^-1 e_u, that is (At symmetric)
+    // row u of A_t^-1 Aht^T: six solves a step at the units' rows, where reading every unit
+    // column at the coupled nodes widened each one's backward pass to the handle's nodes and
+    // their elimination-tree ancestors (36% of the ~17000-tet hand's factor per column). None
+    // when Aht is zero (a prescribed handle). Not thread-safe; apply_inverse_unit_columns throws
+    // for a unit not prepared since the last solve() unless Aht is zero.
+    void prepare_unit_columns(const std::vector<int>& units);
     bool apply_inverse_unit_columns(const int* units, int k, const std::vector<int>& rows, Eigen::Ref<MatX> out);
+    // After solve(), for the handle-space linearization (haptics/coupling_model.cpp): at the
+    // flesh unknowns `unknowns` (indices into (v_h, v_t), all >= 6), the tool's response operator
+    // applied to the columns of Ath and of aht^T (aht: the true handle-flesh blocks, per coupled
+    // node; the step zeroes Aht when the handle is prescribed): out = [A_t^-1 Ath | A_t^-1 aht^T]
+    // on those rows (unknowns x 12). With At symmetric, J A_t^-1 Ath and J A_t^-1 aht^T are then
+    // what the model reads from a contact's response at the handle nodes.
+    void handle_columns(const std::vector<int>& unknowns, const std::vector<Mat63>& aht, MatX& out);
     double t_deformable = 0;  // s spent in tool solves during the last solve()
     double t_schur = 0;       // s spent forming and solving the Schur complement
 
@@ -55,6 +70,12 @@ private:
                       Eigen::Ref<MatX> out) const;
     MatX rhs_, solved_;                   // the 7 batched right-hand sides and solutions
     MatX response_;                       // A_t^-1 Ath: its 6 columns side by side
+    MatX aht_response_;                   // A_t^-1 Aht^T at the prepared units' rows (prepare_unit_columns)
+    std::vector<char> aht_prepared_;      // per flesh unknown: its row of aht_response_ is this step's
+    bool aht_zero() const;
+    // the rows of tool solves of `columns` (3n wide) at the flesh unknowns `unknowns`, through the
+    // tool's response operator (only those nodes' rows are asked of it)
+    MatX response_at(const MatX& columns, const std::vector<int>& unknowns);
     double schur_condition_ = 0;          // of the last step's Schur complement (0: none yet)
 
 public:
