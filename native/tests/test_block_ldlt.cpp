@@ -1,5 +1,6 @@
 // The block LDL^T solver against a dense solve, on the warped-stiffness systems it is built for.
 #include <algorithm>
+#include <cmath>
 #include <random>
 
 #include "box_mesh.h"
@@ -7,6 +8,7 @@
 #include "fem/corotational.h"
 #include "rigid/quaternion.h"
 #include "solver/block_ldlt.h"
+#include "solver/panel_kernels.h"
 
 using namespace hh;
 
@@ -400,4 +402,47 @@ TEST(unit_solves_at_asked_rows_give_those_entries_of_the_inverse_in_both_forms) 
         }
         simd_level_override() = -1;
     }
+}
+
+TEST(panel_kernels_match_dense_products_and_cholesky_at_every_simd_level) {
+    // the supernodal factorization's dense kernels on panels of every shape the blocking splits
+    // differently (row and column remainders of the 24 x 8 register blocks, several column
+    // blocks), against Eigen's dense product and LLT
+    std::mt19937 rng(31);
+    std::normal_distribution<double> g(0, 1);
+    for (int level = 0; level <= detected_simd_level(); ++level) {
+        simd_level_override() = level;
+        for (int m : {1, 3, 8, 9, 17, 24, 25, 40, 51})
+            for (int below : {0, 1, 7, 30}) {
+                const int ld = m + below;
+                MatX r(ld, m + 4);
+                for (int i = 0; i < r.size(); ++i) r.data()[i] = g(rng);
+                MatX full = r * r.transpose();  // ld x ld, SPD
+                MatX panel = full.leftCols(m);
+                for (int c = 0; c < m; ++c)  // only the lower part is read: poison the upper
+                    for (int i = 0; i < c; ++i) panel(i, c) = std::nan("");
+                CHECK(panel_cholesky(panel.data(), ld, m));
+                const MatX l11 = MatX(full.topLeftCorner(m, m).llt().matrixL());
+                const MatX l21 = full.bottomLeftCorner(below, m) * l11.transpose().inverse();
+                const double scale = l11.cwiseAbs().maxCoeff();
+                CHECK_LT((MatX(panel.topRows(m).triangularView<Eigen::Lower>()) - l11).cwiseAbs().maxCoeff(), 1e-12 * scale);
+                if (below > 0) CHECK_LT((panel.bottomRows(below) - l21).cwiseAbs().maxCoeff(), 1e-10 * scale);
+                // the update: C = A A(0:n)^T, checked on its lower part by 3x3 node blocks
+                for (int n : {1, 3, std::min(m, 8), m}) {
+                    const int k = 1 + (m * 7 + n) % 23, lda = ld + 2;
+                    MatX a(lda, k);
+                    for (int i = 0; i < a.size(); ++i) a.data()[i] = g(rng);
+                    MatX c = MatX::Constant(ld, n, 5.0);
+                    panel_outer_product(a.data(), lda, ld, n, k, c.data());
+                    const MatX exact = a.topRows(ld) * a.topRows(n).transpose();
+                    for (int j = 0; j < n; ++j)
+                        for (int i = j - j % 3; i < ld; ++i) CHECK_LT(std::abs(c(i, j) - exact(i, j)), 1e-12 * (1 + std::abs(exact(i, j))));
+                }
+            }
+        // not positive definite: refused
+        MatX bad = MatX::Identity(10, 10);
+        bad(6, 6) = -1.0;
+        CHECK(!panel_cholesky(bad.data(), 10, 10));
+    }
+    simd_level_override() = -1;
 }

@@ -164,8 +164,13 @@ struct DeformableSystem::Impl {
     // meshes, the supernodal form's dense panel kernels on large ones, where the factorization's
     // flops dwarf its index work. Step time measured up-looking / supernodal: 1599 tets (3.8e6
     // flops) 1.07 / 1.45 ms, 5154 tets (2.6e7) 5.07 / 5.73 ms, 20837 tets (1.5e9) 205 / 133 ms.
+    // Since relaxed supernodes and AVX-512 panel kernels (factorization alone, up-looking /
+    // supernodal): 1700 tets (4.6e6) 0.65 / 0.43 ms, 4101 tets (1.9e7) 2.4 / 1.7 ms, 17208 tets
+    // (4.6e8) 55 / 26 ms; in the contact scenes the supernodal solves cost a little more, so the
+    // paper's hands (1700 tets: as fast either way) stay up-looking, the 10x bunny scene's 4101-
+    // and 2594-tet bodies gain ~2 ms a frame on one thread.
     // HH_CHOLESKY_FORM=uplooking|supernodal forces one (to measure).
-    static constexpr double kSupernodalFlops = 1e8;
+    static constexpr double kSupernodalFlops = 1e7;
     void analyze_per_step(const SpMat& a) {
         const char* form = std::getenv("HH_CHOLESKY_FORM");
         const std::string forced = form ? form : "";
