@@ -35,6 +35,9 @@ struct World::ContactSetup {
         Eigen::SparseMatrix<double> gt;  // G^T: touched x rows, column-major
         std::vector<int> touched_nodes;  // soft body: the nodes of the touched unknowns
         int first = 0;                   // K's columns from here on come from the solves
+        // unit columns on the step's Cholesky factor: K's columns solved in this order (by the
+        // factor's elimination order of their nodes), so a batch's units share their paths
+        std::vector<int> unit_order;
     };
     std::map<int, Build> build;
     std::map<int, MatX> response;  // per body: its symmetrized C_b (see ReducedContactProblem)

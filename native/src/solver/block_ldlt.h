@@ -59,6 +59,8 @@ public:
     void set_keep_single(bool keep) { keep_single_ = keep; if (keep && !single_valid_ && n_ > 0 && factored_) make_single(); }
     bool has_single() const { return single_valid_; }
     int nodes() const { return n_; }
+    // After analyze(): the step at which the node (original numbering) is eliminated.
+    int position(int node) const { return inverse_[node]; }
     // Scalar floating-point operations of one factorization (from the symbolic analysis).
     double factor_flops() const { return factor_flops_; }
     bool analysed() const { return n_ > 0; }

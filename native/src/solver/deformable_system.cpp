@@ -311,6 +311,12 @@ bool DeformableSystem::solve_units(const int* units, int k, const std::vector<in
     return true;
 }
 
+int DeformableSystem::elimination_position(int node) const {
+    const Impl& m = *impl_;
+    if (m.solver != DeformableSolver::Cholesky || !factor_valid_ || !m.cholesky.analysed()) return -1;
+    return m.cholesky.position(node);
+}
+
 void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes) {
     Impl& m = *impl_;
     if (prepare_concurrent_solves()) {

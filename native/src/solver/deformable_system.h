@@ -58,6 +58,9 @@ public:
     // the contact responses of solve_many's unit columns without their full length. Only reads
     // the factor (after prepare_concurrent_solves), so calls may run side by side.
     bool solve_units(const int* units, int k, const std::vector<int>& rows, double* out, long ld);
+    // Cholesky, after prepare_concurrent_solves (else -1): the step of the factor's elimination
+    // at which the node goes. Unit solves batched in that order share their paths to the root.
+    int elimination_position(int node) const;
     // X = the step's response operator applied to B, for the contact responses (the Delassus
     // operator and the impulses' velocities): with Cholesky and CG the solve above (slots 8 and
     // up); with ReusedCholesky the warped factor itself, W Af^-1 W^T, one pass and no CG. That
