@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <thread>
 
 #include "box_mesh.h"
 #include "check.h"
@@ -445,4 +446,45 @@ TEST(panel_kernels_match_dense_products_and_cholesky_at_every_simd_level) {
         CHECK(!panel_cholesky(bad.data(), 10, 10));
     }
     simd_level_override() = -1;
+}
+
+TEST(supernodal_factor_in_two_parts_is_the_same_side_by_side_or_not) {
+    // a factor large enough to be split in two parts (whole subtrees) and the rest: the parts
+    // run on two threads at once, one after the other, or inside factorize(), and the factor
+    // (its solves) is the same bit for bit, and solves A
+    const SpMat a = system_matrix(16, 10, 8, 41);
+    BlockLDLT f;
+    f.set_supernodal(true);
+    f.analyze(a);
+    CHECK(f.factor_parts() == 2);
+    std::mt19937 rng(42);
+    std::normal_distribution<double> g(0, 1);
+    MatX b(a.rows(), 3);
+    for (int i = 0; i < b.size(); ++i) b.data()[i] = g(rng);
+    f.factorize(a);
+    MatX plain = b;
+    f.solve(plain);
+    CHECK_LT((MatX(a * plain) - b).norm() / b.norm(), 1e-12);
+    for (int mode = 0; mode < 2; ++mode) {
+        if (mode == 0) {
+            f.factorize_part(a, 1);
+            f.factorize_part(a, 0);
+        } else {
+            std::thread other([&] { f.factorize_part(a, 1); });
+            f.factorize_part(a, 0);
+            other.join();
+        }
+        f.factorize(a);
+        MatX x = b;
+        f.solve(x);
+        CHECK(x == plain);
+    }
+    // a part done for an earlier matrix is not reused after discard_parts()
+    const SpMat a2 = system_matrix(16, 10, 8, 43);
+    f.factorize_part(a, 0);
+    f.discard_parts();
+    f.factorize(a2);
+    MatX x2 = b;
+    f.solve(x2);
+    CHECK_LT((MatX(a2 * x2) - b).norm() / b.norm(), 1e-12);
 }

@@ -18,6 +18,8 @@
 #include "common/task_graph.h"
 #include "common/worker.h"
 #include "haptic_hand.h"
+#include "sim/data.h"
+#include "sim/model.h"
 
 namespace {
 
@@ -28,14 +30,16 @@ constexpr double kHandLift = 0.0436;
 // box-box and box-ground contacts, three dynamic bodies whose solves and responses can share
 // the two threads.
 struct Stack {
-    BoxMesh hand_box = make_box(4, 3, 2, 0.01);
+    int hx, hy;  // the hand box's cells along x and y
+    BoxMesh hand_box;
     BoxMesh soft = make_box(3, 3, 2, 0.01);
     hh_model* model = nullptr;
     hh_world* world = nullptr;
     int hand = -1, lower = -1, upper = -1;
     double com[3] = {0, 0, 0};
 
-    explicit Stack(int threads) {
+    // hx x hy x hz: the hand box's cells (a larger one gets a factor split in parts)
+    explicit Stack(int threads, int hx_ = 4, int hy_ = 3, int hz = 2) : hx(hx_), hy(hy_), hand_box(make_box(hx_, hy_, hz, 0.01)) {
         hh_params p = box_hand_params();
         p.palm_seed[2] += kHandLift;
         hh_world_params wp;
@@ -55,7 +59,7 @@ struct Stack {
         std::vector<int> nodes;
         std::vector<double> weights;
         std::vector<int> faces;
-        bottom_surface(hand_box, 4, 3, nodes, weights, faces);
+        bottom_surface(hand_box, hx, hy, nodes, weights, faces);
         CHECK(hh_world_add_hand(world, model, nodes.data(), weights.data(), static_cast<int>(nodes.size() / 4),
                                 faces.data(), static_cast<int>(faces.size() / 3), 0.5, 0, &hand) == HH_OK);
         hh_model_info info;
@@ -170,6 +174,34 @@ TEST(two_threads_step_a_scene_exactly_as_one) {
     // than one 4 x 4-vertex face), and the upper box pushed the hand up at least once
     CHECK(most_contacts > 32);
     CHECK(most_upward > 0);
+}
+
+TEST(a_large_hand_factored_in_parts_on_two_threads_steps_exactly_as_on_one) {
+    // a hand large enough for its per-step factor to be split in two parts (BlockLDLT::
+    // factor_parts), which the step runs on the two threads between its assembly and its solve
+    Stack one(1, 16, 10, 8), two(2, 16, 10, 8);
+    {
+        const hh_params p = box_hand_params();
+        const hh::Model m = hh::build_model(two.hand_box.nodes.data(), two.hand_box.n_nodes(), two.hand_box.tets.data(),
+                                    two.hand_box.n_tets(), p);
+        hh::Data d(m);
+        hh::formulate(m, d);
+        CHECK(d.tool.factor_parts() == 2);
+    }
+    one.press();
+    two.press();
+    int most_contacts = 0;
+    for (int step = 0; step < 4; ++step) {
+        hh_world_stats s1, s2;
+        CHECK(hh_world_step(one.world, &s1) == HH_OK);
+        CHECK(hh_world_step(two.world, &s2) == HH_OK);
+        CHECK(s1.contacts == s2.contacts && s1.iterations == s2.iterations);
+        most_contacts = std::max(most_contacts, s1.contacts);
+        const std::vector<double> a = one.state(), b = two.state();
+        CHECK(a.size() == b.size());
+        CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0);
+    }
+    CHECK(most_contacts > 0);
 }
 
 // A body whose state went bad (NaN: here written past the C API's checks) makes its solve fail

@@ -38,6 +38,10 @@ struct Body {
     std::unique_ptr<Model> hand_model;
     std::unique_ptr<Data> hand;
     double pass_seconds[3] = {0, 0, 0};  // s, this step: formulate_begin, element pass parts 0 and 1 (World::step)
+    // the hand, this step: assembled by its own task before its free solve, with the factor's
+    // parts between (World::step); the assembly's and the parts' times
+    bool assemble_apart = false;
+    double assembly_seconds = 0, factor_part_seconds[2] = {0, 0};
     // soft body
     std::unique_ptr<Flesh> flesh;
     FleshState state;
@@ -170,6 +174,7 @@ private:
     void finish_detection();
     void reduce_contacts();
     void solve_free(Body& b);
+    void assemble_hand(Body& b);
     // The contact solve in parts (sim/world_contact.cpp), scheduled by step as tasks: prepare
     // from the contacts alone; per dynamic body, once its free solve is done, its responses;
     // per group of coupled contacts, once its bodies are built, the sweeps; per body, once its

@@ -172,10 +172,12 @@ void BlockLDLT::analyze_supernodes() {
     sn_diag_ptr_.assign(ns + 1, 0);
     for (int s = 0; s < ns; ++s) sn_diag_ptr_[s + 1] = sn_diag_ptr_[s] + 3 * (sn_start_[s + 1] - sn_start_[s]);
     sn_diag_inverse_.assign(sn_diag_ptr_[ns], 0.0);
-    relmap_.assign(n_, 0);
+    for (PartWork& w : part_work_) w.relmap.assign(n_, 0);
+    parts_done_ = 0;
     link_head_.assign(ns, -1);
     link_next_.assign(ns, -1);
     sn_pos_.assign(ns, 0);
+    split_supernodes();
     // the up-looking form's arrays are not needed
     lx_.clear();
     lx_.shrink_to_fit();
@@ -245,67 +247,174 @@ void BlockLDLT::factorize_up_looking(const SpMat& a) {
     if (keep_single_) make_single();
 }
 
-void BlockLDLT::factorize_supernodal(const SpMat& a) {
-    using Panel = Eigen::Map<MatX, 0, Eigen::OuterStride<>>;
-    const double* values = a.valuePtr();
+void BlockLDLT::factorize_part(const SpMat& a, int part) {
+    if (!supernodal_ || factor_parts_ == 0 || part < 0 || part > 1) throw std::logic_error("BlockLDLT::factorize_part: no such part");
     const int ns = supernodes();
-    std::fill(link_head_.begin(), link_head_.end(), -1);
+    for (int j = 0; j < ns; ++j)
+        if (sn_part_[j] == part) link_head_[j] = -1;
+    part_work_[part].pending.clear();
+    for (int j = 0; j < ns; ++j)
+        if (sn_part_[j] == part) factor_supernode(a.valuePtr(), j, part);
+    parts_done_ |= 1 << part;
+}
+
+void BlockLDLT::factorize_supernodal(const SpMat& a) {
+    const int ns = supernodes();
+    for (int part = 0; part < factor_parts_; ++part)
+        if (!(parts_done_ & (1 << part))) factorize_part(a, part);
+    parts_done_ = 0;
+    for (int j = 0; j < ns; ++j)
+        if (sn_part_[j] == 2) link_head_[j] = -1;
+    // the parts' supernodes whose next rows are in the rest, in a fixed order
+    for (int part = 0; part < factor_parts_; ++part)
+        for (int k : part_work_[part].pending) {
+            const int target = node_sn_[sn_rows_[sn_rows_ptr_[k] + sn_pos_[k]]];
+            link_next_[k] = link_head_[target];
+            link_head_[target] = k;
+        }
+    for (int j = 0; j < ns; ++j)
+        if (sn_part_[j] == 2) factor_supernode(a.valuePtr(), j, 2);
+}
+
+// Supernode j: A's columns, the updates of the descendants queued for it, its panel's Cholesky,
+// then queued for its own next target (in its part, or pending for the rest).
+void BlockLDLT::factor_supernode(const double* values, int j, int part) {
+    using Panel = Eigen::Map<MatX, 0, Eigen::OuterStride<>>;
+    PartWork& work = part_work_[part == 2 ? 0 : part];
+    std::vector<int>& relmap = work.relmap;
     auto link = [&](int k) {  // queue supernode k for the supernode owning its next row
         const int target = node_sn_[sn_rows_[sn_rows_ptr_[k] + sn_pos_[k]]];
+        if (sn_part_[target] != part) {
+            work.pending.push_back(k);
+            return;
+        }
         link_next_[k] = link_head_[target];
         link_head_[target] = k;
     };
-    for (int j = 0; j < ns; ++j) {
-        const int c0 = sn_start_[j], c1 = sn_start_[j + 1], width = c1 - c0, m = 3 * width;
-        const int* rows = sn_rows_.data() + sn_rows_ptr_[j];
-        const int nr = sn_rows_ptr_[j + 1] - sn_rows_ptr_[j], ld = 3 * nr;
-        double* p = sn_val_.data() + sn_val_ptr_[j];
-        std::fill(p, p + static_cast<size_t>(ld) * m, 0.0);
-        for (int t = 0; t < nr; ++t) relmap_[rows[t]] = t;
-        for (int c = c0; c < c1; ++c)  // A's columns of the supernode, lower part
-            for (const BlockRef& ref : lower_[c]) {
-                double* to = p + static_cast<size_t>(3 * (c - c0)) * ld + 3 * relmap_[ref.row];
-                for (int r = 0; r < 3; ++r)
-                    for (int q = 0; q < 3; ++q) to[static_cast<size_t>(q) * ld + r] = values[ref.offsets[3 * r + q]];
-            }
-        // updates from the descendants whose next rows fall in this supernode's columns
-        for (int k = link_head_[j]; k != -1;) {
-            const int next = link_next_[k];
-            const int* krows = sn_rows_.data() + sn_rows_ptr_[k];
-            const int knr = sn_rows_ptr_[k + 1] - sn_rows_ptr_[k], kld = 3 * knr;
-            const int km = 3 * (sn_start_[k + 1] - sn_start_[k]);
-            const int first = sn_pos_[k];
-            int q1 = 0;
-            while (first + q1 < knr && krows[first + q1] < c1) ++q1;
-            const int q = knr - first;
-            const Panel lq(sn_val_.data() + sn_val_ptr_[k] + 3 * first, 3 * q, km, Eigen::OuterStride<>(kld));
-            update_.resize(static_cast<size_t>(9) * q * q1);
-            // U = Lq Lq(top rows)^T: the dense update, the bulk of the factorization's flops
-            panel_outer_product(lq.data(), kld, 3 * q, 3 * q1, km, update_.data());
-            for (int cc = 0; cc < 3 * q1; ++cc) {  // (its lower part: the panel's upper one is never read)
-                double* to = p + static_cast<size_t>(3 * (krows[first + cc / 3] - c0) + cc % 3) * ld;
-                const double* from = update_.data() + static_cast<size_t>(cc) * 3 * q;
-                for (int t = cc / 3; t < q; ++t) {
-                    double* dst = to + 3 * relmap_[krows[first + t]];
-                    dst[0] -= from[3 * t];
-                    dst[1] -= from[3 * t + 1];
-                    dst[2] -= from[3 * t + 2];
-                }
-            }
-            sn_pos_[k] = first + q1;
-            if (sn_pos_[k] < knr) link(k);
-            k = next;
+    const int c0 = sn_start_[j], c1 = sn_start_[j + 1], width = c1 - c0, m = 3 * width;
+    const int* rows = sn_rows_.data() + sn_rows_ptr_[j];
+    const int nr = sn_rows_ptr_[j + 1] - sn_rows_ptr_[j], ld = 3 * nr;
+    double* p = sn_val_.data() + sn_val_ptr_[j];
+    std::fill(p, p + static_cast<size_t>(ld) * m, 0.0);
+    for (int t = 0; t < nr; ++t) relmap[rows[t]] = t;
+    for (int c = c0; c < c1; ++c)  // A's columns of the supernode, lower part
+        for (const BlockRef& ref : lower_[c]) {
+            double* to = p + static_cast<size_t>(3 * (c - c0)) * ld + 3 * relmap[ref.row];
+            for (int r = 0; r < 3; ++r)
+                for (int q = 0; q < 3; ++q) to[static_cast<size_t>(q) * ld + r] = values[ref.offsets[3 * r + q]];
         }
-        if (!panel_cholesky(p, ld, m))
-            throw NumericalError(
-                "the deformable system At is not positive definite (block LDL^T failed): check for "
-                "inverted elements, negative parameters or a far too large time step");
-        for (int c = 0; c < m; ++c) sn_diag_inverse_[sn_diag_ptr_[j] + c] = 1.0 / p[static_cast<size_t>(c) * ld + c];
-        if (nr > width) {
-            sn_pos_[j] = width;
-            link(j);
+    // updates from the descendants whose next rows fall in this supernode's columns
+    for (int k = link_head_[j]; k != -1;) {
+        const int next = link_next_[k];
+        const int* krows = sn_rows_.data() + sn_rows_ptr_[k];
+        const int knr = sn_rows_ptr_[k + 1] - sn_rows_ptr_[k], kld = 3 * knr;
+        const int km = 3 * (sn_start_[k + 1] - sn_start_[k]);
+        const int first = sn_pos_[k];
+        int q1 = 0;
+        while (first + q1 < knr && krows[first + q1] < c1) ++q1;
+        const int q = knr - first;
+        const Panel lq(sn_val_.data() + sn_val_ptr_[k] + 3 * first, 3 * q, km, Eigen::OuterStride<>(kld));
+        work.update.resize(static_cast<size_t>(9) * q * q1);
+        // U = Lq Lq(top rows)^T: the dense update, the bulk of the factorization's flops
+        panel_outer_product(lq.data(), kld, 3 * q, 3 * q1, km, work.update.data());
+        for (int cc = 0; cc < 3 * q1; ++cc) {  // (its lower part: the panel's upper one is never read)
+            double* to = p + static_cast<size_t>(3 * (krows[first + cc / 3] - c0) + cc % 3) * ld;
+            const double* from = work.update.data() + static_cast<size_t>(cc) * 3 * q;
+            for (int t = cc / 3; t < q; ++t) {
+                double* dst = to + 3 * relmap[krows[first + t]];
+                dst[0] -= from[3 * t];
+                dst[1] -= from[3 * t + 1];
+                dst[2] -= from[3 * t + 2];
+            }
+        }
+        sn_pos_[k] = first + q1;
+        if (sn_pos_[k] < knr) link(k);
+        k = next;
+    }
+    if (!panel_cholesky(p, ld, m))
+        throw NumericalError(
+            "the deformable system At is not positive definite (block LDL^T failed): check for "
+            "inverted elements, negative parameters or a far too large time step");
+    for (int c = 0; c < m; ++c) sn_diag_inverse_[sn_diag_ptr_[j] + c] = 1.0 / p[static_cast<size_t>(c) * ld + c];
+    if (nr > width) {
+        sn_pos_[j] = width;
+        link(j);
+    }
+}
+
+// The two parts: whole subtrees of the supernodal elimination tree in two sets of about equal
+// estimated work, the rest (their ancestors) after them. Each supernode's work counts its
+// panel's Cholesky and the updates it receives (it computes them when it is factored), so the
+// rest carries the updates the parts send up. Starting from the roots, the heaviest subtree is
+// opened (its root goes to the rest, its children become subtrees) while that lowers the
+// estimated time on two threads, max(part 0, part 1) + rest; the subtrees are dealt out
+// heaviest first to the lighter set.
+void BlockLDLT::split_supernodes() {
+    const int ns = supernodes();
+    sn_part_.assign(ns, 2);
+    factor_parts_ = 0;
+    std::vector<double> work(ns, 0.0), subtree(ns, 0.0);
+    std::vector<int> sn_parent(ns, -1);
+    for (int k = 0; k < ns; ++k) {
+        const int w = 3 * (sn_start_[k + 1] - sn_start_[k]);
+        const int nr = sn_rows_ptr_[k + 1] - sn_rows_ptr_[k];
+        const int below = 3 * nr - w;
+        work[k] += w * double(w) * w / 3 + double(below) * w * w;
+        const int* krows = sn_rows_.data() + sn_rows_ptr_[k];
+        const int own = sn_start_[k + 1] - sn_start_[k];
+        if (own < nr) sn_parent[k] = node_sn_[krows[own]];
+        for (int t = own; t < nr;) {  // its updates, per target supernode
+            const int target = node_sn_[krows[t]];
+            int q1 = 0;
+            while (t + q1 < nr && node_sn_[krows[t + q1]] == target) ++q1;
+            const double q = 3.0 * (nr - t);
+            work[target] += q * 3.0 * q1 * w;
+            t += q1;
         }
     }
+    double total = 0;
+    for (int k = 0; k < ns; ++k) {
+        subtree[k] += work[k];
+        if (sn_parent[k] >= 0) subtree[sn_parent[k]] += subtree[k];
+        total += work[k];
+    }
+    // below ~2e7 estimated flops a part costs more to schedule than it saves
+    if (total < 2e7) return;
+    std::vector<std::vector<int>> children(ns);
+    std::vector<int> candidates;
+    for (int k = 0; k < ns; ++k) {
+        if (sn_parent[k] >= 0) children[sn_parent[k]].push_back(k);
+        else candidates.push_back(k);
+    }
+    double rest = 0, best = total;
+    std::vector<std::pair<int, int>> best_sets;  // (subtree root, part)
+    for (int round = 0; round < 256 && !candidates.empty(); ++round) {
+        std::sort(candidates.begin(), candidates.end(), [&](int x, int y) { return subtree[x] > subtree[y] || (subtree[x] == subtree[y] && x < y); });
+        double bins[2] = {0, 0};
+        std::vector<std::pair<int, int>> sets;
+        for (int c : candidates) {
+            const int bin = bins[1] < bins[0] ? 1 : 0;
+            bins[bin] += subtree[c];
+            sets.emplace_back(c, bin);
+        }
+        const double cost = std::max(bins[0], bins[1]) + rest;
+        if (cost < best && bins[0] > 0 && bins[1] > 0) {
+            best = cost;
+            best_sets = sets;
+        }
+        const int open = candidates.front();  // the heaviest subtree
+        candidates.erase(candidates.begin());
+        rest += work[open];
+        candidates.insert(candidates.end(), children[open].begin(), children[open].end());
+    }
+    if (best > 0.9 * total || best_sets.empty()) return;  // not worth two parts
+    std::vector<int> root_part(ns, -1);
+    for (const auto& e : best_sets) root_part[e.first] = e.second;
+    for (int k = ns - 1; k >= 0; --k) {  // (a parent after its children: top down here)
+        if (root_part[k] >= 0) sn_part_[k] = static_cast<unsigned char>(root_part[k]);
+        else if (sn_parent[k] >= 0 && sn_part_[sn_parent[k]] != 2) sn_part_[k] = sn_part_[sn_parent[k]];
+    }
+    factor_parts_ = 2;
 }
 
 void BlockLDLT::make_single() {

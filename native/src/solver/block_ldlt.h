@@ -31,6 +31,17 @@ public:
     bool supernodal() const { return supernodal_; }
     int supernodes() const { return static_cast<int>(sn_start_.size()) - 1; }
     void factorize(const SpMat& a);
+    // Supernodal form: the factorization in parts that may run side by side. The analysis splits
+    // the supernodes into two sets of whole subtrees of the elimination tree (balanced by their
+    // estimated flops) and the rest (their ancestors); factor_parts() is 2 then (large factors
+    // only), else 0. factorize_part(a, 0) and (a, 1) touch disjoint data and may run on two
+    // threads at once; factorize(a) then does the rest (and any part not done yet). The result
+    // is the same, bit for bit, whether the parts ran side by side, one after the other, or
+    // inside factorize().
+    int factor_parts() const { return factor_parts_; }
+    void factorize_part(const SpMat& a, int part);
+    // Forget parts done for an earlier matrix (the values changed since).
+    void discard_parts() { parts_done_ = 0; }
     VecX solve(const VecX& b) const;
     // In place, every column of b a right-hand side.
     void solve(MatX& b) const;
@@ -95,10 +106,21 @@ private:
     std::vector<int> sn_diag_ptr_;          // 3 width per supernode
     std::vector<double> sn_diag_inverse_;   // 1 / L(c, c) of every scalar column
     std::vector<std::vector<BlockRef>> lower_;  // lower pattern of permuted A by column (row >= column)
-    std::vector<int> relmap_, link_head_, link_next_, sn_pos_;
-    std::vector<double> update_;
+    std::vector<int> link_head_, link_next_, sn_pos_;
+    // the two parts: per supernode its part (0, 1, or 2: the rest, after both); per part a
+    // workspace, and the supernodes whose next update goes to the rest (linked afterwards)
+    std::vector<unsigned char> sn_part_;
+    struct PartWork {
+        std::vector<int> relmap;
+        std::vector<double> update;
+        std::vector<int> pending;
+    };
+    PartWork part_work_[2];
+    int factor_parts_ = 0, parts_done_ = 0;
     void analyze_supernodes();
+    void split_supernodes();
     void factorize_supernodal(const SpMat& a);
+    void factor_supernode(const double* values, int j, int part);
     void factorize_up_looking(const SpMat& a);
     void solve_supernodal(double* x, int w, bool single, const unsigned char* wanted) const;
     void solve_in_order(double* x, int w, bool single, const unsigned char* wanted) const;

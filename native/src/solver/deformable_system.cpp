@@ -207,6 +207,7 @@ DeformableSolver DeformableSystem::solver() const { return impl_->solver; }
 void DeformableSystem::matrix_changed() {
     Impl& m = *impl_;
     factor_valid_ = false;
+    m.cholesky.discard_parts();
     m.factor_current = false;
     m.have_rotations = false;
     if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) return;
@@ -310,6 +311,15 @@ bool DeformableSystem::solve_units(const int* units, int k, const std::vector<in
     impl_->cholesky.solve_units(units, k, rows, nodes, out, ld);
     return true;
 }
+
+int DeformableSystem::factor_parts() {
+    Impl& m = *impl_;
+    if (m.solver != DeformableSolver::Cholesky) return 0;
+    if (!m.cholesky.analysed()) m.analyze_per_step(A);
+    return m.cholesky.factor_parts();
+}
+
+void DeformableSystem::factorize_part(int part) { impl_->cholesky.factorize_part(A, part); }
 
 int DeformableSystem::elimination_position(int node) const {
     const Impl& m = *impl_;

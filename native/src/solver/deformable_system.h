@@ -53,6 +53,13 @@ public:
     // once (a soft body's contact responses, World::step). Returns whether that holds (false
     // for the iterative solvers, whose warm-start slots each call writes).
     bool prepare_concurrent_solves();
+    // Cholesky with the supernodal factor: the factorization's parts that may run on two threads
+    // at once (BlockLDLT::factor_parts: 2 for large factors, else 0; 0 for the other solvers;
+    // analyses the pattern if that is not done yet). Once At holds the step's values and before
+    // its first solve, factorize_part(0) and (1) may run side by side; the first solve (or
+    // prepare_concurrent_solves) does the rest. Same factor, bit for bit.
+    int factor_parts();
+    void factorize_part(int part);
     // Cholesky (false otherwise, and out untouched): columns of A^-1 for unit right-hand sides
     // at the given rows only, out[r + j ld] = (A^-1)(rows[r], units[j]) (BlockLDLT::solve_units):
     // the contact responses of solve_many's unit columns without their full length. Only reads
