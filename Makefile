@@ -38,11 +38,13 @@ test-sanitize: | $(BUILD)/.deps
 	cmake --build build/asan -j2
 	cd build/asan && ctest --output-on-failure
 
-# The threaded parts (haptic loop, live sessions, the OpenHaptics stand-in) under ThreadSanitizer.
+# The threaded parts (haptic loop, live sessions, the OpenHaptics stand-in, the world step on two
+# threads, the factor's parts side by side) under ThreadSanitizer.
 test-tsan: | $(BUILD)/.deps
 	cmake -S native -B build/tsan -DCMAKE_BUILD_TYPE=Debug -DHH_SANITIZE=thread > /dev/null
-	cmake --build build/tsan -j2 --target test_haptics test_world_threads hd_standin
+	cmake --build build/tsan -j2 --target test_haptics test_world_threads test_block_ldlt hd_standin
 	cd build/tsan && TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1" ctest --output-on-failure -R "haptics|world_threads"
+	cd build/tsan && TSAN_OPTIONS="halt_on_error=1" CHECK_ONLY=side_by_side ./test_block_ldlt
 
 test-python: native venv
 	$(PY) -m pytest -q tests

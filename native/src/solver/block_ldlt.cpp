@@ -173,7 +173,7 @@ void BlockLDLT::analyze_supernodes() {
     for (int s = 0; s < ns; ++s) sn_diag_ptr_[s + 1] = sn_diag_ptr_[s] + 3 * (sn_start_[s + 1] - sn_start_[s]);
     sn_diag_inverse_.assign(sn_diag_ptr_[ns], 0.0);
     for (PartWork& w : part_work_) w.relmap.assign(n_, 0);
-    parts_done_ = 0;
+    discard_parts();
     link_head_.assign(ns, -1);
     link_next_.assign(ns, -1);
     sn_pos_.assign(ns, 0);
@@ -255,14 +255,14 @@ void BlockLDLT::factorize_part(const SpMat& a, int part) {
     part_work_[part].pending.clear();
     for (int j = 0; j < ns; ++j)
         if (sn_part_[j] == part) factor_supernode(a.valuePtr(), j, part);
-    parts_done_ |= 1 << part;
+    part_done_[part] = true;
 }
 
 void BlockLDLT::factorize_supernodal(const SpMat& a) {
     const int ns = supernodes();
     for (int part = 0; part < factor_parts_; ++part)
-        if (!(parts_done_ & (1 << part))) factorize_part(a, part);
-    parts_done_ = 0;
+        if (!part_done_[part]) factorize_part(a, part);
+    discard_parts();
     for (int j = 0; j < ns; ++j)
         if (sn_part_[j] == 2) link_head_[j] = -1;
     // the parts' supernodes whose next rows are in the rest, in a fixed order

@@ -41,7 +41,7 @@ public:
     int factor_parts() const { return factor_parts_; }
     void factorize_part(const SpMat& a, int part);
     // Forget parts done for an earlier matrix (the values changed since).
-    void discard_parts() { parts_done_ = 0; }
+    void discard_parts() { part_done_[0] = part_done_[1] = false; }
     VecX solve(const VecX& b) const;
     // In place, every column of b a right-hand side.
     void solve(MatX& b) const;
@@ -116,7 +116,8 @@ private:
         std::vector<int> pending;
     };
     PartWork part_work_[2];
-    int factor_parts_ = 0, parts_done_ = 0;
+    int factor_parts_ = 0;
+    bool part_done_[2] = {false, false};  // (one flag per part: the parts may run at once)
     void analyze_supernodes();
     void split_supernodes();
     void factorize_supernodal(const SpMat& a);
