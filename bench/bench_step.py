@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from machine import machine_info, print_machine
+from mesh_export import write_tet_mesh
 from haptic_hand.engine import mesh, native
 
 REPO = Path(__file__).resolve().parents[1]
@@ -606,12 +607,7 @@ def main(argv=None) -> int:
     if args.export_meshes:
         args.export_meshes.mkdir(parents=True, exist_ok=True)
         for size, hand in hands.items():
-            path = args.export_meshes / f"hand_{size}.bin"
-            with open(path, "wb") as f:  # int32 nodes, tets; float64 seed[3], nodes[3n]; int32 tets[4m]
-                np.array([len(hand["nodes"]), len(hand["tets"])], dtype=np.int32).tofile(f)
-                np.asarray(hand["seed"], dtype=np.float64).tofile(f)
-                np.ascontiguousarray(hand["nodes"], dtype=np.float64).tofile(f)
-                np.ascontiguousarray(hand["tets"], dtype=np.int32).tofile(f)
+            path = write_tet_mesh(args.export_meshes / f"hand_{size}.bin", hand["nodes"], hand["tets"], hand["seed"])
             print(f"wrote {path}")
         return 0
 

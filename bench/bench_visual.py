@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from machine import machine_info, print_machine
+from mesh_export import write_tet_mesh
 from haptic_hand.engine import mesh, native, native_world, shapes, simulate
 from haptic_hand.engine import scene as scenes
 
@@ -464,7 +465,18 @@ def main(argv=None) -> int:
     parser.add_argument("--no-10x", action="store_true", help="skip the 10x scenes")
     parser.add_argument("--remesh", action="store_true", help="tetrahedralize again instead of using the cache")
     parser.add_argument("--out", type=Path, default=OUT_DIR, help="where to write bench_visual.json and .png")
+    parser.add_argument("--export-meshes", type=Path, default=None, metavar="DIR",
+                        help="write the scenes' hand and bunny tet meshes for bench_factor.cpp (hand_<n>.bin, "
+                             "bunny_<n>.bin) and stop")
     args = parser.parse_args(argv)
+    if args.export_meshes:
+        for n in (350, 1700, 3500, 17000):
+            h = hand_mesh(n, args.remesh)
+            print("wrote", write_tet_mesh(args.export_meshes / f"hand_{n}.bin", h["nodes"], h["tets"]))
+        for n in (271, 2710):
+            b = bunny_mesh(n, args.remesh)
+            print("wrote", write_tet_mesh(args.export_meshes / f"bunny_{n}.bin", b["nodes"], b["tets"]))
+        return 0
     if args.frames is not None and args.frames <= WARMUP_FRAMES:
         parser.error(f"--frames must be more than the {WARMUP_FRAMES} warm-up frames")
     if args.frames_10x is not None and args.frames_10x <= WARMUP_FRAMES:
