@@ -38,6 +38,16 @@ void solve_perturbed(const Model& m, Data& d, unsigned seed) {
     formulate(m, d);
     d.hand.solve();
 }
+// The 4 x 3 x 2 box hand after one perturbed solve (per-step Cholesky)
+struct SolvedBoxHand {
+    BoxMesh b = make_box(4, 3, 2, 0.01);
+    Model m;
+    Data d;
+    explicit SolvedBoxHand(unsigned seed)
+        : m(build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), box_params())), d(m) {
+        solve_perturbed(m, d, seed);
+    }
+};
 // A 6 x 4 x 3 box hand on the reused factor, CG to 1e-10 (to compare with direct solves)
 Model reused_box_model() {
     const BoxMesh b = make_box(6, 4, 3, 0.01);
@@ -250,11 +260,8 @@ TEST(cholesky_schur_batched_solves_match_single_solves) {
 TEST(hand_apply_inverse_many_on_chosen_rows_equals_the_full_solve) {
     // the contact solver asks only the rows it watches; they must be those of A^-1 rhs, for
     // handle rows (0-5) and flesh rows alike, with A^-1 checked against the monolithic solve
-    const BoxMesh b = make_box(4, 3, 2, 0.01);
-    const hh_params p = box_params();
-    const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
-    Data d(m);
-    solve_perturbed(m, d, 8);
+    SolvedBoxHand box(8);
+    Data& d = box.d;
     const Eigen::Index n = d.hand.r.size();
     const MatX rhs = MatX::Random(n, 11);  // 11 columns: a full batch of 8 and a partial one
     MatX full, some;
@@ -293,11 +300,8 @@ TEST(hand_handle_columns_are_the_flesh_solves_of_ath_and_aht_transposed) {
     // what the handle-space linearization reads: rows of A_t^-1 [Ath | aht^T] at chosen flesh
     // unknowns, against a separate sparse factorization of A_t; aht is any 6x3 block per
     // coupled node (the true one when the step zeroed the system's)
-    const BoxMesh b = make_box(4, 3, 2, 0.01);
-    const hh_params p = box_params();
-    const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
-    Data d(m);
-    solve_perturbed(m, d, 8);
+    SolvedBoxHand box(8);
+    Data& d = box.d;
     const Eigen::Index n3 = d.tool.A.rows();
     std::vector<Mat63> aht(d.hand.coupled_nodes.size());
     for (Mat63& block : aht) block = Mat63::Random();
