@@ -118,14 +118,14 @@ void BlockLDLT::analyze_supernodes() {
     {
         const int nf = static_cast<int>(first.size());
         std::vector<int> last(nf), cols(nf), below(nf), sn_of(n_);
-        std::vector<double> stored(nf), nonzero(nf);
+        std::vector<double> nonzero(nf);  // L's nonzero node blocks in each (merged) supernode
         for (int f = 0; f < nf; ++f) {
             const int end = f + 1 < nf ? first[f + 1] : n_;
             last[f] = end - 1;
             cols[f] = end - first[f];
             below[f] = lnz_[end - 1];
             for (int k = first[f]; k < end; ++k) sn_of[k] = f;
-            stored[f] = nonzero[f] = 0.5 * cols[f] * (cols[f] + 1) + double(cols[f]) * below[f];
+            nonzero[f] = 0.5 * cols[f] * (cols[f] + 1) + double(cols[f]) * below[f];  // (none zero yet)
         }
         std::vector<char> absorbed(nf, 0);
         for (int f = 0; f < nf; ++f) {
@@ -144,7 +144,6 @@ void BlockLDLT::analyze_supernodes() {
             first[q] = first[f];
             cols[q] = c;
             nonzero[q] += nonzero[f];
-            stored[q] = all;
         }
         std::vector<int> kept;
         for (int f = 0; f < nf; ++f)
