@@ -429,7 +429,7 @@ TEST(panel_kernels_match_dense_products_and_cholesky_at_every_simd_level) {
                 CHECK_LT((MatX(panel.topRows(m).triangularView<Eigen::Lower>()) - l11).cwiseAbs().maxCoeff(), 1e-12 * scale);
                 if (below > 0) CHECK_LT((panel.bottomRows(below) - l21).cwiseAbs().maxCoeff(), 1e-10 * scale);
                 // the update: C = A A(0:n)^T, checked on its lower part by 3x3 node blocks
-                for (int n : {1, 3, std::min(m, 8), m}) {
+                for (int n : {1, std::min(ld, 3), std::min(ld, 8), m}) {  // (n <= the rows, ld)
                     const int k = 1 + (m * 7 + n) % 23, lda = ld + 2;
                     MatX a(lda, k);
                     for (int i = 0; i < a.size(); ++i) a.data()[i] = g(rng);
@@ -452,7 +452,7 @@ TEST(supernodal_factor_in_two_parts_is_the_same_side_by_side_or_not) {
     // a factor large enough to be split in two parts (whole subtrees) and the rest: the parts
     // run on two threads at once, one after the other, or inside factorize(), and the factor
     // (its solves) is the same bit for bit, and solves A
-    const SpMat a = system_matrix(16, 10, 8, 41);
+    const SpMat a = system_matrix(12, 8, 6, 41);
     BlockLDLT f;
     f.set_supernodal(true);
     f.analyze(a);
@@ -480,7 +480,7 @@ TEST(supernodal_factor_in_two_parts_is_the_same_side_by_side_or_not) {
         CHECK(x == plain);
     }
     // a part done for an earlier matrix is not reused after discard_parts()
-    const SpMat a2 = system_matrix(16, 10, 8, 43);
+    const SpMat a2 = system_matrix(12, 8, 6, 43);
     f.factorize_part(a, 0);
     f.discard_parts();
     f.factorize(a2);

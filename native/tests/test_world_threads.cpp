@@ -179,7 +179,7 @@ TEST(two_threads_step_a_scene_exactly_as_one) {
 TEST(a_large_hand_factored_in_parts_on_two_threads_steps_exactly_as_on_one) {
     // a hand large enough for its per-step factor to be split in two parts (BlockLDLT::
     // factor_parts), which the step runs on the two threads between its assembly and its solve
-    Stack one(1, 16, 10, 8), two(2, 16, 10, 8);
+    Stack one(1, 12, 8, 6), two(2, 12, 8, 6);
     {
         const hh_params p = box_hand_params();
         const hh::Model m = hh::build_model(two.hand_box.nodes.data(), two.hand_box.n_nodes(), two.hand_box.tets.data(),
