@@ -188,12 +188,22 @@ bool HandSystem::apply_inverse_unit_columns(const int* units, int k, const std::
 
 void HandSystem::handle_columns(const std::vector<int>& unknowns, const std::vector<Mat63>& aht, MatX& out) {
     const Eigen::Index n3 = tool.A.rows();
-    MatX columns = MatX::Zero(n3, 12);  // [Ath | aht^T]
+    // A_t^-1 Ath is the step's own (solve()) unless the contacts see the reused factor's
+    // operator instead of At^-1 (DeformableSystem::solve_response): then all twelve through it
+    const bool own = tool.solver() != DeformableSolver::ReusedCholesky;
+    MatX columns = MatX::Zero(n3, own ? 6 : 12);  // [aht^T] or [Ath | aht^T]
     for (size_t q = 0; q < coupled_nodes.size(); ++q) {
-        columns.block<3, 6>(3 * coupled_nodes[q], 0) = Ath[q];
-        columns.block<3, 6>(3 * coupled_nodes[q], 6) = aht[q].transpose();
+        if (!own) columns.block<3, 6>(3 * coupled_nodes[q], 0) = Ath[q];
+        columns.block<3, 6>(3 * coupled_nodes[q], own ? 0 : 6) = aht[q].transpose();
     }
-    out = response_at(columns, unknowns);
+    const MatX solved = response_at(columns, unknowns);
+    if (!own) {
+        out = solved;
+        return;
+    }
+    out.resize(static_cast<Eigen::Index>(unknowns.size()), 12);
+    for (size_t i = 0; i < unknowns.size(); ++i) out.row(static_cast<Eigen::Index>(i)).head<6>() = response_.row(unknowns[i] - 6);
+    out.rightCols<6>() = solved;
 }
 
 void HandSystem::eq12_on_rows(const std::vector<int>& rows, const MatX& flesh_rows,

@@ -57,7 +57,9 @@ public:
     // applied to the columns of Ath and of aht^T (aht: the true handle-flesh blocks, per coupled
     // node; the step zeroes Aht when the handle is prescribed): out = [A_t^-1 Ath | A_t^-1 aht^T]
     // on those rows (unknowns x 12). With At symmetric, J A_t^-1 Ath and J A_t^-1 aht^T are then
-    // what the model reads from a contact's response at the handle nodes.
+    // what the model reads from a contact's response at the handle nodes. (The Ath half is
+    // solve()'s A_t^-1 Ath, except with ReusedCholesky, whose contact responses use the warped
+    // factor: there both halves go through it.)
     void handle_columns(const std::vector<int>& unknowns, const std::vector<Mat63>& aht, MatX& out);
     double t_deformable = 0;  // s spent in tool solves during the last solve()
     double t_schur = 0;       // s spent forming and solving the Schur complement
