@@ -301,8 +301,8 @@ void World::ready_contact_body(int bi) {
                        b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
     if (b.kind == BodyKind::Hand) {
         if (!cb.row_basis && !units) b.hand->hand.prepare_unit_columns(cb.touched);
-        // the handle-space linearization's terms (haptics/coupling_model.cpp): twelve solves
-        // here instead of every contact response at the handle nodes
+        // the handle-space linearization's terms (haptics/coupling_model.cpp): six solves here
+        // (twelve on the reused factor) instead of every contact response at the handle nodes
         if (b.hand->device.prescribed) {
             MatX at_touched;
             b.hand->hand.handle_columns(cb.touched, b.hand->coupling.aht, at_touched);
