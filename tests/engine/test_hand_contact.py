@@ -108,6 +108,17 @@ def test_hand_pressed_into_the_soft_bunny(procedural_rig, hand_surface, bunny, s
             assert stats["max_penetration"] < THICKNESS
             lagged_steps += world.hand_step_stats(hand)["cg_iterations"] > 0
         forces.append(world.hand_state(hand)[2][2])  # springs' vertical force on the handle
+    # the statics below hold at rest: the last level is held until the springs' force stops
+    # changing (on some of pytetwild's meshes the reused factor's lagged responses leave the
+    # hand still settling after 12 steps: up to 6.5% off in one CI run, 0.1% once settled)
+    for _ in range(60):
+        world.set_device(hand, target, [0, 0, 0, 1], [0, 0, 0], [0, 0, 0])
+        stats = world.step()
+        assert stats["min_distance"] > 0 and stats["max_penetration"] < THICKNESS
+        settled = abs(world.hand_state(hand)[2][2] - forces[-1]) < 1e-4 * abs(forces[-1])
+        forces[-1] = world.hand_state(hand)[2][2]
+        if settled:
+            break
     forces = np.array(forces)
     if solver == "reused_cholesky":
         assert lagged_steps > 0
@@ -116,4 +127,4 @@ def test_hand_pressed_into_the_soft_bunny(procedural_rig, hand_surface, bunny, s
     assert forces[-1] > forces[0] + 0.5
     # statics of the flesh: what the springs take off the handle's load is what the bunny
     # pushes up on the hand (flesh weight + springs + contact = 0, level 0 had no contact)
-    assert world.contact_force(hand)[2] == pytest.approx(forces[-1] - forces[0], rel=0.05)
+    assert world.contact_force(hand)[2] == pytest.approx(forces[-1] - forces[0], rel=0.01)
