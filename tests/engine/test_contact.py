@@ -99,6 +99,35 @@ def test_soft_block_on_the_ground_carries_its_weight():
     assert stats["max_penetration"] < 1e-3
 
 
+def test_resting_contacts_keep_their_warm_start():
+    """A body at rest on the ground: the last step's impulses solve this step's contact problem
+    too, so the sweeps end at once. The block's fine surface (1.7 mm) rides on a coarse tet mesh
+    (2 cm), so several bottom vertices of an element share each 4 mm patch cell at nearly the
+    same depth: the cell's contact must stay on the same vertex from step to step (an impulse
+    moved to another vertex of the element turns it differently, and the solve starts over)."""
+    world = W.World(dt=1 / 60, contact_thickness=1e-3)
+    world.add_plane([0, 0, 0], [0, 0, 1], friction=0.5)
+    size, origin = 0.04, (-0.02, -0.02, 0.0009)
+    nodes, tets = mesh.structured_box([size] * 3, [2] * 3, origin)
+    fine_nodes, fine_tets = mesh.structured_box([size] * 3, [24] * 3, origin)
+    faces = mesh.tet_boundary_faces(fine_tets)
+    used, faces = np.unique(faces, return_inverse=True)
+    faces = faces.reshape(-1, 3)
+    tet_index, weights = mesh.embed_points(nodes, tets, fine_nodes[used])
+    sn, sw = W.embedded_surface(tets, tet_index, weights)
+    block = world.add_soft_body(nodes, tets, sn, sw, faces, young_modulus=1e5, density=1000.0)
+    for _ in range(240):
+        world.step()
+    _, v = world.nodes(block)
+    assert np.abs(v).max() < 1e-3  # at rest
+    sweeps = []
+    for _ in range(30):
+        stats = world.step()
+        assert stats["contacts"] > 0 and stats["residual"] <= 1e-5
+        sweeps.append(stats["iterations"])
+    assert max(sweeps) <= 2, sweeps
+
+
 def test_colliding_soft_bodies_conserve_momentum():
     world = W.World(dt=1 / 100, gravity=[0, 0, 0], contact_thickness=1e-3)
     a, _ = add_soft_block(world, 0.03, 2, (-0.0305, 0.0, 0.0), young_modulus=5e4, rayleigh_beta=0.0)

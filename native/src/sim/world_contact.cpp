@@ -26,19 +26,6 @@ constexpr int kResponseShares = 4;
 // Response columns (double) above which a group's are formed in shares (setup_contact_group)
 constexpr size_t kSharedColumnsBytes = size_t(4) << 20;
 
-// Identity of a contact across steps: its sides' bodies and first vertices (a vertex against
-// a body keeps its identity when the closest triangle changes).
-std::uint64_t contact_key(const Contact& c) {
-    std::uint64_t h = 1469598103934665603ull;
-    auto mix = [&](std::uint64_t v) { h = (h ^ v) * 1099511628211ull; };
-    mix(static_cast<std::uint64_t>(c.a.body));
-    mix(static_cast<std::uint64_t>(c.a.count));
-    for (int k = 0; k < c.a.count; ++k) mix(static_cast<std::uint64_t>(c.a.vertex[k]));
-    mix(static_cast<std::uint64_t>(c.b.body) + 7919);
-    if (c.b.count == 2)
-        for (int k = 0; k < 2; ++k) mix(static_cast<std::uint64_t>(c.b.vertex[k]));
-    return h;
-}
 
 // Kinematic and static bodies: the velocity of a world point carried by the body.
 Vec3 carried_velocity(const Body& b, const Vec3& x) {
@@ -56,6 +43,20 @@ const Vec3& contact_direction(const std::vector<Contact>& contacts, int row) {
     return row % 3 == 0 ? c.normal : (row % 3 == 1 ? c.tangent1 : c.tangent2);
 }
 }  // namespace
+
+// Identity of a contact across steps: its sides' bodies and first vertices (a vertex against
+// a body keeps its identity when the closest triangle changes).
+std::uint64_t contact_key(const Contact& c) {
+    std::uint64_t h = 1469598103934665603ull;
+    auto mix = [&](std::uint64_t v) { h = (h ^ v) * 1099511628211ull; };
+    mix(static_cast<std::uint64_t>(c.a.body));
+    mix(static_cast<std::uint64_t>(c.a.count));
+    for (int k = 0; k < c.a.count; ++k) mix(static_cast<std::uint64_t>(c.a.vertex[k]));
+    mix(static_cast<std::uint64_t>(c.b.body) + 7919);
+    if (c.b.count == 2)
+        for (int k = 0; k < 2; ++k) mix(static_cast<std::uint64_t>(c.b.vertex[k]));
+    return h;
+}
 
 World::~World() = default;
 

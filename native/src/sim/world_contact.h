@@ -20,6 +20,9 @@ struct ContactTerm {
     Vec3 r;
 };
 
+// Identity of a contact across steps (the warm start's key)
+std::uint64_t contact_key(const Contact& c);
+
 // One step's contact solve, from prepare_contacts to finish_contacts.
 struct World::ContactSetup {
     std::chrono::steady_clock::time_point start;
