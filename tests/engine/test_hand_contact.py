@@ -108,17 +108,19 @@ def test_hand_pressed_into_the_soft_bunny(procedural_rig, hand_surface, bunny, s
             assert stats["max_penetration"] < THICKNESS
             lagged_steps += world.hand_step_stats(hand)["cg_iterations"] > 0
         forces.append(world.hand_state(hand)[2][2])  # springs' vertical force on the handle
-    # the statics below hold at rest: the last level is held until the springs' force stops
-    # changing (on some of pytetwild's meshes the reused factor's lagged responses leave the
-    # hand still settling after 12 steps: up to 6.5% off in one CI run, 0.1% once settled)
+    # the statics below, over the last level held a further 60 steps and averaged over its last
+    # 30 (1 s): sum(contact + flesh weight - springs) dt is the flesh's change of momentum, zero
+    # at rest and bounded by it otherwise. (On about one of pytetwild's meshes in ten the reused
+    # factor leaves the hand oscillating with period 2, the springs' force by 0.1-5%: the last
+    # step alone was then up to 3.7% off, the average within 0.5%; docs/contact.md.)
+    hold = []
     for _ in range(60):
         world.set_device(hand, target, [0, 0, 0, 1], [0, 0, 0], [0, 0, 0])
         stats = world.step()
         assert stats["min_distance"] > 0 and stats["max_penetration"] < THICKNESS
-        settled = abs(world.hand_state(hand)[2][2] - forces[-1]) < 1e-4 * abs(forces[-1])
-        forces[-1] = world.hand_state(hand)[2][2]
-        if settled:
-            break
+        hold.append((world.hand_state(hand)[2][2], world.contact_force(hand)[2]))
+    spring, contact = np.mean(hold[-30:], axis=0)
+    forces[-1] = spring
     forces = np.array(forces)
     if solver == "reused_cholesky":
         assert lagged_steps > 0
@@ -127,4 +129,4 @@ def test_hand_pressed_into_the_soft_bunny(procedural_rig, hand_surface, bunny, s
     assert forces[-1] > forces[0] + 0.5
     # statics of the flesh: what the springs take off the handle's load is what the bunny
     # pushes up on the hand (flesh weight + springs + contact = 0, level 0 had no contact)
-    assert world.contact_force(hand)[2] == pytest.approx(forces[-1] - forces[0], rel=0.01)
+    assert contact == pytest.approx(forces[-1] - forces[0], rel=0.01)
