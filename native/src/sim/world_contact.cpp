@@ -26,7 +26,6 @@ constexpr int kResponseShares = 4;
 // Response columns (double) above which a group's are formed in shares (setup_contact_group)
 constexpr size_t kSharedColumnsBytes = size_t(4) << 20;
 
-
 // Kinematic and static bodies: the velocity of a world point carried by the body.
 Vec3 carried_velocity(const Body& b, const Vec3& x) {
     if (b.kind != BodyKind::Kinematic) return Vec3::Zero();
