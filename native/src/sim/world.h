@@ -64,6 +64,11 @@ struct Body {
     // last step
     VecX v_free, v_new;     // velocities of the body's unknowns (dofs())
     Vec3 contact_force = Vec3::Zero();  // N, total over the last step
+    // A hand whose contact responses come from a lagged operator (ReusedCholesky; a soft
+    // body's come from CG): the last step's contact impulses on its unknowns (J^T lambda,
+    // N s), which its next free solve takes as a known load (World::solve_free); empty when
+    // it had no contact.
+    VecX carried_impulse;
 
     bool dynamic() const { return kind == BodyKind::Hand || kind == BodyKind::Soft || kind == BodyKind::Rigid; }
     int dofs() const;

@@ -502,7 +502,11 @@ void World::apply_contact_body(int bi) {
     VecX rhs = VecX::Zero(b.dofs());
     for (size_t k = 0; k < cb.touched.size(); ++k) rhs[cb.touched[k]] = f[k];
     switch (b.kind) {
-        case BodyKind::Hand: b.v_new += b.hand->hand.apply_inverse(rhs); break;
+        case BodyKind::Hand:
+            b.v_new += b.hand->hand.apply_inverse(rhs);
+            // (carried into the next free solve, World::solve_free)
+            if (b.hand->tool.solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
+            break;
         case BodyKind::Soft:
             b.tool->r = rhs;
             b.tool->select_slot(1);
