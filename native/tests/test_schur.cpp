@@ -1,5 +1,6 @@
 // The Schur-complement solve (Eqs. 12-13, Section 6) against the monolithic reference of
 // Eq. 7, and the handle's mass properties (Eq. 3).
+#include <cmath>
 #include <cstdlib>
 #include <random>
 
@@ -427,9 +428,17 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
         const std::vector<int> rows = {0, 4, 9, static_cast<int>(n) - 2};
         MatX some;
         d.hand.apply_inverse_many(rhs, some, &rows);
+        // the single-precision pass (the carried impulses, World::solve_free) applies the
+        // inverse of a matrix within float round-off of the factor's: relative error about
+        // cond(At) 2^-24 (cond of this step's At, close to the factor's)
+        const Eigen::SelfAdjointEigenSolver<MatX> eig{MatX(d.tool.A)};
+        const double cond = eig.eigenvalues().maxCoeff() / eig.eigenvalues().minCoeff();
         for (int j = 0; j < 5; ++j) {
             const VecX one = d.hand.apply_inverse(rhs.col(j));
             CHECK_LT((one - many.col(j)).cwiseAbs().maxCoeff(), 1e-12 * one.cwiseAbs().maxCoeff());
+            const VecX single = d.hand.apply_inverse(rhs.col(j), true);
+            CHECK_LT((single - one).norm(), 10 * cond * std::ldexp(1.0, -24) * one.norm());
+            if (lagged) CHECK((single - one).norm() > 0);  // (it did take the single-precision copy)
             for (size_t i = 0; i < rows.size(); ++i) CHECK_LT(std::abs(some(i, j) - one[rows[i]]), 1e-12 * one.cwiseAbs().maxCoeff());
             if (lagged) continue;  // (an earlier matrix, warped: no exact bound to check)
             const VecX exact = solve_monolithic(d.hand, rhs.col(j));

@@ -259,6 +259,19 @@ void DeformableSystem::solve_response(const MatX& b, MatX& x, const std::vector<
         throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 
+void DeformableSystem::solve_response_single(const VecX& b, VecX& x) {
+    Impl& m = *impl_;
+    if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor || !m.cholesky.has_single()) {
+        MatX xm;
+        solve_response(b, xm);
+        x = xm.col(0);
+        return;
+    }
+    x = b;  // (one column: node-major storage is the plain vector)
+    m.cholesky.solve_node_major(x.data(), 1, m.response_warp(), true);
+    if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
+}
+
 bool DeformableSystem::response_blocks(const std::vector<int>& nodes, std::vector<const double*>& out,
                                        const std::vector<Mat3>*& warp) {
     Impl& m = *impl_;

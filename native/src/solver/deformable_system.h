@@ -76,6 +76,11 @@ public:
     // velocities then receive (the constraints hold); only the flesh's response to them departs
     // from Eq. 7's by the factor's lag. A CG solve per response would cost tens of passes.
     void solve_response(const MatX& b, MatX& x, const std::vector<int>* wanted_nodes = nullptr);
+    // solve_response for one column, with ReusedCholesky through the factor's single-precision
+    // copy when it keeps one (half the memory traffic of a full pass; the operator to within
+    // float round-off of solve_response's). For what need not be the very same operator: the
+    // hand's carried impulses (World::solve_free).
+    void solve_response_single(const VecX& b, VecX& x);
     // ReusedCholesky only (false otherwise, and out untouched): the response operator's columns
     // at the given nodes, as unwarped blocks. The operator is W Af^-1 W^T with Af fixed until the
     // next factorization, so Af^-1's 3 columns of a node are kept from step to step and only

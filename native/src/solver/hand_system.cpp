@@ -65,11 +65,16 @@ void HandSystem::solve() {
     tool.s = s.tail(n3);
 }
 
-VecX HandSystem::apply_inverse(const VecX& rhs) {
+VecX HandSystem::apply_inverse(const VecX& rhs, bool single) {
     const Eigen::Index n3 = tool.A.rows();
-    MatX solved;
-    tool.solve_response(rhs.tail(n3), solved);
-    const VecX s0 = solved.col(0);
+    VecX s0;
+    if (single) {
+        tool.solve_response_single(rhs.tail(n3), s0);
+    } else {
+        MatX solved;
+        tool.solve_response(rhs.tail(n3), solved);
+        s0 = solved.col(0);
+    }
     handle.r = rhs.head<6>() - aht_times(s0);
     handle.solve();  // handle.A still holds the Schur complement
     VecX out(6 + n3);

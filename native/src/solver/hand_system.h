@@ -27,7 +27,8 @@ public:
     // contact solver applies the impulses' velocities with it. The At solve is the tool's
     // response operator (DeformableSystem::solve_response: with ReusedCholesky the warped
     // factor, not CG), the same as apply_inverse_many's.
-    VecX apply_inverse(const VecX& rhs);
+    // single: the At solve through DeformableSystem::solve_response_single instead.
+    VecX apply_inverse(const VecX& rhs, bool single = false);
     // After solve(): out = A^-1 rhs for every column of rhs at once (the At solves batched 8
     // columns per pass through the tool's solve_response). Added for the contact solver's
     // Delassus operator. rows: only these rows of A^-1 rhs (indices into (v_h, v_t)), in that
