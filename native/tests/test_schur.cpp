@@ -456,6 +456,16 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
             CHECK(d.hand.apply_inverse_units(unknowns, rows, via_units));
             CHECK_LT((via_units - via_many).cwiseAbs().maxCoeff(), 1e-12 * via_many.cwiseAbs().maxCoeff());
         }
+        // as the contact build asks (the touched unknowns at the touched rows), with nodes
+        // joining from step to step: their columns are solved, their rows at the columns kept
+        // from earlier steps come from symmetry
+        std::vector<int> touched = {6 + 3 * 5 + 1, 6 + 3 * 5 + 2, 6 + 3 * 11};
+        for (int q = 0; q <= s % 4; ++q) touched.push_back(6 + 3 * (13 + 2 * s + q) + q % 3);
+        MatX et = MatX::Zero(n, static_cast<Eigen::Index>(touched.size()));
+        for (size_t j = 0; j < touched.size(); ++j) et(touched[j], j) = 1.0;
+        d.hand.apply_inverse_many(et, via_many, &touched);
+        CHECK(d.hand.apply_inverse_units(touched, touched, via_units));
+        CHECK_LT((via_units - via_many).cwiseAbs().maxCoeff(), 1e-12 * via_many.cwiseAbs().maxCoeff());
         integrate(m, d, d.hand.s);
     }
     CHECK(stale >= 4);

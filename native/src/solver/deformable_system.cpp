@@ -120,9 +120,18 @@ struct DeformableSystem::Impl {
         step_units += units;
         epoch_units += units;
     }
-    // Af^-1's three columns per node (3n x 3 each), kept until the next factorization
-    std::unordered_map<int, MatX> response_cache;
-    size_t response_cache_bytes() const { return response_cache.size() * 9 * static_cast<size_t>(cholesky.nodes()) * sizeof(double); }
+    // Af^-1's blocks kept since the last factorization (response_blocks): node k's three
+    // columns at 3 column_slot[k] of block_matrix, node i's three rows at 3 row_slot[i] (its
+    // capacity grows by doubling)
+    std::vector<int> row_slot, column_slot;  // per node; -1: not kept
+    std::vector<int> row_nodes, column_nodes;  // per slot
+    MatX block_matrix;
+    void drop_blocks() {
+        for (int node : row_nodes) row_slot[node] = -1;
+        for (int node : column_nodes) column_slot[node] = -1;
+        row_nodes.clear();
+        column_nodes.clear();
+    }
     // PCG workspaces (node-major blocks)
     std::vector<double> nb, nx, nr, nz, np, nq;
 
@@ -145,7 +154,7 @@ struct DeformableSystem::Impl {
         cholesky.factorize(sys.A);
         ++sys.factorizations;
         have_factor = factor_current = true;
-        response_cache.clear();  // columns of the former factor
+        drop_blocks();  // of the former factor
         if (have_rotations) node_r_factor = node_r;
         else node_r_factor.clear();  // no warp until the next factorization
         epoch_units = 0;
@@ -272,38 +281,98 @@ void DeformableSystem::solve_response_single(const VecX& b, VecX& x) {
     if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 
-bool DeformableSystem::response_blocks(const std::vector<int>& nodes, std::vector<const double*>& out,
+bool DeformableSystem::response_blocks(const std::vector<int>& columns, const std::vector<int>& rows, const double*& data,
+                                       long& ld, const std::vector<int>*& row_slot, const std::vector<int>*& column_slot,
                                        const std::vector<Mat3>*& warp) {
     Impl& m = *impl_;
     if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) return false;
     const int n = m.cholesky.nodes();
-    // at most ~64 MB of columns (~210 nodes of a 17000-tet hand)
-    const size_t budget = size_t(64) << 20, per_node = 9 * static_cast<size_t>(n) * sizeof(double);
-    if (per_node * nodes.size() > budget) return false;
-    std::vector<int> missing;
-    for (int node : nodes)
-        if (!m.response_cache.count(node) && std::find(missing.begin(), missing.end(), node) == missing.end()) missing.push_back(node);
-    // Past the budget, the nodes not asked for this time go. (It used to clear them all: once a
-    // pressing hand touched over half the budget, ~110 nodes of the 17000-tet hand, every step
-    // solved all its nodes' columns again, 9 -> 100-120 ms of contact build on the 10x bunny.)
-    if (m.response_cache_bytes() + per_node * missing.size() > budget) {
-        std::vector<char> asked(static_cast<size_t>(n), 0);
-        for (int node : nodes) asked[node] = 1;
-        for (auto it = m.response_cache.begin(); it != m.response_cache.end();) it = asked[it->first] ? std::next(it) : m.response_cache.erase(it);
+    if (static_cast<int>(m.row_slot.size()) != n) {
+        m.row_slot.assign(static_cast<size_t>(n), -1);
+        m.column_slot.assign(static_cast<size_t>(n), -1);
+        m.row_nodes.clear();
+        m.column_nodes.clear();
     }
-    MatX rhs;
-    for (size_t first = 0; first < missing.size();) {
-        const size_t count = std::min<size_t>(kWidestSolve / 3, missing.size() - first);  // 3 columns a node
-        rhs.setZero(3 * n, 3 * static_cast<Eigen::Index>(count));
-        for (size_t k = 0; k < count; ++k)
-            for (int d = 0; d < 3; ++d) rhs(3 * missing[first + k] + d, 3 * k + d) = 1.0;
-        m.cholesky.solve(rhs, nullptr);  // Af^-1, unwarped
-        if (!rhs.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
-        for (size_t k = 0; k < count; ++k) m.response_cache[missing[first + k]] = rhs.middleCols(3 * k, 3);
-        first += count;
+    auto unique = [&](std::vector<int> v) {
+        std::sort(v.begin(), v.end());
+        v.erase(std::unique(v.begin(), v.end()), v.end());
+        if (!v.empty() && (v.front() < 0 || v.back() >= n)) throw InvalidArgument("DeformableSystem::response_blocks: a node out of range");
+        return v;
+    };
+    const std::vector<int> asked_columns = unique(columns);
+    std::vector<int> asked_rows = rows;
+    asked_rows.insert(asked_rows.end(), columns.begin(), columns.end());
+    asked_rows = unique(std::move(asked_rows));
+    // at most 64 MB of blocks (~640 nodes of rows and columns each): past that, start over
+    const size_t budget = size_t(64) << 20;
+    auto bytes = [](size_t r, size_t c) { return 9 * r * c * sizeof(double); };
+    if (bytes(asked_rows.size(), asked_columns.size()) > budget) return false;
+    std::vector<int> fresh_rows, fresh_columns;
+    for (int node : asked_rows)
+        if (m.row_slot[node] < 0) fresh_rows.push_back(node);
+    for (int node : asked_columns)
+        if (m.column_slot[node] < 0) fresh_columns.push_back(node);
+    // a fresh row that is not a fresh column has no values at the kept columns: start over
+    bool restart = bytes(m.row_nodes.size() + fresh_rows.size(), m.column_nodes.size() + fresh_columns.size()) > budget;
+    for (int node : fresh_rows) restart |= !std::binary_search(fresh_columns.begin(), fresh_columns.end(), node);
+    if (restart && !m.column_nodes.empty()) {
+        m.drop_blocks();
+        fresh_rows = asked_rows;
+        fresh_columns = asked_columns;
     }
-    out.resize(nodes.size());
-    for (size_t k = 0; k < nodes.size(); ++k) out[k] = m.response_cache.at(nodes[k]).data();
+    if (!fresh_rows.empty() || !fresh_columns.empty()) {
+        const Eigen::Index kept_rows = static_cast<Eigen::Index>(m.row_nodes.size());
+        const Eigen::Index kept_columns = static_cast<Eigen::Index>(m.column_nodes.size());
+        const Eigen::Index total_rows = kept_rows + static_cast<Eigen::Index>(fresh_rows.size());
+        const Eigen::Index total_columns = kept_columns + static_cast<Eigen::Index>(fresh_columns.size());
+        MatX& b = m.block_matrix;
+        if (b.rows() < 3 * total_rows || b.cols() < 3 * total_columns) {
+            const Eigen::Index r = std::max<Eigen::Index>(3 * total_rows, std::max<Eigen::Index>(96, b.rows() < 3 * total_rows ? 2 * b.rows() : b.rows()));
+            const Eigen::Index c = std::max<Eigen::Index>(3 * total_columns, std::max<Eigen::Index>(96, b.cols() < 3 * total_columns ? 2 * b.cols() : b.cols()));
+            MatX grown(r, c);
+            grown.topLeftCorner(3 * kept_rows, 3 * kept_columns) = b.topLeftCorner(3 * kept_rows, 3 * kept_columns);
+            b.swap(grown);
+        }
+        for (int node : fresh_rows) {
+            m.row_slot[node] = static_cast<int>(m.row_nodes.size());
+            m.row_nodes.push_back(node);
+        }
+        // the fresh columns' units in the factor's elimination order (a batch's units then
+        // share their paths to the root)
+        std::sort(fresh_columns.begin(), fresh_columns.end(),
+                  [&](int x, int y) { return m.cholesky.position(x) < m.cholesky.position(y); });
+        for (int node : fresh_columns) {
+            m.column_slot[node] = static_cast<int>(m.column_nodes.size());
+            m.column_nodes.push_back(node);
+        }
+        // the fresh columns at every row, straight into place (their slots follow the kept ones)
+        std::vector<int> unknowns_at(static_cast<size_t>(3 * total_rows)), units;
+        for (Eigen::Index q = 0; q < total_rows; ++q)
+            for (int d = 0; d < 3; ++d) unknowns_at[static_cast<size_t>(3 * q + d)] = 3 * m.row_nodes[q] + d;
+        for (int node : fresh_columns)
+            for (int d = 0; d < 3; ++d) units.push_back(3 * node + d);
+        if (!units.empty()) {
+            std::vector<int> wanted = m.row_nodes;
+            std::sort(wanted.begin(), wanted.end());
+            m.cholesky.solve_units(units.data(), static_cast<int>(units.size()), unknowns_at, wanted,
+                                   b.data() + 3 * kept_columns * b.rows(), b.rows());
+            if (!b.block(0, 3 * kept_columns, 3 * total_rows, 3 * (total_columns - kept_columns)).allFinite())
+                throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
+        }
+        // the fresh rows at the kept columns, by symmetry (each fresh row is a fresh column)
+        for (int node : fresh_rows) {
+            if (kept_columns == 0) break;
+            const Eigen::Index r = 3 * m.row_slot[node], c = 3 * m.column_slot[node];
+            for (Eigen::Index k = 0; k < kept_columns; ++k) {
+                const Eigen::Index at = 3 * m.row_slot[m.column_nodes[k]];
+                b.block<3, 3>(r, 3 * k) = b.block<3, 3>(at, c).transpose();
+            }
+        }
+    }
+    data = m.block_matrix.data();
+    ld = static_cast<long>(m.block_matrix.rows());
+    row_slot = &m.row_slot;
+    column_slot = &m.column_slot;
     warp = m.response_warp();
     return true;
 }

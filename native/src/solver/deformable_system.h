@@ -81,13 +81,19 @@ public:
     // float round-off of solve_response's). For what need not be the very same operator: the
     // hand's carried impulses (World::solve_free).
     void solve_response_single(const VecX& b, VecX& x);
-    // ReusedCholesky only (false otherwise, and out untouched): the response operator's columns
-    // at the given nodes, as unwarped blocks. The operator is W Af^-1 W^T with Af fixed until the
-    // next factorization, so Af^-1's 3 columns of a node are kept from step to step and only
-    // nodes not seen since the factorization cost solves (up to 32 columns a pass). out[k]: 3n x 3,
-    // column-major, Af^-1's columns of nodes[k] (valid until the next call); warp: W (null: the
-    // identity). Then column d of node k's response is W (Af^-1 e_{k,d}') with e' = W_k^T e_d.
-    bool response_blocks(const std::vector<int>& nodes, std::vector<const double*>& out, const std::vector<Mat3>*& warp);
+    // ReusedCholesky only (false otherwise, outputs untouched): the response operator's columns
+    // of the nodes `columns` at the nodes `columns` and `rows`, as unwarped 3x3 blocks. The
+    // operator is W Af^-1 W^T with Af fixed until the next factorization, so these blocks of
+    // Af^-1 are kept from step to step and only columns not seen since then cost solves: at the
+    // kept rows only (unit solves, BlockLDLT::solve_units), the fresh nodes' rows at the kept
+    // columns by symmetry. (A row-only node never asked before costs every kept column again:
+    // meant for rows that stay, like the handle's coupled nodes.) Af^-1's block (i, k) is at
+    // data + 3 column_slot[k] ld + 3 row_slot[i] (3x3, column-major, leading dimension ld;
+    // valid until the next call); warp: W (null: the identity). Then column d of node k's
+    // response at node i is W_i (Af^-1)_{ik} W_k^T e_d.
+    bool response_blocks(const std::vector<int>& columns, const std::vector<int>& rows, const double*& data, long& ld,
+                         const std::vector<int>*& row_slot, const std::vector<int>*& column_slot,
+                         const std::vector<Mat3>*& warp);
     // Element rotations of the step (the co-rotation), for ReusedCholesky's warp: each node's
     // rotation (the rotation of the sum of its elements' rotations) relative to its rotation
     // when the factor was made. Ignored by the other solvers.

@@ -222,19 +222,19 @@ void HandSystem::eq12_on_rows(const std::vector<int>& rows, const MatX& flesh_ro
 }
 
 bool HandSystem::apply_inverse_units(const std::vector<int>& unknowns, const std::vector<int>& rows, MatX& out) {
-    // the flesh nodes of the unit columns (handle unknowns 0-5 have no flesh part)
-    std::vector<int> nodes, slot(unknowns.size(), -1);
-    for (size_t j = 0; j < unknowns.size(); ++j) {
-        if (unknowns[j] < 6) continue;
-        const int node = (unknowns[j] - 6) / 3;
-        auto it = std::find(nodes.begin(), nodes.end(), node);
-        slot[j] = static_cast<int>(it - nodes.begin());
-        if (it == nodes.end()) nodes.push_back(node);
-    }
-    std::vector<const double*> blocks;
+    // the flesh nodes whose columns are read (the units') and where (the asked rows' and the
+    // coupled ones, for Aht x_t); handle unknowns 0-5 have no flesh part
+    std::vector<int> columns, at(coupled_nodes);
+    for (int u : unknowns)
+        if (u >= 6) columns.push_back((u - 6) / 3);
+    for (int row : rows)
+        if (row >= 6) at.push_back((row - 6) / 3);
+    const double* blocks = nullptr;
+    long ld = 0;
+    const std::vector<int>* row_slot = nullptr;
+    const std::vector<int>* column_slot = nullptr;
     const std::vector<Mat3>* warp = nullptr;
-    if (!tool.response_blocks(nodes, blocks, warp)) return false;
-    const Eigen::Index n3 = tool.A.rows();
+    if (!tool.response_blocks(columns, at, blocks, ld, row_slot, column_slot, warp)) return false;
     auto rot = [&](int node) -> Mat3 { return warp ? (*warp)[node] : Mat3::Identity(); };
     Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
     const Eigen::Index nr = static_cast<Eigen::Index>(rows.size()), k = static_cast<Eigen::Index>(unknowns.size());
@@ -246,16 +246,17 @@ bool HandSystem::apply_inverse_units(const std::vector<int>& unknowns, const std
         // the flesh part x_t = W Af^-1 W^T e (e: unit at the unknown): Af^-1's columns of its
         // node times w = W_k^T e_d, then each asked row's node block rotated by W_i
         Vec3 w = Vec3::Zero();
-        const double* c = nullptr;
-        if (slot[j] >= 0) {
-            const int node = nodes[slot[j]], d = (unknowns[j] - 6) % 3;
+        const double* c = nullptr;  // Af^-1's three columns of the unit's node
+        if (unknowns[j] >= 6) {
+            const int node = (unknowns[j] - 6) / 3, d = (unknowns[j] - 6) % 3;
             w = rot(node).row(d).transpose();
-            c = blocks[slot[j]];
+            c = blocks + 3 * static_cast<long>((*column_slot)[node]) * ld;
         }
         auto flesh_block = [&](int node) -> Vec3 {  // x_t at node (3 values)
             if (!c) return Vec3::Zero();
+            const long row = 3 * static_cast<long>((*row_slot)[node]);
             Vec3 y = Vec3::Zero();
-            for (int q = 0; q < 3; ++q) y += w[q] * Eigen::Map<const Vec3>(c + q * n3 + 3 * node);
+            for (int q = 0; q < 3; ++q) y += w[q] * Eigen::Map<const Vec3>(c + q * ld + row);
             return rot(node) * y;
         };
         Vec6 aht = Vec6::Zero();  // Aht x_t
