@@ -293,17 +293,17 @@ bool DeformableSystem::response_blocks(const std::vector<int>& columns, const st
         m.row_nodes.clear();
         m.column_nodes.clear();
     }
-    auto unique = [&](std::vector<int> v) {
+    auto each_once = [&](std::vector<int> v) {  // sorted
         std::sort(v.begin(), v.end());
         v.erase(std::unique(v.begin(), v.end()), v.end());
         if (!v.empty() && (v.front() < 0 || v.back() >= n)) throw InvalidArgument("DeformableSystem::response_blocks: a node out of range");
         return v;
     };
-    const std::vector<int> asked_columns = unique(columns);
+    const std::vector<int> asked_columns = each_once(columns);
     std::vector<int> asked_rows = rows;
     asked_rows.insert(asked_rows.end(), columns.begin(), columns.end());
-    asked_rows = unique(std::move(asked_rows));
-    // at most 64 MB of blocks (~640 nodes of rows and columns each): past that, start over
+    asked_rows = each_once(std::move(asked_rows));
+    // at most 64 MB of blocks (~960 nodes of rows and columns each): past that, start over
     const size_t budget = size_t(64) << 20;
     auto bytes = [](size_t r, size_t c) { return 9 * r * c * sizeof(double); };
     if (bytes(asked_rows.size(), asked_columns.size()) > budget) return false;
@@ -315,7 +315,7 @@ bool DeformableSystem::response_blocks(const std::vector<int>& columns, const st
     // a fresh row that is not a fresh column has no values at the kept columns: start over
     bool restart = bytes(m.row_nodes.size() + fresh_rows.size(), m.column_nodes.size() + fresh_columns.size()) > budget;
     for (int node : fresh_rows) restart |= !std::binary_search(fresh_columns.begin(), fresh_columns.end(), node);
-    if (restart && !m.column_nodes.empty()) {
+    if (restart) {
         m.drop_blocks();
         fresh_rows = asked_rows;
         fresh_columns = asked_columns;
