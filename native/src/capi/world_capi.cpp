@@ -372,6 +372,7 @@ int hh_world_set_body_nodes(hh_world* world, int body, const double* x, const do
         require(nx.allFinite() && nv.allFinite(), "node positions and velocities must be finite");
         s.x = nx;
         s.v = nv;
+        b.carried_impulse.resize(0);  // (the last step's impulses were on another state)
         return HH_OK;
     });
 }
