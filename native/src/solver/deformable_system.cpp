@@ -2,7 +2,6 @@
 
 #include <cstdio>
 #include <string>
-#include <unordered_map>
 
 #include <Eigen/IterativeLinearSolvers>
 #include <algorithm>
