@@ -233,7 +233,13 @@ void World::solve_free(Body& b) {
             VecX carried;
             carried.swap(b.carried_impulse);
             if (b.hand->tool.solver() != DeformableSolver::ReusedCholesky) carried.resize(0);
-            if (carried.size()) b.hand->hand.r += carried;
+            if (carried.size()) {
+                // measured against b_t alone, the free solve is as accurate as without the
+                // carried impulses (DeformableSystem::set_reference_norm)
+                const Eigen::Index n3 = b.hand->hand.r.size() - 6;
+                b.hand->tool.set_reference_norm(0, b.hand->hand.r.tail(n3).norm());
+                b.hand->hand.r += carried;
+            }
             b.hand->hand.solve();
             b.v_free = b.hand->hand.s;
             const auto t2 = std::chrono::steady_clock::now();

@@ -94,6 +94,12 @@ struct DeformableSystem::Impl {
     std::vector<VecX> warm;
     std::vector<VecX> warm2;  // ReusedCholesky: the solutions before those in warm
     std::vector<double> tolerance_scale;  // per slot, ReusedCholesky
+    std::vector<double> reference_norm;   // per slot, the next solve only (set_reference_norm); 0: none
+    // the norm a slot's relative residual is measured against: its right-hand side's, or the
+    // reference set for this solve when larger
+    double residual_norm(int slot, double rhs_norm) const {
+        return slot < static_cast<int>(reference_norm.size()) ? std::max(rhs_norm, reference_norm[slot]) : rhs_norm;
+    }
 
     // ReusedCholesky
     bool have_factor = false;        // cholesky holds the factor of some earlier At
@@ -249,6 +255,12 @@ void DeformableSystem::set_tolerance_scale(int slot, double scale) {
     std::vector<double>& t = impl_->tolerance_scale;
     if (static_cast<int>(t.size()) <= slot) t.resize(slot + 1, 1.0);
     t[slot] = scale;
+}
+
+void DeformableSystem::set_reference_norm(int slot, double norm) {
+    std::vector<double>& t = impl_->reference_norm;
+    if (static_cast<int>(t.size()) <= slot) t.resize(slot + 1, 0.0);
+    t[slot] = std::isfinite(norm) && norm > 0 ? norm : 0.0;
 }
 
 void DeformableSystem::solve() {
@@ -433,15 +445,19 @@ void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const 
             if (static_cast<int>(m.warm.size()) <= slot) m.warm.resize(slot + 1);
             VecX& guess = m.warm[slot];
             if (guess.size() != b.rows()) guess = VecX::Zero(b.rows());
+            const double bn = b.col(j).norm();
+            const double widen = bn > 0 ? m.residual_norm(slot, bn) / bn : 1.0;  // (set_reference_norm)
+            m.cg.setTolerance(m.cg_tolerance * widen);
             x.col(j) = m.cg.solveWithGuess(b.col(j), guess);
             guess = x.col(j);
             iterations += static_cast<int>(m.cg.iterations());
             // Eigen's relative residual estimate; Cholesky is exact to round-off so it costs no check
-            max_residual = std::max(max_residual, m.cg.error());
+            max_residual = std::max(max_residual, m.cg.error() / widen);
         }
     } else {
         m.pcg(*this, b, x, first_slot);
     }
+    std::fill(m.reference_norm.begin(), m.reference_norm.end(), 0.0);  // (for one solve)
     if (!wanted_nodes && !x.allFinite())  // (with wanted nodes the caller checks its rows)
         throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
@@ -501,7 +517,10 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
     if (lanes.empty()) return;
     int wd = padded_width(static_cast<int>(lanes.size()));
     lanes.resize(wd, -1);
-    auto lane_norm_b = [&](int l) { return bnorm[lanes[l] - first]; };
+    // the norms the lanes' relative residuals are measured against (set_reference_norm)
+    std::vector<double> rnorm(count, 0.0);
+    for (int j = 0; j < count; ++j) rnorm[j] = residual_norm(first_slot + first + j, bnorm[j]);
+    auto lane_norm_b = [&](int l) { return rnorm[lanes[l] - first]; };
     const size_t size = static_cast<size_t>(n3) * 8;
     for (std::vector<double>* v : {&nb, &nx, &nr, &nz, &np, &nq}) v->resize(size);
     // node-major loads, a whole row of lanes at a time (lane-by-lane strided writes touched a
@@ -637,7 +656,7 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
             const int j = lanes[l] - first;
             ++its[j];
             ++sys.iterations;
-            const double rel = std::sqrt(acc[l]) / bnorm[j];
+            const double rel = std::sqrt(acc[l]) / rnorm[j];
             if (rel <= tol_of(lanes[l])) finish_lane(l, rel);
             else if (its[j] >= std::max(cg_max_iterations, sys.reuse_iteration_limit + 5)) finish_lane(l, rel);  // give up
             else worst = std::max(worst, its[j]);

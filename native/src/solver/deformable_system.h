@@ -42,6 +42,13 @@ public:
     // (default scale 1). The hand asks 1e-3 for the columns A_t^-1 Ath that form the Schur
     // complement, whose conditioning amplifies their error.
     void set_tolerance_scale(int slot, double scale);
+    // ReusedCholesky and ConjugateGradient, the next solve_many only: the slot's relative
+    // residual is measured against max(|b|, norm) instead of |b|. For a right-hand side that is
+    // a load nearly cancelled by another: the hand's free solve takes b_t plus the last step's
+    // contact impulses, which at rest balance it to a few percent (World::solve_free); measured
+    // against that remainder, its solve would be asked ~30x more absolute accuracy than the
+    // step's own b_t (the ~17000-tet pressed hand: 5-12 CG iterations a step instead of 3-7).
+    void set_reference_norm(int slot, double norm);
     void solve() override;
     // X = A^-1 B, column j of B in warm-start slot first_slot + j: one factorization and
     // batched passes over it serve all the columns.
