@@ -39,8 +39,11 @@ struct Stack {
     double com[3] = {0, 0, 0};
 
     // hx x hy x hz: the hand box's cells (a larger one gets a factor split in parts)
-    explicit Stack(int threads, int hx_ = 4, int hy_ = 3, int hz = 2) : hx(hx_), hy(hy_), hand_box(make_box(hx_, hy_, hz, 0.01)) {
+    // solver: the hand's (default: box_hand_params')
+    explicit Stack(int threads, int hx_ = 4, int hy_ = 3, int hz = 2, int solver = -1)
+        : hx(hx_), hy(hy_), hand_box(make_box(hx_, hy_, hz, 0.01)) {
         hh_params p = box_hand_params();
+        if (solver >= 0) p.solver = solver;
         p.palm_seed[2] += kHandLift;
         hh_world_params wp;
         hh_default_world_params(&wp);
@@ -192,6 +195,40 @@ TEST(a_large_hand_factored_in_parts_on_two_threads_steps_exactly_as_on_one) {
     two.press();
     int most_contacts = 0;
     for (int step = 0; step < 4; ++step) {
+        hh_world_stats s1, s2;
+        CHECK(hh_world_step(one.world, &s1) == HH_OK);
+        CHECK(hh_world_step(two.world, &s2) == HH_OK);
+        CHECK(s1.contacts == s2.contacts && s1.iterations == s2.iterations);
+        most_contacts = std::max(most_contacts, s1.contacts);
+        const std::vector<double> a = one.state(), b = two.state();
+        CHECK(a.size() == b.size());
+        CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0);
+    }
+    CHECK(most_contacts > 0);
+}
+
+TEST(a_large_hand_on_the_reused_factor_renews_it_in_parts_and_steps_exactly_as_on_one_thread) {
+    // with the reused factor, a step that renews it (the first one here) runs the factorization's
+    // two parts side by side too, and the rest in the hand's solve: the same steps on one thread
+    {
+        Stack probe(1, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY);
+        hh_params p = box_hand_params();
+        p.solver = HH_SOLVER_REUSED_CHOLESKY;
+        const hh::Model m = hh::build_model(probe.hand_box.nodes.data(), probe.hand_box.n_nodes(),
+                                            probe.hand_box.tets.data(), probe.hand_box.n_tets(), p);
+        hh::Data d(m);
+        CHECK(d.tool.factor_parts() == 2);  // (no factor yet: the first step makes one)
+        hh::formulate(m, d);
+        d.hand.solve();
+        hh::integrate(m, d, d.hand.s);
+        hh::formulate(m, d);
+        CHECK(d.tool.factor_parts() == 0);  // (the next step reuses it)
+    }
+    Stack one(1, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY), two(2, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY);
+    one.press();
+    two.press();
+    int most_contacts = 0;
+    for (int step = 0; step < 6; ++step) {
         hh_world_stats s1, s2;
         CHECK(hh_world_step(one.world, &s1) == HH_OK);
         CHECK(hh_world_step(two.world, &s2) == HH_OK);

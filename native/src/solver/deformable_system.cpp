@@ -140,7 +140,13 @@ struct DeformableSystem::Impl {
     // PCG workspaces (node-major blocks)
     std::vector<double> nb, nx, nr, nz, np, nq;
 
-    void factor(DeformableSystem& sys) {
+    // whether the next factor() call is this step's (or, before matrix_changed closed the last
+    // step's bookkeeping, the step about to start): no factor yet, or the policy renews it
+    bool renewing() const {
+        if (!have_factor || renew) return true;
+        return step_units > 0 && epoch_steps > 1 && step_units > (factor_units + epoch_units) / epoch_steps;
+    }
+    void analyse(DeformableSystem& sys) {
         if (!cholesky.analysed()) {
             // many preconditioner passes per factorization: the supernodal form's dense panel
             // kernels (and its single-precision copy) pay off
@@ -156,7 +162,10 @@ struct DeformableSystem::Impl {
             factor_units = cholesky.factor_flops() /
                            (flops_per_entry_pass * 9.0 * std::max(1L, cholesky.block_nonzeros() + cholesky.nodes()));
         }
-        cholesky.factorize(sys.A);
+    }
+    void factor(DeformableSystem& sys) {
+        analyse(sys);
+        cholesky.factorize(sys.A);  // (the rest, after factorize_part's parts when they ran)
         ++sys.factorizations;
         have_factor = factor_current = true;
         drop_blocks();  // of the former factor
@@ -414,6 +423,13 @@ bool DeformableSystem::solve_units(const int* units, int k, const std::vector<in
 
 int DeformableSystem::factor_parts() {
     Impl& m = *impl_;
+    if (m.solver == DeformableSolver::ReusedCholesky) {
+        // only a step that renews the factor has parts to run (then the first solve finishes
+        // the factorization and its bookkeeping, Impl::factor)
+        if (!m.renewing()) return 0;
+        m.analyse(*this);
+        return m.cholesky.factor_parts();
+    }
     if (m.solver != DeformableSolver::Cholesky) return 0;
     if (!m.cholesky.analysed()) m.analyze_per_step(A);
     return m.cholesky.factor_parts();

@@ -61,8 +61,10 @@ public:
     // for the iterative solvers, whose warm-start slots each call writes).
     bool prepare_concurrent_solves();
     // Cholesky with the supernodal factor: the factorization's parts that may run on two threads
-    // at once (BlockLDLT::factor_parts: 2 for large factors, else 0; 0 for the other solvers;
-    // analyses the pattern if that is not done yet). Once At holds the step's values and before
+    // at once (BlockLDLT::factor_parts: 2 for large factors, else 0; 0 for CG; analyses the
+    // pattern if that is not done yet). ReusedCholesky: the same for a step that renews its
+    // factor (the first, or one the policy renews), else 0; call it before the step's
+    // matrix_changed (or after: the answer is the same). Once At holds the step's values and before
     // its first solve, factorize_part(0) and (1) may run side by side; the first solve (or
     // prepare_concurrent_solves) does the rest. Same factor, bit for bit.
     int factor_parts();
