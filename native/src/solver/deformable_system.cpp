@@ -445,6 +445,11 @@ int DeformableSystem::elimination_position(int node) const {
 
 void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes) {
     Impl& m = *impl_;
+    // set_reference_norm holds for this solve only, however it ends
+    struct ClearReferences {
+        std::vector<double>& r;
+        ~ClearReferences() { std::fill(r.begin(), r.end(), 0.0); }
+    } clear_references{m.reference_norm};
     if (prepare_concurrent_solves()) {
         x = b;
         m.cholesky.solve(x, nullptr, wanted_nodes);
@@ -473,7 +478,6 @@ void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const 
     } else {
         m.pcg(*this, b, x, first_slot);
     }
-    std::fill(m.reference_norm.begin(), m.reference_norm.end(), 0.0);  // (for one solve)
     if (!wanted_nodes && !x.allFinite())  // (with wanted nodes the caller checks its rows)
         throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
