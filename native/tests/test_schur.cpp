@@ -3,6 +3,8 @@
 #include <cmath>
 #include <cstdlib>
 #include <random>
+#include <thread>
+#include <functional>
 
 #include "box_mesh.h"
 #include "check.h"
@@ -120,10 +122,11 @@ struct ReuseRun {
     // Eq. 7's residual of the step, flesh rows over the bound the At solves' tolerance allows
     // (see reused_cholesky_step_meets_a_loose_tolerance), and handle rows relative to |Ah v_h| + |b_h|
     double flesh_over_bound = 0, handle_residual = 0;
+    VecX x;  // the flesh's positions at the end
 };
 // A box hand swung and turned by its device (about 2 rad over the run), solved with the reused
 // factor; every step is checked against the monolithic reference before it is integrated.
-ReuseRun reused_run(int iteration_limit, int steps, double tolerance = 1e-10) {
+ReuseRun reused_run(int iteration_limit, int steps, double tolerance = 1e-10, const Beside& beside = nullptr) {
     const BoxMesh b = make_box(6, 4, 3, 0.01);
     hh_params p = box_params();
     p.solver = HH_SOLVER_REUSED_CHOLESKY;
@@ -131,6 +134,7 @@ ReuseRun reused_run(int iteration_limit, int steps, double tolerance = 1e-10) {
     const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
     Data d(m);
     d.tool.reuse_iteration_limit = iteration_limit;
+    d.hand.beside = beside;
     d.device.enabled = true;
     ReuseRun out;
     for (int s = 0; s < steps; ++s) {
@@ -168,6 +172,7 @@ ReuseRun reused_run(int iteration_limit, int steps, double tolerance = 1e-10) {
         out.stale_steps += d.tool.iterations > 0;
         integrate(m, d, d.hand.s);
     }
+    out.x = d.x;
     return out;
 }
 }  // namespace
@@ -192,6 +197,32 @@ TEST(reused_cholesky_step_meets_a_loose_tolerance) {
     CHECK_LT(tight.flesh_over_bound, 1.01);
     CHECK(loose.iterations < tight.iterations);
     CHECK(loose.stale_steps >= 10);
+}
+
+TEST(reused_cholesky_split_lanes_match_the_monolithic_step_on_one_thread_or_two) {
+    // The world's hand solves b_t and the Schur columns as two groups of CG lanes, side by side
+    // on two threads (HandSystem::beside, DeformableSystem::solve_many_split). Each step matches
+    // the monolithic reference as the batched solve does, and two threads give the very same
+    // steps as one; with an iteration limit of 1 the groups stop, the factor is renewed and every
+    // column solved on it, still exact.
+    const Beside sequential = [](const std::function<void()>& a, const std::function<void()>& b) {
+        a();
+        b();
+    };
+    const Beside threaded = [](const std::function<void()>& a, const std::function<void()>& b) {
+        std::thread other(b);
+        a();
+        other.join();
+    };
+    for (int limit : {25, 1}) {
+        const ReuseRun one = reused_run(limit, 30, 1e-10, sequential), two = reused_run(limit, 30, 1e-10, threaded);
+        CHECK_LT(one.worst, 1e-8);
+        CHECK_LT(one.worst_residual, 1e-10 * 1.0000001);
+        CHECK(one.stale_steps >= 10);
+        CHECK(one.x.size() == two.x.size() && (one.x - two.x).cwiseAbs().maxCoeff() == 0.0);
+        CHECK(one.iterations == two.iterations && one.factorizations == two.factorizations);
+        if (limit == 1) CHECK(one.factorizations >= 3);  // (renewed mid-step: the stale path ran)
+    }
 }
 
 TEST(reused_cholesky_stays_exact_across_forced_refactorizations) {

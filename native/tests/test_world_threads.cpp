@@ -209,13 +209,13 @@ TEST(a_large_hand_factored_in_parts_on_two_threads_steps_exactly_as_on_one) {
 
 TEST(a_large_hand_on_the_reused_factor_renews_it_in_parts_and_steps_exactly_as_on_one_thread) {
     // with the reused factor, a step that renews it (the first one here) runs the factorization's
-    // two parts side by side too, and the rest in the hand's solve: the same steps on one thread
+    // two parts side by side too, and the rest in the hand's solve; the other steps split the
+    // hand's CG lanes in two groups (TaskGraph::run_beside): the same steps on one thread
     {
-        Stack probe(1, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY);
+        const BoxMesh box = make_box(12, 8, 6, 0.01);
         hh_params p = box_hand_params();
         p.solver = HH_SOLVER_REUSED_CHOLESKY;
-        const hh::Model m = hh::build_model(probe.hand_box.nodes.data(), probe.hand_box.n_nodes(),
-                                            probe.hand_box.tets.data(), probe.hand_box.n_tets(), p);
+        const hh::Model m = hh::build_model(box.nodes.data(), box.n_nodes(), box.tets.data(), box.n_tets(), p);
         hh::Data d(m);
         CHECK(d.tool.factor_parts() == 2);  // (no factor yet: the first step makes one)
         hh::formulate(m, d);
@@ -224,11 +224,13 @@ TEST(a_large_hand_on_the_reused_factor_renews_it_in_parts_and_steps_exactly_as_o
         hh::formulate(m, d);
         CHECK(d.tool.factor_parts() == 0);  // (the next step reuses it)
     }
+    // (the first step renews in parts; the next ones solve b_t and the Schur columns side by
+    // side on the reused factor, HandSystem::beside)
     Stack one(1, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY), two(2, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY);
     one.press();
     two.press();
     int most_contacts = 0;
-    for (int step = 0; step < 6; ++step) {
+    for (int step = 0; step < 3; ++step) {
         hh_world_stats s1, s2;
         CHECK(hh_world_step(one.world, &s1) == HH_OK);
         CHECK(hh_world_step(two.world, &s2) == HH_OK);
@@ -381,3 +383,42 @@ TEST(task_graph_keeps_order_runs_added_tasks_and_returns_errors) {
     CHECK(refused);
 }
 
+
+TEST(task_graph_runs_a_job_beside_another_and_returns_its_errors) {
+    // run_beside from inside a task: with the worker free, the other job runs on it while this
+    // thread runs its own (each waits up to 20 s to see the other start); with no worker, this
+    // thread runs both; what the other job throws comes back from run_beside
+    {
+        hh::Worker worker;
+        hh::TaskGraph graph;
+        std::atomic<int> started{0}, met{0};
+        auto meet = [&] {
+            ++started;
+            const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+            while (started.load() < 2 && std::chrono::steady_clock::now() < until) std::this_thread::yield();
+            if (started.load() == 2) ++met;
+        };
+        graph.add([&] { graph.run_beside(meet, meet, 1); }, {}, 1);
+        graph.run(&worker);
+        CHECK(met.load() == 2);
+    }
+    for (bool two : {false, true}) {
+        hh::Worker worker;
+        hh::TaskGraph graph;
+        int mine = 0, other = 0;
+        bool caught = false;
+        graph.add(
+            [&] {
+                graph.run_beside([&] { ++mine; }, [&] { ++other; }, 1);
+                try {
+                    graph.run_beside([&] { ++mine; }, [] { throw std::runtime_error("beside failed"); }, 1);
+                } catch (const std::runtime_error& e) {
+                    caught = std::strcmp(e.what(), "beside failed") == 0;
+                }
+            },
+            {}, 1);
+        graph.run(two ? &worker : nullptr);
+        CHECK(mine == 2 && other == 1);
+        CHECK(caught);
+    }
+}

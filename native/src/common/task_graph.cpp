@@ -56,6 +56,49 @@ void TaskGraph::drain() {
     }
 }
 
+void TaskGraph::run_beside(const std::function<void()>& mine, const std::function<void()>& other, double priority) {
+    std::exception_ptr other_error;  // (written by whichever thread runs `other`, read after it is done)
+    int id;
+    {
+        std::lock_guard<std::mutex> lock(mutex_);
+        tasks_.push_back(Task{[&other, &other_error] {
+                                  try {
+                                      other();
+                                  } catch (...) {
+                                      other_error = std::current_exception();
+                                  }
+                              },
+                              {}, priority});
+        ++left_;
+        id = static_cast<int>(tasks_.size()) - 1;
+        changed_.notify_all();
+    }
+    std::exception_ptr mine_error;
+    try {
+        mine();
+    } catch (...) {
+        mine_error = std::current_exception();
+    }
+    std::unique_lock<std::mutex> lock(mutex_);
+    Task& task = tasks_[id];  // (a deque: the entry stays put while others are added)
+    if (task.state == 0) {  // nobody took it: run it here
+        task.state = 1;
+        ++running_;
+        lock.unlock();
+        task.run();  // (catches what `other` throws)
+        lock.lock();
+        --running_;
+        task.state = 2;
+        --left_;
+        changed_.notify_all();
+    } else {
+        changed_.wait(lock, [&task] { return task.state == 2; });
+    }
+    lock.unlock();
+    if (mine_error) std::rethrow_exception(mine_error);
+    if (other_error) std::rethrow_exception(other_error);
+}
+
 void TaskGraph::run(Worker* worker) {
     if (worker) worker->start([this] { drain(); });
     drain();

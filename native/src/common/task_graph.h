@@ -26,6 +26,11 @@ public:
     // null); returns once all are done. A task that throws stops both threads from taking more
     // and its exception is rethrown here, once the worker has stopped too.
     void run(Worker* worker);
+    // From inside a running task: `other` becomes a task of the given priority that a free
+    // thread may take, while this thread runs `mine`; if no thread has taken `other` by then,
+    // this thread runs it too. Returns once both are done, rethrowing what either threw (mine's
+    // first). The jobs must not wait on other tasks.
+    void run_beside(const std::function<void()>& mine, const std::function<void()>& other, double priority);
 
 private:
     struct Task {

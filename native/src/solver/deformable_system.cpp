@@ -120,11 +120,14 @@ struct DeformableSystem::Impl {
     int epoch_steps = 0;             // steps since the last factorization, its own included
     double step_units = 0;           // solves of the current step
     bool renew = false;              // refactor at the start of the next step
-    void count_pass(int width) {     // one preconditioner pass (or direct solve) of width 1, 4, 8
-        const double units = width == 1 ? 1.0 : width == 4 ? 1.9 : 2.5;  // measured ratios
+    static double pass_units(int width) {  // one preconditioner pass (or direct solve) of width 1, 4, 8
+        return width == 1 ? 1.0 : width == 4 ? 1.9 : 2.5;  // measured ratios
+    }
+    void add_units(double units) {
         step_units += units;
         epoch_units += units;
     }
+    void count_pass(int width) { add_units(pass_units(width)); }
     // Af^-1's blocks kept since the last factorization (response_blocks): node k's three
     // columns at 3 column_slot[k] of block_matrix, node i's three rows at 3 row_slot[i] (its
     // capacity grows by doubling)
@@ -137,8 +140,18 @@ struct DeformableSystem::Impl {
         row_nodes.clear();
         column_nodes.clear();
     }
-    // PCG workspaces (node-major blocks)
-    std::vector<double> nb, nx, nr, nz, np, nq;
+    // PCG workspaces (node-major blocks): one per group of columns that may be solved side by
+    // side (solve_many_split)
+    struct PcgWork {
+        std::vector<double> nb, nx, nr, nz, np, nq;
+    };
+    PcgWork pcg_work[2];
+    // what a pcg_block call counts, added to the system's counters once its group is done
+    struct PcgTally {
+        int iterations = 0;
+        double max_residual = 0, units = 0;
+        bool stale = false;  // a lane reached reuse_iteration_limit where the factor could not be renewed
+    };
 
     // whether the next factor() call is this step's (or, before matrix_changed closed the last
     // step's bookkeeping, the step about to start): no factor yet, or the policy renews it
@@ -208,8 +221,13 @@ struct DeformableSystem::Impl {
             cholesky.analyze(a);
         }
     }
-    void pcg(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot);
-    void pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count);
+    // split > 0: columns [0, split) and [split, k) as two groups that `beside` may run side by side
+    void pcg(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int split = 0, const Beside* beside = nullptr);
+    // may_renew: a lane at reuse_iteration_limit renews the factor on the spot and the block
+    // restarts; else (a group solved beside another, which reads the factor) the block stops
+    // and reports the factor stale
+    void pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count, PcgWork& ws,
+                   PcgTally& tally, const std::vector<Mat3>* w, bool may_renew);
 };
 
 DeformableSystem::DeformableSystem() : impl_(new Impl) {}
@@ -443,6 +461,20 @@ int DeformableSystem::elimination_position(int node) const {
     return m.cholesky.position(node);
 }
 
+void DeformableSystem::solve_many_split(const MatX& b, MatX& x, int first_slot, int split, const Beside& beside) {
+    Impl& m = *impl_;
+    if (m.solver != DeformableSolver::ReusedCholesky) {
+        solve_many(b, x, first_slot);
+        return;
+    }
+    struct ClearReferences {
+        std::vector<double>& r;
+        ~ClearReferences() { std::fill(r.begin(), r.end(), 0.0); }
+    } clear_references{m.reference_norm};
+    m.pcg(*this, b, x, first_slot, split, &beside);
+    if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
+}
+
 void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes) {
     Impl& m = *impl_;
     // set_reference_norm holds for this solve only, however it ends
@@ -487,7 +519,7 @@ void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const 
 // factor. The iterates live in node-major blocks (node i's 3 x w values together, w = 1, 4 or 8
 // lanes), so that each iteration is one batched pass over the factor and one over At; a
 // converged column leaves its lane, and the block narrows (8 -> 4 -> 1) when it can.
-void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot) {
+void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int split, const Beside* beside) {
     const int n3 = static_cast<int>(sys.A.rows());
     const int k = static_cast<int>(b.cols());
     if (!have_factor || renew) factor(sys);
@@ -509,21 +541,50 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
         }
         return;
     }
-    for (int first = 0; first < k; first += 8) pcg_block(sys, b, x, first_slot, first, std::min(8, k - first));
+    PcgTally tally[2];
+    if (split > 0 && split < k) {
+        const std::vector<Mat3>* w = current_warp();  // (once: the groups only read it)
+        auto group = [&](int g) {
+            const int begin = g == 0 ? 0 : split, end = g == 0 ? split : k;
+            for (int first = begin; first < end; first += 8)
+                pcg_block(sys, b, x, first_slot, first, std::min(8, end - first), pcg_work[g], tally[g], w, false);
+        };
+        if (beside && *beside) (*beside)([&] { group(0); }, [&] { group(1); });
+        else {
+            group(0);
+            group(1);
+        }
+    } else {
+        for (int first = 0; first < k; first += 8)  // (a block's renewal changes the next one's warp)
+            pcg_block(sys, b, x, first_slot, first, std::min(8, k - first), pcg_work[0], tally[0], current_warp(), true);
+    }
+    for (const PcgTally& t : tally) {
+        sys.iterations += t.iterations;
+        sys.max_residual = std::max(sys.max_residual, t.max_residual);
+        add_units(t.units);
+    }
+    if (tally[0].stale || tally[1].stale) {
+        // (split groups only) the factor is too stale: renewed now, and every column solved on it
+        factor(sys);
+        x = b;
+        cholesky.solve(x, nullptr);
+        for (int first = 0; first < k; first += 8) count_pass(padded_width(std::min(8, k - first)));
+    }
     for (int j = 0; j < k; ++j) {
         warm2[first_slot + j].swap(warm[first_slot + j]);
         warm[first_slot + j] = x.col(j);
     }
 }
 
-void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count) {
+void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count,
+                                       PcgWork& ws, PcgTally& tally, const std::vector<Mat3>* w, bool may_renew) {
+    std::vector<double>&nb = ws.nb, &nx = ws.nx, &nr = ws.nr, &nz = ws.nz, &np = ws.np, &nq = ws.nq;
     const int n3 = static_cast<int>(sys.A.rows());
     auto tol_of = [&](int col) {
         const int slot = first_slot + col;
         const double scale = slot < static_cast<int>(tolerance_scale.size()) ? tolerance_scale[slot] : 1.0;
         return cg_tolerance * scale;
     };
-    const std::vector<Mat3>* w = current_warp();
     bool single = cholesky.has_single();  // for one-lane passes (memory bound: half the traffic)
     // lanes[l] = column of b held in lane l (-1: an idle lane, all zeros)
     std::vector<int> lanes;
@@ -571,7 +632,7 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
     auto finish_lane = [&](int l, double rel) {
         const int col = lanes[l];
         for (int e = 0; e < n3; ++e) x(e, col) = nx[static_cast<size_t>(wd) * e + l];
-        sys.max_residual = std::max(sys.max_residual, rel);
+        tally.max_residual = std::max(tally.max_residual, rel);
         lanes[l] = -1;
     };
     // narrow the block when the live lanes fit in a smaller width
@@ -643,7 +704,7 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         const size_t total = static_cast<size_t>(n3) * wd;
         std::copy(nr.begin(), nr.begin() + total, nz.begin());  // z = M^-1 r
         cholesky.solve_node_major(nz.data(), wd, w, single && wd == 1);
-        count_pass(wd);
+        tally.units += pass_units(wd);
         lane_dot(nr, nz, rz_new);
         double beta[8] = {};
         for (int l = 0; l < wd; ++l) {
@@ -675,15 +736,22 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
             if (lanes[l] < 0) continue;
             const int j = lanes[l] - first;
             ++its[j];
-            ++sys.iterations;
+            ++tally.iterations;
             const double rel = std::sqrt(acc[l]) / rnorm[j];
             if (rel <= tol_of(lanes[l])) finish_lane(l, rel);
             else if (its[j] >= std::max(cg_max_iterations, sys.reuse_iteration_limit + 5)) finish_lane(l, rel);  // give up
             else worst = std::max(worst, its[j]);
         }
+        if (worst >= sys.reuse_iteration_limit && !restarted && !may_renew) {
+            // (another group may be reading the factor: pcg renews it once both are done)
+            tally.stale = true;  // (its columns are solved again on the renewed factor)
+            break;
+        }
         if (worst >= sys.reuse_iteration_limit && !restarted) {
             // the factor is too stale: renew it with this step's At and restart CG from the
             // current iterates (with the exact factor one or two iterations reach the tolerance)
+            add_units(tally.units);  // (the passes so far count in the closing epoch, as the step's)
+            tally.units = 0;
             factor(sys);
             w = nullptr;
             single = cholesky.has_single();

@@ -17,6 +17,7 @@
 //   started by the Galerkin combination of each slot's last two solutions.
 //   Meant for large meshes, where a factorization costs many times a solve.
 #pragma once
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -25,6 +26,10 @@
 namespace hh {
 
 enum class DeformableSolver { Cholesky, ConjugateGradient, ReusedCholesky };
+
+// Runs two jobs, possibly side by side on two threads (World::step's task graph,
+// TaskGraph::run_beside), and returns once both are done; empty: one after the other.
+using Beside = std::function<void(const std::function<void()>&, const std::function<void()>&)>;
 
 class DeformableSystem : public LinearSystem {
 public:
@@ -55,6 +60,14 @@ public:
     // wanted_nodes (Cholesky only; ignored by the other solvers): only the rows of these nodes
     // of X are asked for, the others are left unspecified (BlockLDLT::solve).
     void solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes = nullptr);
+    // The same, ReusedCholesky: columns [0, split) and [split, k) as two groups of CG lanes
+    // that `beside` may solve side by side (they share only the factor, which both read); a
+    // lane at reuse_iteration_limit stops its group, and once both are done the factor is
+    // renewed and every column solved on it. The hand's b_t needs 5-12 iterations a step on
+    // the ~17000-tet hand, its Schur columns 1-3 from their warm starts: solved together, the
+    // columns' 8-lane passes held up b_t's one-lane ones. The result does not depend on whether
+    // the groups ran side by side. Other solvers: solve_many.
+    void solve_many_split(const MatX& b, MatX& x, int first_slot, int split, const Beside& beside);
     // Cholesky: factors the step's matrix now if that is not done yet; after it, solve_many
     // only reads the factor, so calls on different right-hand sides may run on two threads at
     // once (a soft body's contact responses, World::step). Returns whether that holds (false

@@ -40,7 +40,8 @@ void HandSystem::solve() {
     // ~5e-11; the 1600-tet hand with default parameters: cond(S) ~ 120, so ~1e-10 suffices).
     const double scale = schur_condition_ > 0 ? std::min(1.0, std::max(1e-4, 100.0 / schur_condition_)) : 1e-3;
     for (int i = 1; i <= 6; ++i) tool.set_tolerance_scale(i, scale);
-    tool.solve_many(rhs_, solved_, 0);
+    if (beside) tool.solve_many_split(rhs_, solved_, 0, 1, beside);
+    else tool.solve_many(rhs_, solved_, 0);
     t_deformable += seconds_since(t0);
 
     t0 = clock::now();

@@ -21,6 +21,10 @@ public:
     std::vector<Mat36> Ath;            // 3x6 block of Ath per coupled node (Eq. 10)
     std::vector<Mat63> Aht;            // 6x3 block of Aht per coupled node (Eq. 8)
 
+    // When set (the world's hand, World::step), solve() solves b_t and the Schur columns as two
+    // groups that may run side by side on two threads (DeformableSystem::solve_many_split; the
+    // same result either way). Empty: one batch.
+    Beside beside;
     void solve() override;
     // After solve(): A^-1 rhs for another right-hand side, reusing the factor of At, the
     // columns A_t^-1 Ath and the Schur complement (one At solve instead of eight). The
