@@ -150,6 +150,25 @@ struct Stack {
     }
 };
 
+// Both stacks pressed and stepped `steps` times side by side: the same contacts, sweeps and
+// states bit for bit after every step. Returns the most contacts of a step.
+int pressed_side_by_side(Stack& one, Stack& two, int steps) {
+    one.press();
+    two.press();
+    int most_contacts = 0;
+    for (int step = 0; step < steps; ++step) {
+        hh_world_stats s1, s2;
+        CHECK(hh_world_step(one.world, &s1) == HH_OK);
+        CHECK(hh_world_step(two.world, &s2) == HH_OK);
+        CHECK(s1.contacts == s2.contacts && s1.iterations == s2.iterations);
+        most_contacts = std::max(most_contacts, s1.contacts);
+        const std::vector<double> a = one.state(), b = two.state();
+        CHECK(a.size() == b.size());
+        CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0);
+    }
+    return most_contacts;
+}
+
 }  // namespace
 
 TEST(two_threads_step_a_scene_exactly_as_one) {
@@ -191,20 +210,7 @@ TEST(a_large_hand_factored_in_parts_on_two_threads_steps_exactly_as_on_one) {
         hh::formulate(m, d);
         CHECK(d.tool.factor_parts() == 2);
     }
-    one.press();
-    two.press();
-    int most_contacts = 0;
-    for (int step = 0; step < 4; ++step) {
-        hh_world_stats s1, s2;
-        CHECK(hh_world_step(one.world, &s1) == HH_OK);
-        CHECK(hh_world_step(two.world, &s2) == HH_OK);
-        CHECK(s1.contacts == s2.contacts && s1.iterations == s2.iterations);
-        most_contacts = std::max(most_contacts, s1.contacts);
-        const std::vector<double> a = one.state(), b = two.state();
-        CHECK(a.size() == b.size());
-        CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0);
-    }
-    CHECK(most_contacts > 0);
+    CHECK(pressed_side_by_side(one, two, 4) > 0);
 }
 
 TEST(a_large_hand_on_the_reused_factor_renews_it_in_parts_and_steps_exactly_as_on_one_thread) {
@@ -227,20 +233,7 @@ TEST(a_large_hand_on_the_reused_factor_renews_it_in_parts_and_steps_exactly_as_o
     // (the first step renews in parts; the next ones solve b_t and the Schur columns side by
     // side on the reused factor, HandSystem::beside)
     Stack one(1, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY), two(2, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY);
-    one.press();
-    two.press();
-    int most_contacts = 0;
-    for (int step = 0; step < 3; ++step) {
-        hh_world_stats s1, s2;
-        CHECK(hh_world_step(one.world, &s1) == HH_OK);
-        CHECK(hh_world_step(two.world, &s2) == HH_OK);
-        CHECK(s1.contacts == s2.contacts && s1.iterations == s2.iterations);
-        most_contacts = std::max(most_contacts, s1.contacts);
-        const std::vector<double> a = one.state(), b = two.state();
-        CHECK(a.size() == b.size());
-        CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0);
-    }
-    CHECK(most_contacts > 0);
+    CHECK(pressed_side_by_side(one, two, 3) > 0);
 }
 
 // A body whose state went bad (NaN: here written past the C API's checks) makes its solve fail
