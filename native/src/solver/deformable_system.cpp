@@ -95,6 +95,10 @@ struct DeformableSystem::Impl {
     std::vector<VecX> warm2;  // ReusedCholesky: the solutions before those in warm
     std::vector<double> tolerance_scale;  // per slot, ReusedCholesky
     std::vector<double> reference_norm;   // per slot, the next solve only (set_reference_norm); 0: none
+    struct ReferenceScope {  // (a solve's: the references are cleared however it ends)
+        std::vector<double>& r;
+        ~ReferenceScope() { std::fill(r.begin(), r.end(), 0.0); }
+    };
     // the norm a slot's relative residual is measured against: its right-hand side's, or the
     // reference set for this solve when larger
     double residual_norm(int slot, double rhs_norm) const {
@@ -155,8 +159,9 @@ struct DeformableSystem::Impl {
 
     // whether the next factor() call is this step's (or, before matrix_changed closed the last
     // step's bookkeeping, the step about to start): no factor yet, or the policy renews it
-    bool renewing() const {
-        if (!have_factor || renew) return true;
+    bool renewing() const { return !have_factor || renew || step_costs_a_renewal(); }
+    // the policy's test on the step that ended (see matrix_changed)
+    bool step_costs_a_renewal() const {
         return step_units > 0 && epoch_steps > 1 && step_units > (factor_units + epoch_units) / epoch_steps;
     }
     void analyse(DeformableSystem& sys) {
@@ -256,8 +261,7 @@ void DeformableSystem::matrix_changed() {
     // factorization, (factorization + solves) / steps, decreases while a step costs less than
     // that mean; once a step costs more, renewing the factor lowers the mean again.
     if (m.step_units > 0) {
-        const double mean = (m.factor_units + m.epoch_units) / m.epoch_steps;
-        if (m.step_units > mean && m.epoch_steps > 1) m.renew = true;
+        if (m.step_costs_a_renewal()) m.renew = true;
         ++m.epoch_steps;
     }
     m.step_units = 0;
@@ -467,10 +471,7 @@ void DeformableSystem::solve_many_split(const MatX& b, MatX& x, int first_slot, 
         solve_many(b, x, first_slot);
         return;
     }
-    struct ClearReferences {
-        std::vector<double>& r;
-        ~ClearReferences() { std::fill(r.begin(), r.end(), 0.0); }
-    } clear_references{m.reference_norm};
+    const Impl::ReferenceScope references{m.reference_norm};
     m.pcg(*this, b, x, first_slot, split, &beside);
     if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
@@ -478,10 +479,7 @@ void DeformableSystem::solve_many_split(const MatX& b, MatX& x, int first_slot, 
 void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const std::vector<int>* wanted_nodes) {
     Impl& m = *impl_;
     // set_reference_norm holds for this solve only, however it ends
-    struct ClearReferences {
-        std::vector<double>& r;
-        ~ClearReferences() { std::fill(r.begin(), r.end(), 0.0); }
-    } clear_references{m.reference_norm};
+    const Impl::ReferenceScope references{m.reference_norm};
     if (prepare_concurrent_solves()) {
         x = b;
         m.cholesky.solve(x, nullptr, wanted_nodes);
