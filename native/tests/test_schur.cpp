@@ -215,7 +215,7 @@ TEST(reused_cholesky_split_lanes_match_the_monolithic_step_on_one_thread_or_two)
         other.join();
     };
     for (int limit : {25, 1}) {
-        const ReuseRun one = reused_run(limit, 30, 1e-10, sequential), two = reused_run(limit, 30, 1e-10, threaded);
+        const ReuseRun one = reused_run(limit, 20, 1e-10, sequential), two = reused_run(limit, 20, 1e-10, threaded);
         CHECK_LT(one.worst, 1e-8);
         CHECK_LT(one.worst_residual, 1e-10 * 1.0000001);
         CHECK(one.stale_steps >= 10);
@@ -389,7 +389,7 @@ TEST(reused_cholesky_measures_a_nearly_cancelled_load_against_its_reference_norm
         std::mt19937 rng(5);
         std::normal_distribution<double> n(0, 1);
         Run out;
-        for (int s = 0; s < 30; ++s) {
+        for (int s = 0; s < 20; ++s) {
             const double t = s * m.params.dt;
             d.device.position = m.handle.rest_com + 0.03 * Vec3(std::cos(3 * t) - 1, std::sin(3 * t), 0.5 * std::sin(2 * t));
             d.device.quaternion = quat_from_rotation_vector(Vec3(0.6 * std::sin(2 * t), 0.4 * std::sin(1.5 * t), 1.5 * t));
