@@ -4,6 +4,18 @@
 
 namespace hh {
 
+namespace {
+// runs f; what it throws, as a value
+std::exception_ptr caught(const std::function<void()>& f) {
+    try {
+        f();
+    } catch (...) {
+        return std::current_exception();
+    }
+    return nullptr;
+}
+}  // namespace
+
 int TaskGraph::add(std::function<void()> run, std::vector<int> after, double priority) {
     std::lock_guard<std::mutex> lock(mutex_);
     // (so the graph has no cycles: every task can run once those before it have)
@@ -37,23 +49,21 @@ void TaskGraph::drain() {
             changed_.wait(lock);
             continue;
         }
-        Task& task = tasks_[best];
-        task.state = 1;
-        ++running_;
-        lock.unlock();
-        std::exception_ptr error;
-        try {
-            task.run();
-        } catch (...) {
-            error = std::current_exception();
-        }
-        lock.lock();
-        --running_;
-        task.state = 2;
-        --left_;
-        if (error && !error_) error_ = error;
-        changed_.notify_all();
+        run_task(lock, tasks_[best]);
     }
+}
+
+void TaskGraph::run_task(std::unique_lock<std::mutex>& lock, Task& task) {
+    task.state = 1;
+    ++running_;
+    lock.unlock();
+    const std::exception_ptr error = caught(task.run);
+    lock.lock();
+    --running_;
+    task.state = 2;
+    --left_;
+    if (error && !error_) error_ = error;
+    changed_.notify_all();
 }
 
 void TaskGraph::run_beside(const std::function<void()>& mine, const std::function<void()>& other, double priority) {
@@ -61,39 +71,16 @@ void TaskGraph::run_beside(const std::function<void()>& mine, const std::functio
     int id;
     {
         std::lock_guard<std::mutex> lock(mutex_);
-        tasks_.push_back(Task{[&other, &other_error] {
-                                  try {
-                                      other();
-                                  } catch (...) {
-                                      other_error = std::current_exception();
-                                  }
-                              },
-                              {}, priority});
+        tasks_.push_back(Task{[&other, &other_error] { other_error = caught(other); }, {}, priority});
         ++left_;
         id = static_cast<int>(tasks_.size()) - 1;
         changed_.notify_all();
     }
-    std::exception_ptr mine_error;
-    try {
-        mine();
-    } catch (...) {
-        mine_error = std::current_exception();
-    }
+    const std::exception_ptr mine_error = caught(mine);
     std::unique_lock<std::mutex> lock(mutex_);
     Task& task = tasks_[id];  // (a deque: the entry stays put while others are added)
-    if (task.state == 0) {  // nobody took it: run it here
-        task.state = 1;
-        ++running_;
-        lock.unlock();
-        task.run();  // (catches what `other` throws)
-        lock.lock();
-        --running_;
-        task.state = 2;
-        --left_;
-        changed_.notify_all();
-    } else {
-        changed_.wait(lock, [&task] { return task.state == 2; });
-    }
+    if (task.state == 0) run_task(lock, task);  // nobody took it: run it here
+    else changed_.wait(lock, [&task] { return task.state == 2; });
     lock.unlock();
     if (mine_error) std::rethrow_exception(mine_error);
     if (other_error) std::rethrow_exception(other_error);

@@ -40,6 +40,8 @@ private:
         int state = 0;  // 0 waiting, 1 running, 2 done
     };
     void drain();  // each thread's loop
+    // runs a task taken by this thread (lock held on entry and exit, released while it runs)
+    void run_task(std::unique_lock<std::mutex>& lock, Task& task);
     std::mutex mutex_;
     std::condition_variable changed_;
     std::deque<Task> tasks_;  // (a deque: a running task's entry stays put while others are added)
