@@ -583,7 +583,16 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         const double scale = slot < static_cast<int>(tolerance_scale.size()) ? tolerance_scale[slot] : 1.0;
         return cg_tolerance * scale;
     };
-    bool single = cholesky.has_single();  // for one-lane passes (memory bound: half the traffic)
+    // Every pass through the factor's single-precision copy: the passes are memory bound, and
+    // in the world two groups of lanes stream the factor at once (solve_many_split), b_t's
+    // one-lane passes beside the Schur columns' 8-lane ones. On the 17006-tet hand pressing
+    // the 10x bunny (alternating runs) the frame rate rose 8-11% on two threads once both
+    // read the one float copy, 7-12% on one thread (likely the working set: its panels are
+    // 7.8 MB in float, 15.5 in double, At another ~7, against a 32 MB cache shared by both
+    // threads; in a loop of its own an 8-lane pass is only ~12% faster in float). The
+    // preconditioner is the stale warped factor anyway; float round-off of its panels costs
+    // the columns' 1e-9 tolerance ~10% more lane-iterations (6.1 -> 6.8 a step).
+    bool single = cholesky.has_single();
     // lanes[l] = column of b held in lane l (-1: an idle lane, all zeros)
     std::vector<int> lanes;
     std::vector<double> bnorm(count, 0.0);
@@ -701,7 +710,7 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         if (!any) break;
         const size_t total = static_cast<size_t>(n3) * wd;
         std::copy(nr.begin(), nr.begin() + total, nz.begin());  // z = M^-1 r
-        cholesky.solve_node_major(nz.data(), wd, w, single && wd == 1);
+        cholesky.solve_node_major(nz.data(), wd, w, single);
         tally.units += pass_units(wd);
         lane_dot(nr, nz, rz_new);
         double beta[8] = {};
@@ -710,8 +719,8 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
             const int j = lanes[l] - first;
             // Polak-Ribiere (flexible) CG: beta = r_new . (z_new - z_old) / (r_old . z_old), with
             // r_new . z_old = r_old . z_old - alpha q . z_old. It equals Fletcher-Reeves for a
-            // fixed preconditioner and stays robust when the preconditioner changes between
-            // iterations (double passes on 4-8 lanes, single on one lane).
+            // fixed preconditioner and stays robust were the preconditioner to change between
+            // iterations (single and double passes were mixed once; the renewal restarts).
             beta[l] = fresh ? 0.0 : std::max(0.0, (rz_new[l] - cross[j]) / rz[j]);
             rz[j] = rz_new[l];
         }

@@ -13,7 +13,7 @@
 //   (a factorization is worth factor_flops / (4.8 x stored entries) one-lane passes), not
 //   timed, so the policy and the results do not depend on the machine's load.
 //   The factor is kept in supernodal form (dense panels) with a single-precision copy for the
-//   one-lane passes; CG runs on node-major blocks of up to 8 columns (flexible beta), warm
+//   preconditioner passes (direct solves use the double panels); CG runs on node-major blocks of up to 8 columns (flexible beta), warm
 //   started by the Galerkin combination of each slot's last two solutions.
 //   Meant for large meshes, where a factorization costs many times a solve.
 #pragma once
