@@ -1,6 +1,7 @@
 // The block LDL^T solver against a dense solve, on the warped-stiffness systems it is built for.
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <random>
 #include <thread>
 
@@ -162,16 +163,19 @@ double max_abs_diff(const std::vector<double>& nm, const MatX& x, int w) {
 
 TEST(supernodal_factor_solves_like_a_dense_solver_at_every_simd_level) {
     // a box large enough for supernodes several nodes wide (and the 8-column groups of the
-    // kernels, with remainders), every width, with and without a warp, double and single
+    // kernels, with remainders), every width, with and without a warp, double and single (the
+    // half-precision panels run here too, for their padding lanes; their accuracy: below)
     const SpMat a = system_matrix(7, 5, 4, 11);
     const int n = static_cast<int>(a.rows() / 3);
     BlockLDLT f;
     f.set_supernodal(true);
     f.set_keep_single(true);
+    f.set_keep_half(true);
     f.analyze(a);
     f.factorize(a);
     CHECK(f.supernodes() < n);  // some supernodes hold several nodes
     CHECK(f.has_single());
+    CHECK(f.has_half() == has_f16c());
     std::mt19937 rng(12);
     std::normal_distribution<double> g(0, 1);
     std::vector<Mat3> w(n);
@@ -182,6 +186,7 @@ TEST(supernodal_factor_solves_like_a_dense_solver_at_every_simd_level) {
     }
     const MatX dense_a = MatX(a);
     const Eigen::LDLT<MatX> plain(dense_a);
+
     const Eigen::LDLT<MatX> rotated(wd * dense_a * wd.transpose());
     for (int level = 0; level <= detected_simd_level(); ++level) {
         simd_level_override() = level;
@@ -193,16 +198,85 @@ TEST(supernodal_factor_solves_like_a_dense_solver_at_every_simd_level) {
                 for (bool warped : {false, true}) {
                     const MatX exact = warped ? MatX(rotated.solve(b)) : MatX(plain.solve(b));
                     const double scale = exact.cwiseAbs().maxCoeff();
-                    for (bool single : {false, true}) {
+                    for (Panels panels : {Panels::Double, Panels::Single, Panels::Half}) {
                         std::vector<double> nm = node_major(b, width);
-                        f.solve_node_major(nm.data(), width, warped ? &w : nullptr, single);
+                        f.solve_node_major(nm.data(), width, warped ? &w : nullptr, panels);
                         const double err = max_abs_diff(nm, exact, width) / scale;
+                        if (panels == Panels::Half) continue;  // (its bound: the next test)
                         // single: the inverse of a matrix within float round-off of A
-                        CHECK_LT(err, single ? 1e-4 : 1e-12);
-                        if (!single) CHECK_LT(err, 1e-12);
+                        CHECK_LT(err, panels == Panels::Single ? 1e-4 : 1e-12);
                         for (Eigen::Index e = 0; e < b.rows(); ++e)  // padding lanes stay zero
                             for (int j = cols; j < width; ++j) CHECK(nm[width * e + j] == 0.0);
                     }
+                }
+            }
+    }
+    simd_level_override() = -1;
+}
+
+TEST(half_precision_passes_apply_the_inverse_of_the_rounded_factor) {
+    // A half pass applies W P^T (L_h L_h^T)^-1 P W^T in double arithmetic, with L_h each scalar
+    // column of L below the diagonal rounded to binary16 over the column's largest magnitude c_k
+    // (solver/half.h) and multiplied back, the diagonal L's own: rebuilt here from a dense Cholesky of the permuted matrix (the same L to
+    // round-off, so the same halves but with probability ~1e-13 per entry), the pass must match
+    // that operator to double round-off, while it departs from A^-1 by the halves' rounding.
+    if (!has_f16c()) return;
+    const SpMat a = system_matrix(7, 5, 4, 11);
+    const int n = static_cast<int>(a.rows() / 3);
+    BlockLDLT f;
+    f.set_supernodal(true);
+    f.set_keep_half(true);
+    f.analyze(a);
+    f.factorize(a);
+    CHECK(f.has_half() && f.has_single());
+    std::vector<int> perm(3 * n);  // permuted scalar row -> original
+    for (int i = 0; i < n; ++i)
+        for (int d = 0; d < 3; ++d) perm[3 * f.position(i) + d] = 3 * i + d;
+    const MatX dense_a = MatX(a);
+    MatX pa(3 * n, 3 * n);
+    for (int r = 0; r < 3 * n; ++r)
+        for (int c = 0; c < 3 * n; ++c) pa(r, c) = dense_a(perm[r], perm[c]);
+    MatX lh = Eigen::LLT<MatX>(pa).matrixL();
+    for (int k = 0; k < 3 * n; ++k) {
+        const float scale = static_cast<float>(lh.col(k).cwiseAbs().maxCoeff());
+        std::vector<Half> h(3 * n);
+        to_half(lh.col(k).data(), h.size(), scale, h.data());
+        for (int i = k + 1; i < 3 * n; ++i) {  // (the diagonal: the kernels divide by L's own)
+            _Float16 v;
+            std::memcpy(&v, &h[i], sizeof v);
+            lh(i, k) = static_cast<double>(static_cast<float>(v)) * scale;
+        }
+    }
+    const Eigen::LLT<MatX> rounded(lh * lh.transpose());  // (its factor is lh itself)
+    std::mt19937 rng(5);
+    std::normal_distribution<double> g(0, 1);
+    std::vector<Mat3> w(n);
+    MatX wd = MatX::Zero(a.rows(), a.rows());
+    for (int i = 0; i < n; ++i) {
+        w[i] = quat_to_matrix(Vec4(g(rng), g(rng), g(rng), g(rng)).normalized());
+        wd.block<3, 3>(3 * i, 3 * i) = w[i];
+    }
+    const Eigen::LDLT<MatX> plain(dense_a);
+    for (int level = 1; level <= detected_simd_level(); ++level) {
+        simd_level_override() = level;
+        for (int width : {1, 4, 8})
+            for (bool warped : {false, true}) {
+                MatX b(a.rows(), width);
+                for (int i = 0; i < b.size(); ++i) b.data()[i] = g(rng);
+                std::vector<double> nm = node_major(b, width);
+                f.solve_node_major(nm.data(), width, warped ? &w : nullptr, Panels::Half);
+                for (int j = 0; j < width; ++j) {
+                    const VecX bw = warped ? VecX(wd.transpose() * b.col(j)) : VecX(b.col(j));
+                    VecX pb(3 * n), px(3 * n), expected(3 * n);
+                    for (int r = 0; r < 3 * n; ++r) pb[r] = bw[perm[r]];
+                    px = rounded.solve(pb);
+                    for (int r = 0; r < 3 * n; ++r) expected[perm[r]] = px[r];
+                    if (warped) expected = wd * expected;
+                    VecX x(a.rows());
+                    for (Eigen::Index e = 0; e < x.size(); ++e) x[e] = nm[width * e + j];
+                    CHECK_LT((x - expected).norm() / expected.norm(), 1e-9);
+                    if (!warped)  // (the halves' rounding: far above double round-off)
+                        CHECK((x - plain.solve(VecX(b.col(j)))).norm() / expected.norm() > 1e-6);
                 }
             }
     }

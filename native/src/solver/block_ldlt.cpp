@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cstdlib>
 #include <numeric>
+#include <type_traits>
 
 namespace hh {
 
@@ -188,8 +189,8 @@ void BlockLDLT::factorize(const SpMat& a) {
     if (supernodal_) {
         factorize_supernodal(a);
         factored_ = true;
-        single_valid_ = false;
-        if (keep_single_) make_single();
+        single_valid_ = half_valid_ = false;
+        if (keep_single_ || keep_half_) make_single();
         return;
     }
     factorize_up_looking(a);
@@ -242,7 +243,7 @@ void BlockLDLT::factorize_up_looking(const SpMat& a) {
         d_inverse_[k] = 0.5 * (dinv + dinv.transpose());  // exactly symmetric, so L D L^T is
     }
     factored_ = true;
-    single_valid_ = false;
+    single_valid_ = half_valid_ = false;
     if (keep_single_) make_single();
 }
 
@@ -418,9 +419,29 @@ void BlockLDLT::split_supernodes() {
 
 void BlockLDLT::make_single() {
     if (supernodal_) {
-        sn_val_single_.resize(sn_val_.size());
-        for (size_t e = 0; e < sn_val_.size(); ++e) sn_val_single_[e] = static_cast<float>(sn_val_[e]);
-        single_valid_ = true;
+        if (keep_single_ || keep_half_) {  // (the half kernels' fallback)
+            sn_val_single_.resize(sn_val_.size());
+            for (size_t e = 0; e < sn_val_.size(); ++e) sn_val_single_[e] = static_cast<float>(sn_val_[e]);
+            single_valid_ = true;
+        }
+        if (keep_half_ && has_f16c()) {  // each scalar column over its largest magnitude
+            sn_val_half_.resize(sn_val_.size());
+            sn_scale_.resize(sn_diag_inverse_.size());
+            for (int j = 0; j < supernodes(); ++j) {
+                const int m = 3 * (sn_start_[j + 1] - sn_start_[j]);
+                const size_t ld = 3 * static_cast<size_t>(sn_rows_ptr_[j + 1] - sn_rows_ptr_[j]);
+                for (int c = 0; c < m; ++c) {
+                    const double* column = sn_val_.data() + sn_val_ptr_[j] + c * ld;
+                    double largest = 0;
+                    for (size_t r = 0; r < ld; ++r) largest = std::max(largest, std::abs(column[r]));
+                    // (a float scale: the products with it are the kernels' only use of it)
+                    const float scale = largest > 0 ? static_cast<float>(largest) : 1.0f;
+                    sn_scale_[sn_diag_ptr_[j] + c] = scale;
+                    to_half(column, ld, scale, sn_val_half_.data() + sn_val_ptr_[j] + c * ld);
+                }
+            }
+            half_valid_ = true;
+        }
         return;
     }
     lx_single_.resize(9 * lx_.size());
@@ -612,6 +633,8 @@ struct SupernodalFactor {
     const int* diag_ptr;
     const double* diag_inverse_single;  // the same (set when val_single is)
     const unsigned char* wanted;  // null, or per supernode (as Factor::wanted)
+    const Half* val_half;  // the half-precision copy: each scalar column over its scale, or null
+    const float* scale;    // per scalar column (as diag_inverse), with val_half
 };
 
 template <typename PT> struct PanelVec;
@@ -626,6 +649,12 @@ template <> struct PanelVec<float> {
 template <int VL, typename PT>
 __attribute__((always_inline)) inline typename Lanes<VL>::V load_panel(const PT* p) {
     typedef typename Lanes<VL>::V V;
+#ifdef HH_HAVE_F16C_KERNELS
+    if constexpr (std::is_same_v<PT, Half>) {  // (only in the kernels built with f16c)
+        if constexpr (VL == 4) return load_half4(p);
+        else return load_half8(p);
+    } else
+#endif
     if constexpr (VL == 4) {
         typename PanelVec<PT>::F4 v;
         __builtin_memcpy(&v, p, sizeof v);
@@ -635,6 +664,15 @@ __attribute__((always_inline)) inline typename Lanes<VL>::V load_panel(const PT*
         __builtin_memcpy(&v, p, sizeof v);
         return __builtin_convertvector(v, V);
     }
+}
+// one panel value as a double (a half still over its column's scale)
+template <typename PT>
+__attribute__((always_inline)) inline double panel_value(const PT* p) {
+#ifdef HH_HAVE_F16C_KERNELS
+    if constexpr (std::is_same_v<PT, Half>) return half_value(*p);
+    else
+#endif
+        return static_cast<double>(*p);
 }
 template <int VL>
 __attribute__((always_inline)) inline typename Lanes<VL>::V load_y(const double* p) {
@@ -658,12 +696,17 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
     typedef typename Lanes<LV>::V V;
     // columns per group: the group's values of every lane stay in registers (G x N vectors)
     constexpr int G = W == 1 ? 4 : (W <= 8 ? 8 : 4);
+    // half panels: each column's values over its scale; every use of a column's values is
+    // multiplied by its scale (the group's right-hand values in the forward pass, its sums in
+    // the backward one, each triangle entry), in double
+    constexpr bool kHalf = std::is_same_v<PT, Half>;
     for (int j = 0; j < f.ns; ++j) {  // L z = b
         const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
         const int* rows = f.rows + f.rows_ptr[j];
         const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
         const PT* p = val + f.val_ptr[j];
         const double* dinv = dinv_all + f.diag_ptr[j];
+        const float* scale = kHalf ? f.scale + f.diag_ptr[j] : nullptr;
         double* xj = x + static_cast<size_t>(W) * 3 * c0;
         {  // all of the supernode's values still zero: nothing to add below (see solve_permuted)
             const size_t total = static_cast<size_t>(W) * m;
@@ -677,32 +720,47 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
             const int g = std::min(G, m - c);
             const PT* col[G];
             for (int k = 0; k < G; ++k) col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
+            double s[G];
+            if constexpr (kHalf)
+                for (int k = 0; k < G; ++k) s[k] = scale[c + std::min(k, g - 1)];
             for (int k = 0; k < g; ++k) {  // the group's triangle
                 double* yk = y + static_cast<size_t>(W) * (c + k);
                 for (int e = 0; e < W; ++e) yk[e] *= dinv[c + k];
                 for (int k2 = k + 1; k2 < g; ++k2) {
-                    const double l = col[k][c + k2];
+                    double l = panel_value(col[k] + c + k2);
+                    if constexpr (kHalf) l *= s[k];
                     double* y2 = y + static_cast<size_t>(W) * (c + k2);
                     for (int e = 0; e < W; ++e) y2[e] -= l * yk[e];
                 }
             }
             const int r0 = c + g;
             if constexpr (W == 1) {
-                const double a0 = y[c], a1 = g > 1 ? y[c + 1] : 0.0, a2 = g > 2 ? y[c + 2] : 0.0, a3 = g > 3 ? y[c + 3] : 0.0;
+                double a0 = y[c], a1 = g > 1 ? y[c + 1] : 0.0, a2 = g > 2 ? y[c + 2] : 0.0, a3 = g > 3 ? y[c + 3] : 0.0;
+                if constexpr (kHalf) {
+                    a0 *= s[0];
+                    a1 *= s[1];
+                    a2 *= s[2];
+                    a3 *= s[3];
+                }
                 int r = r0;
                 for (; r + VL <= ld; r += VL)
                     store_y<VL>(y + r, load_y<VL>(y + r) - (load_panel<VL>(col[0] + r) * a0 + load_panel<VL>(col[1] + r) * a1 +
                                                           load_panel<VL>(col[2] + r) * a2 + load_panel<VL>(col[3] + r) * a3));
-                for (; r < ld; ++r) y[r] -= col[0][r] * a0 + col[1][r] * a1 + col[2][r] * a2 + col[3][r] * a3;
+                for (; r < ld; ++r)
+                    y[r] -= panel_value(col[0] + r) * a0 + panel_value(col[1] + r) * a1 + panel_value(col[2] + r) * a2 +
+                            panel_value(col[3] + r) * a3;
             } else {
                 V a[G][N];
                 for (int k = 0; k < G; ++k)
-                    for (int q = 0; q < N; ++q) a[k][q] = k < g ? load_y<LV>(y + W * (c + k) + LV * q) : V{} * 0.0;
+                    for (int q = 0; q < N; ++q) {
+                        a[k][q] = k < g ? load_y<LV>(y + W * (c + k) + LV * q) : V{} * 0.0;
+                        if constexpr (kHalf) a[k][q] *= s[k];
+                    }
                 for (int r = r0; r < ld; ++r) {
                     double* yr = y + static_cast<size_t>(W) * r;
                     for (int q = 0; q < N; ++q) {
-                        V t = double(col[0][r]) * a[0][q];
-                        for (int k = 1; k < G; ++k) t += double(col[k][r]) * a[k][q];
+                        V t = panel_value(col[0] + r) * a[0][q];
+                        for (int k = 1; k < G; ++k) t += panel_value(col[k] + r) * a[k][q];
                         store_y<LV>(yr + LV * q, load_y<LV>(yr + LV * q) - t);
                     }
                 }
@@ -722,6 +780,7 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
         const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
         const PT* p = val + f.val_ptr[j];
         const double* dinv = dinv_all + f.diag_ptr[j];
+        const float* scale = kHalf ? f.scale + f.diag_ptr[j] : nullptr;
         double* xj = x + static_cast<size_t>(W) * 3 * c0;
         std::copy(xj, xj + static_cast<size_t>(W) * m, y);
         for (int t = m / 3; t < nr; ++t) {
@@ -733,6 +792,9 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
             const int g = std::min(G, m - c);
             const PT* col[G];
             for (int k = 0; k < G; ++k) col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
+            double s[G];
+            if constexpr (kHalf)
+                for (int k = 0; k < G; ++k) s[k] = scale[c + std::min(k, g - 1)];
             const int r0 = c + g;
             double acc[G][W];
             if constexpr (W == 1) {
@@ -753,10 +815,16 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
                     t3 += s3[e];
                 }
                 for (; r < ld; ++r) {
-                    t0 += col[0][r] * y[r];
-                    t1 += col[1][r] * y[r];
-                    t2 += col[2][r] * y[r];
-                    t3 += col[3][r] * y[r];
+                    t0 += panel_value(col[0] + r) * y[r];
+                    t1 += panel_value(col[1] + r) * y[r];
+                    t2 += panel_value(col[2] + r) * y[r];
+                    t3 += panel_value(col[3] + r) * y[r];
+                }
+                if constexpr (kHalf) {
+                    t0 *= s[0];
+                    t1 *= s[1];
+                    t2 *= s[2];
+                    t3 *= s[3];
                 }
                 acc[0][0] = t0;
                 acc[1][0] = t1;
@@ -769,17 +837,21 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
                 for (int r = r0; r < ld; ++r)
                     for (int q = 0; q < N; ++q) {
                         const V yr = load_y<LV>(y + static_cast<size_t>(W) * r + LV * q);
-                        for (int k = 0; k < G; ++k) sk[k][q] += double(col[k][r]) * yr;
+                        for (int k = 0; k < G; ++k) sk[k][q] += panel_value(col[k] + r) * yr;
                     }
                 for (int k = 0; k < G; ++k)
-                    for (int q = 0; q < N; ++q) store_y<LV>(acc[k] + LV * q, sk[k][q]);
+                    for (int q = 0; q < N; ++q) {
+                        if constexpr (kHalf) sk[k][q] *= s[k];
+                        store_y<LV>(acc[k] + LV * q, sk[k][q]);
+                    }
             }
             for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
                 double* yk = y + static_cast<size_t>(W) * (c + k);
                 double v[W];  // lanes innermost, so the loops vectorize (same order of operations per lane)
                 for (int e = 0; e < W; ++e) v[e] = yk[e] - acc[k][e];
                 for (int k2 = k + 1; k2 < g; ++k2) {
-                    const double l = col[k][c + k2];
+                    double l = panel_value(col[k] + c + k2);
+                    if constexpr (kHalf) l *= s[k];
                     const double* y2 = y + static_cast<size_t>(W) * (c + k2);
                     for (int e = 0; e < W; ++e) v[e] -= l * y2[e];
                 }
@@ -799,6 +871,38 @@ template <int W, int VL, typename PT>
 __attribute__((target("avx512f,avx512vl,avx2,fma"))) void supernodal_avx512(const SupernodalFactor& f, const PT* v, const double* d,
                                                                            double* x, double* y) {
     supernodal_solve<W, VL, PT>(f, v, d, x, y);
+}
+#endif
+
+#ifdef HH_HAVE_F16C_KERNELS
+// the half-precision panels' kernels: with f16c, and `flatten` so that the conversions
+// (solver/half.h, compiled for f16c) are inlined into them
+template <int W, int VL>
+__attribute__((target("avx2,fma,f16c"), flatten)) void supernodal_avx2_half(const SupernodalFactor& f, const double* d, double* x,
+                                                                          double* y) {
+    supernodal_solve<W, VL, Half>(f, f.val_half, d, x, y);
+}
+template <int W, int VL>
+__attribute__((target("avx512f,avx512vl,avx2,fma,f16c"), flatten)) void supernodal_avx512_half(const SupernodalFactor& f,
+                                                                                            const double* d, double* x, double* y) {
+    supernodal_solve<W, VL, Half>(f, f.val_half, d, x, y);
+}
+// false when the half kernels cannot run here (the caller then uses the single-precision panels)
+bool supernodal_half(const SupernodalFactor& f, const double* d, double* x, int w, double* y) {
+    const int level = simd_level();
+    if (level == 2) {
+        if (w == 1) supernodal_avx512_half<1, 8>(f, d, x, y);
+        else if (w == 4) supernodal_avx512_half<4, 4>(f, d, x, y);
+        else supernodal_avx512_half<8, 8>(f, d, x, y);
+        return true;
+    }
+    if (level == 1) {
+        if (w == 1) supernodal_avx2_half<1, 4>(f, d, x, y);
+        else if (w == 4) supernodal_avx2_half<4, 4>(f, d, x, y);
+        else supernodal_avx2_half<8, 4>(f, d, x, y);
+        return true;
+    }
+    return false;
 }
 #endif
 
@@ -829,6 +933,9 @@ void supernodal_dispatch_typed(const SupernodalFactor& f, const PT* v, const dou
 }
 
 void supernodal_solve_dispatch(const SupernodalFactor& f, double* x, int w, double* y) {
+#ifdef HH_HAVE_F16C_KERNELS
+    if (f.val_half && supernodal_half(f, f.diag_inverse_single, x, w, y)) return;
+#endif
     if (f.val_single) supernodal_dispatch_typed<float>(f, f.val_single, f.diag_inverse_single, x, w, y);
     else supernodal_dispatch_typed<double>(f, f.val, f.diag_inverse, x, w, y);
 }
@@ -901,8 +1008,8 @@ void warp_permute(int n, const int* order, const std::vector<Mat3>* warp, const 
 }
 }  // namespace
 
-void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, bool single) const {
-    solve_node_major(b, w, warp, single, nullptr);
+void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, Panels panels) const {
+    solve_node_major(b, w, warp, panels, nullptr);
 }
 
 // The solves' scratch is per thread, not per factor: solves on one factor may run on two
@@ -924,10 +1031,15 @@ SolveScratch& scratch() {
 }  // namespace
 
 // The forward, diagonal and backward passes on x in the factor's own node order
-void BlockLDLT::solve_in_order(double* x, int w, bool single, const unsigned char* wanted) const {
+void BlockLDLT::solve_in_order(double* x, int w, Panels panels, const unsigned char* wanted) const {
+    if (panels == Panels::Half && !half_valid_)
+        throw std::logic_error("BlockLDLT::solve_node_major: no half-precision copy of the factor");
+    if (panels == Panels::Half && !(w == 1 || w == 4 || w == 8))
+        throw std::logic_error("BlockLDLT::solve_node_major: half-precision passes take 1, 4 or 8 columns");
+    const bool single = panels != Panels::Double;  // (half falls back on single where it cannot run)
     if (single && !single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
     if (supernodal_) {
-        solve_supernodal(x, w, single, wanted);
+        solve_supernodal(x, w, panels, wanted);
     } else if (single) {
         const Factor<float> f{n_, lp_.data(), lnz_.data(), li_.data(), lx_single_.data(), d_inverse_single_.data(), wanted};
         solve_dispatch(f, x, w);
@@ -937,7 +1049,7 @@ void BlockLDLT::solve_in_order(double* x, int w, bool single, const unsigned cha
     }
 }
 
-void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, bool single,
+void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, Panels panels,
                                  const unsigned char* wanted) const {
     if (!(w == 1 || w == 4 || w == 8 || (supernodal_ && (w == 16 || w == 32))))
         throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8 (16 or 32: supernodal form only)");
@@ -949,7 +1061,7 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
     else if (w == 16) warp_permute<16, true>(n_, order_.data(), warp, b, x);
     else if (w == 32) warp_permute<32, true>(n_, order_.data(), warp, b, x);
     else warp_permute<8, true>(n_, order_.data(), warp, b, x);
-    solve_in_order(x, w, single, wanted);
+    solve_in_order(x, w, panels, wanted);
     if (w == 1) warp_permute<1, false>(n_, order_.data(), warp, x, b);
     else if (w == 4) warp_permute<4, false>(n_, order_.data(), warp, x, b);
     else if (w == 16) warp_permute<16, false>(n_, order_.data(), warp, x, b);
@@ -993,7 +1105,7 @@ void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& row
             return static_cast<size_t>(w) * (3 * static_cast<size_t>(inverse_[unknown / 3]) + unknown % 3);
         };
         for (int j = 0; j < c; ++j) x[at(units[first + j]) + j] = 1.0;
-        solve_in_order(x, w, false, wanted);
+        solve_in_order(x, w, Panels::Double, wanted);
         for (int j = 0; j < c; ++j) {
             double* o = out + static_cast<size_t>(first + j) * ld;
             for (size_t r = 0; r < rows.size(); ++r) o[r] = x[at(rows[r]) + j];
@@ -1049,7 +1161,7 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<
             for (int j = 0; j < k; ++j) row[j] = in[j][e];
             for (int j = k; j < w; ++j) row[j] = 0.0;
         }
-        solve_node_major(packed.data(), w, warp, false, wanted);
+        solve_node_major(packed.data(), w, warp, Panels::Double, wanted);
         double* out[32];
         for (int j = 0; j < k; ++j) out[j] = b.col(first + j).data();
         for (int e = 0; e < 3 * n_; ++e) {
@@ -1059,7 +1171,8 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<
     }
 }
 
-void BlockLDLT::solve_supernodal(double* x, int w, bool single, const unsigned char* wanted) const {
+void BlockLDLT::solve_supernodal(double* x, int w, Panels panels, const unsigned char* wanted) const {
+    const bool single = panels != Panels::Double, half = panels == Panels::Half;
     const int ns = supernodes();
     size_t most = 0;
     for (int j = 0; j < ns; ++j) most = std::max<size_t>(most, sn_rows_ptr_[j + 1] - sn_rows_ptr_[j]);
@@ -1075,7 +1188,9 @@ void BlockLDLT::solve_supernodal(double* x, int w, bool single, const unsigned c
                              single ? nullptr : sn_diag_inverse_.data(),
                              sn_diag_ptr_.data(),
                              single ? sn_diag_inverse_.data() : nullptr,
-                             wanted};
+                             wanted,
+                             half ? sn_val_half_.data() : nullptr,
+                             half ? sn_scale_.data() : nullptr};
     supernodal_solve_dispatch(f, x, w, gather.data());
 }
 

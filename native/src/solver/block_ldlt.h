@@ -11,11 +11,16 @@
 
 #include "common/simd.h"
 #include "common/types.h"
+#include "solver/half.h"
 
 namespace hh {
 
 // Most right-hand sides one solve pass takes (supernodal form; the up-looking form takes 8).
 constexpr int kWidestSolve = 32;
+
+// The factor's values a solve pass reads: its own (double), or a copy in single or half
+// precision (set_keep_single, set_keep_half), for passes that precondition rather than solve.
+enum class Panels { Double, Single, Half };
 
 class BlockLDLT {
 public:
@@ -61,14 +66,24 @@ public:
     void solve_units(const int* units, int k, const std::vector<int>& rows, const std::vector<int>& wanted_nodes,
                      double* out, long ld) const;
     // The same on node-major storage: x holds n nodes x 3 x w values (w = 1, 4 or 8; node i's
-    // 3 x w block at x + 3 w i, row-major), in the matrix's own node order. single: with the
-    // single-precision copy of the factor (half the memory traffic; the arithmetic stays
-    // double, so this applies the exact inverse of L_f D_f L_f^T, a matrix within float
-    // round-off of A: a preconditioner, not a solve).
-    void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, bool single = false) const;
+    // 3 x w block at x + 3 w i, row-major), in the matrix's own node order. Panels::Single:
+    // with the single-precision copy of the factor (half the memory traffic; the arithmetic
+    // stays double, so this applies the exact inverse of L_f D_f L_f^T, a matrix within float
+    // round-off of A: a preconditioner, not a solve). Panels::Half: the half-precision copy
+    // (a quarter of the traffic; within 2^-11 per entry: a preconditioner only; widths 1, 4
+    // and 8), or the single one on a CPU without half conversions (solver/half.h) or at SIMD
+    // level 0.
+    void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, Panels panels = Panels::Double) const;
     // Keep a single-precision copy of L and D^-1 with every factorization (for preconditioning).
     void set_keep_single(bool keep) { keep_single_ = keep; if (keep && !single_valid_ && n_ > 0 && factored_) make_single(); }
     bool has_single() const { return single_valid_; }
+    // Supernodal form: keep a half-precision copy of the panels (solver/half.h) where the CPU
+    // converts halves, and the single-precision one (its fallback) with every factorization.
+    void set_keep_half(bool keep) {
+        keep_half_ = keep;
+        if (keep && !half_valid_ && n_ > 0 && factored_) make_single();
+    }
+    bool has_half() const { return half_valid_; }
     int nodes() const { return n_; }
     // After analyze(): the step at which the node (original numbering) is eliminated.
     int position(int node) const { return inverse_[node]; }
@@ -103,6 +118,8 @@ private:
     std::vector<size_t> sn_val_ptr_;
     std::vector<double> sn_val_;
     std::vector<float> sn_val_single_;
+    std::vector<Half> sn_val_half_;         // the panels' values over their column's scale
+    std::vector<float> sn_scale_;           // per scalar column (as sn_diag_inverse_): its largest magnitude
     std::vector<int> sn_diag_ptr_;          // 3 width per supernode
     std::vector<double> sn_diag_inverse_;   // 1 / L(c, c) of every scalar column
     std::vector<std::vector<BlockRef>> lower_;  // lower pattern of permuted A by column (row >= column)
@@ -123,11 +140,12 @@ private:
     void factorize_supernodal(const SpMat& a);
     void factor_supernode(const double* values, int j, int part);
     void factorize_up_looking(const SpMat& a);
-    void solve_supernodal(double* x, int w, bool single, const unsigned char* wanted) const;
-    void solve_in_order(double* x, int w, bool single, const unsigned char* wanted) const;
-    void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, bool single, const unsigned char* wanted) const;
+    void solve_supernodal(double* x, int w, Panels panels, const unsigned char* wanted) const;
+    void solve_in_order(double* x, int w, Panels panels, const unsigned char* wanted) const;
+    void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, Panels panels, const unsigned char* wanted) const;
     const unsigned char* wanted_mask(const std::vector<int>& nodes) const;
     bool keep_single_ = false, single_valid_ = false, factored_ = false;
+    bool keep_half_ = false, half_valid_ = false;
     void make_single();
     double factor_flops_ = 0;
     // workspaces of factorize()

@@ -1,12 +1,11 @@
 #include "solver/deformable_system.h"
 
-#include <cstdio>
-#include <string>
-
 #include <Eigen/IterativeLinearSolvers>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
+#include <string>
 
 #include "fem/corotational.h"
 #include "rigid/quaternion.h"
@@ -112,10 +111,20 @@ struct DeformableSystem::Impl {
     std::vector<Mat3> node_r, node_r_factor, warp;  // this step's, at the factorization, and R R_factor^T
     bool have_rotations = false;
     bool block_pattern = false;  // At's pattern suits the block kernel of multiply_node_major
-    // A/B switches for measurements: HH_REUSE_DOUBLE (no single-precision preconditioner
-    // passes), HH_REUSE_UPLOOKING (the up-looking block LDL^T instead of the supernodal form)
-    bool use_single = std::getenv("HH_REUSE_DOUBLE") == nullptr;
+    // A/B switches for measurements: HH_REUSE_PANELS=double|single|half (the preconditioner
+    // passes' panels; default half, where the CPU converts halves, else single),
+    // HH_REUSE_UPLOOKING (the up-looking block LDL^T instead of the supernodal form)
+    Panels preconditioner = [] {
+        const char* v = std::getenv("HH_REUSE_PANELS");
+        const std::string panels = v ? v : "";
+        return panels == "double" ? Panels::Double : panels == "single" ? Panels::Single : Panels::Half;
+    }();
     bool supernodal = std::getenv("HH_REUSE_UPLOOKING") == nullptr;
+    // the panels a preconditioner pass reads: the narrowest copy the factor keeps
+    Panels pass_panels() const {
+        if (preconditioner == Panels::Half && cholesky.has_half()) return Panels::Half;
+        return preconditioner != Panels::Double && cholesky.has_single() ? Panels::Single : Panels::Double;
+    }
     // Cost bookkeeping of the refactorization policy, in work units (one unit: a one-lane pass
     // over the factor), counted, not timed: the policy does not depend on the machine's load,
     // so runs repeat exactly.
@@ -169,7 +178,8 @@ struct DeformableSystem::Impl {
             // many preconditioner passes per factorization: the supernodal form's dense panel
             // kernels (and its single-precision copy) pay off
             cholesky.set_supernodal(supernodal);
-            cholesky.set_keep_single(use_single);
+            cholesky.set_keep_single(preconditioner != Panels::Double);
+            cholesky.set_keep_half(preconditioner == Panels::Half);
             cholesky.analyze(sys.A);
             block_pattern = has_node_block_pattern(sys.A);
             // a factorization against a one-lane pass over its result: flops against stored
@@ -319,7 +329,7 @@ void DeformableSystem::solve_response_single(const VecX& b, VecX& x) {
         return;
     }
     x = b;  // (one column: node-major storage is the plain vector)
-    m.cholesky.solve_node_major(x.data(), 1, m.response_warp(), true);
+    m.cholesky.solve_node_major(x.data(), 1, m.response_warp(), Panels::Single);
     if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 
@@ -583,16 +593,26 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         const double scale = slot < static_cast<int>(tolerance_scale.size()) ? tolerance_scale[slot] : 1.0;
         return cg_tolerance * scale;
     };
-    // Every pass through the factor's single-precision copy: the passes are memory bound, and
-    // in the world two groups of lanes stream the factor at once (solve_many_split), b_t's
-    // one-lane passes beside the Schur columns' 8-lane ones. On the 17006-tet hand pressing
-    // the 10x bunny (alternating runs) the frame rate rose 8-11% on two threads once both
-    // read the one float copy, 7-12% on one thread (likely the working set: its panels are
-    // 7.8 MB in float, 15.5 in double, At another ~7, against a 32 MB cache shared by both
-    // threads; in a loop of its own an 8-lane pass is only ~12% faster in float). The
-    // preconditioner is the stale warped factor anyway; float round-off of its panels costs
-    // the columns' 1e-9 tolerance ~10% more lane-iterations (6.1 -> 6.8 a step).
-    bool single = cholesky.has_single();
+    // Every pass through the factor's narrowest copy (pass_panels): the passes are memory
+    // bound, and in the world two groups of lanes stream the factor at once
+    // (solve_many_split), b_t's one-lane passes beside the Schur columns' 8-lane ones. On the
+    // 17006-tet hand pressing the 10x bunny (alternating runs) the frame rate rose 8-11% on
+    // two threads once both read the one float copy instead of the columns' passes reading
+    // the double panels, 7-12% on one thread (likely the working set: its panels are 7.8 MB
+    // in float, 15.5 in double, At another ~7, against a 32 MB cache shared by both threads
+    // and, on a virtual machine, with its neighbours; in a loop of its own an 8-lane pass is
+    // only ~12% faster in float). The preconditioner is the stale warped factor anyway: float
+    // round-off of its panels cost the columns' 1e-9 tolerance ~10% more lane-iterations
+    // (6.1 -> 6.8 a step).
+    // The one-lane passes read the half-precision copy where there is one: a quarter of the
+    // double traffic. On that hand, factor out of cache: 1.1-1.5 ms a pass against 1.9-2.3 in
+    // float (in cache, as fast); the frame rate on one thread +7% (6 alternating pairs), on
+    // two within the noise (8 pairs: median 0.97, mean 1.01). The 4- and 8-lane passes stay in
+    // float: their half kernels convert every entry on its own and were slower (2.8-3.6 ms
+    // against 2.3-2.6 in cache). Its rounding (2^-11 of each column's largest entry) limits
+    // CG's contraction to ~5e-4 an iteration on an exact factor, far below what the staleness
+    // of a reused one allows (0.2-0.3 an iteration on that hand).
+    Panels panels = pass_panels();
     // lanes[l] = column of b held in lane l (-1: an idle lane, all zeros)
     std::vector<int> lanes;
     std::vector<double> bnorm(count, 0.0);
@@ -710,7 +730,7 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         if (!any) break;
         const size_t total = static_cast<size_t>(n3) * wd;
         std::copy(nr.begin(), nr.begin() + total, nz.begin());  // z = M^-1 r
-        cholesky.solve_node_major(nz.data(), wd, w, single);
+        cholesky.solve_node_major(nz.data(), wd, w, panels == Panels::Half && wd > 1 ? Panels::Single : panels);
         tally.units += pass_units(wd);
         lane_dot(nr, nz, rz_new);
         double beta[8] = {};
@@ -761,7 +781,7 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
             tally.units = 0;
             factor(sys);
             w = nullptr;
-            single = cholesky.has_single();
+            panels = pass_panels();
             restarted = true;
             fresh = true;
             residual();

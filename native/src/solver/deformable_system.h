@@ -12,8 +12,8 @@
 //   solve needs reuse_iteration_limit iterations. Costs are counted in passes over the factor
 //   (a factorization is worth factor_flops / (4.8 x stored entries) one-lane passes), not
 //   timed, so the policy and the results do not depend on the machine's load.
-//   The factor is kept in supernodal form (dense panels) with a single-precision copy for the
-//   preconditioner passes (direct solves use the double panels); CG runs on node-major blocks of up to 8 columns (flexible beta), warm
+//   The factor is kept in supernodal form (dense panels) with single- and half-precision
+//   copies for the preconditioner passes (direct solves use the double panels); CG runs on node-major blocks of up to 8 columns (flexible beta), warm
 //   started by the Galerkin combination of each slot's last two solutions.
 //   Meant for large meshes, where a factorization costs many times a solve.
 #pragma once
