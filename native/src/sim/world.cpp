@@ -239,14 +239,15 @@ void World::solve_free(Body& b) {
                 const Eigen::Index n3 = b.hand->hand.r.size() - 6;
                 b.hand->tool.set_reference_norm(0, b.hand->hand.r.tail(n3).norm());
                 b.hand->hand.r += carried;
+                // P^-1 f, through the factor's single-precision copy (half the traffic of the
+                // pass; the step at rest is then Eq. 7's to within float round-off of P^-1 f), by
+                // the solve, beside b_t (HandSystem::carried)
+                b.hand->hand.carried = carried;
             }
             b.hand->hand.solve();
             b.v_free = b.hand->hand.s;
-            const auto t2 = std::chrono::steady_clock::now();
-            // (through the factor's single-precision copy: half the traffic of the pass; the
-            // step at rest is then Eq. 7's to within float round-off of P^-1 f)
-            if (carried.size()) b.v_free -= b.hand->hand.apply_inverse(carried, true);
-            st.t_deformable = b.hand->hand.t_deformable + parts + seconds_since(t2);  // (the carried impulses' pass too)
+            if (carried.size()) b.v_free -= b.hand->hand.carried_response;
+            st.t_deformable = b.hand->hand.t_deformable + parts;  // (the carried impulses' pass too)
             st.t_schur = b.hand->hand.t_schur;
             st.cg_iterations = b.hand->tool.iterations;
             st.max_residual = b.hand->tool.max_residual;

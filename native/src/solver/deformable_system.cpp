@@ -199,18 +199,24 @@ struct DeformableSystem::Impl {
         drop_blocks();  // of the former factor
         if (have_rotations) node_r_factor = node_r;
         else node_r_factor.clear();  // no warp until the next factorization
+        warp_valid = false;
         epoch_units = 0;
         epoch_steps = 1;
         renew = false;
     }
     // the response operator's warp (DeformableSystem::solve_response): none on the step's own factor
     const std::vector<Mat3>* response_warp() { return factor_current ? nullptr : current_warp(); }
+    // (made once per step and factor: after the first call, calls only read it, so solves on
+    // two threads may ask for it at once, World::solve_free's carried impulses beside b_t)
     const std::vector<Mat3>* current_warp() {
         if (!have_rotations || node_r_factor.size() != node_r.size()) return nullptr;
+        if (warp_valid) return &warp;
         warp.resize(node_r.size());
         for (size_t i = 0; i < node_r.size(); ++i) warp[i] = node_r[i] * node_r_factor[i].transpose();
+        warp_valid = true;
         return &warp;
     }
+    bool warp_valid = false;  // warp is R R_factor^T of this step's rotations and factor
     // Cholesky (a factorization every step): the up-looking block LDL^T is the cheaper on small
     // meshes, the supernodal form's dense panel kernels on large ones, where the factorization's
     // flops dwarf its index work. Step time measured up-looking / supernodal: 1599 tets (3.8e6
@@ -266,6 +272,7 @@ void DeformableSystem::matrix_changed() {
     m.cholesky.discard_parts();
     m.factor_current = false;
     m.have_rotations = false;
+    m.warp_valid = false;
     if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) return;
     // Close the bookkeeping of the step that ended: the mean cost per step since the last
     // factorization, (factorization + solves) / steps, decreases while a step costs less than
@@ -288,6 +295,7 @@ void DeformableSystem::set_element_rotations(const std::vector<Eigen::Vector4i>&
     m.node_r.resize(n);
     for (int i = 0; i < n; ++i) m.node_r[i] = polar_rotation(sum[i], m.node_q[i]);
     m.have_rotations = true;
+    m.warp_valid = false;
 }
 
 void DeformableSystem::select_slot(int slot) { slot_ = slot; }

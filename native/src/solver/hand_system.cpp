@@ -40,8 +40,27 @@ void HandSystem::solve() {
     // ~5e-11; the 1600-tet hand with default parameters: cond(S) ~ 120, so ~1e-10 suffices).
     const double scale = schur_condition_ > 0 ? std::min(1.0, std::max(1e-4, 100.0 / schur_condition_)) : 1e-3;
     for (int i = 1; i <= 6; ++i) tool.set_tolerance_scale(i, scale);
-    if (beside) tool.solve_many_split(rhs_, solved_, 0, 1, beside);
-    else tool.solve_many(rhs_, solved_, 0);
+    VecX carried_flesh;       // A_t^-1 carried_t (the tool's response operator, single precision)
+    int carried_factor = -1;  // tool.factorizations when it was solved
+    auto carried_pass = [&] {
+        carried_factor = tool.factorizations;
+        tool.solve_response_single(carried.tail(n3), carried_flesh);
+    };
+    if (beside && carried.size()) {
+        const Beside with_carried = [&](const std::function<void()>& mine, const std::function<void()>& other) {
+            beside(mine, [&] {
+                other();
+                carried_pass();
+            });
+        };
+        tool.solve_many_split(rhs_, solved_, 0, 1, with_carried);
+    } else if (beside) {
+        tool.solve_many_split(rhs_, solved_, 0, 1, beside);
+    } else {
+        tool.solve_many(rhs_, solved_, 0);
+    }
+    // (not solved yet, or on a factor renewed since: the groups' stale path)
+    if (carried.size() && carried_factor != tool.factorizations) carried_pass();
     t_deformable += seconds_since(t0);
 
     t0 = clock::now();
@@ -64,6 +83,10 @@ void HandSystem::solve() {
     s.head<6>() = vh;
     s.tail(n3) = solved_.col(0) - solved_.rightCols<6>() * vh;
     tool.s = s.tail(n3);
+    if (carried.size()) {
+        carried_response = finish_inverse(carried, carried_flesh);
+        carried.resize(0);
+    }
 }
 
 VecX HandSystem::apply_inverse(const VecX& rhs, bool single) {
@@ -76,6 +99,11 @@ VecX HandSystem::apply_inverse(const VecX& rhs, bool single) {
         tool.solve_response(rhs.tail(n3), solved);
         s0 = solved.col(0);
     }
+    return finish_inverse(rhs, s0);
+}
+
+VecX HandSystem::finish_inverse(const VecX& rhs, const VecX& s0) {
+    const Eigen::Index n3 = tool.A.rows();
     handle.r = rhs.head<6>() - aht_times(s0);
     handle.solve();  // handle.A still holds the Schur complement
     VecX out(6 + n3);

@@ -25,6 +25,12 @@ public:
     // groups that may run side by side on two threads (DeformableSystem::solve_many_split; the
     // same result either way). Empty: one batch.
     Beside beside;
+    // Set before solve() (the world's hand: the last step's contact impulses, World::solve_free):
+    // solve() then also forms carried_response = apply_inverse(carried, true) and empties
+    // carried. With `beside`, its At pass (the one costly part: the factor's single-precision
+    // copy, ~1.5 ms on the ~17000-tet hand) runs on the Schur columns' side, beside b_t; it is
+    // solved again after the groups if the factor was renewed once they were done.
+    VecX carried, carried_response;
     void solve() override;
     // After solve(): A^-1 rhs for another right-hand side, reusing the factor of At, the
     // columns A_t^-1 Ath and the Schur complement (one At solve instead of eight). The
@@ -33,6 +39,8 @@ public:
     // factor, not CG), the same as apply_inverse_many's.
     // single: the At solve through DeformableSystem::solve_response_single instead.
     VecX apply_inverse(const VecX& rhs, bool single = false);
+    // ... its handle part and Eq. 12, given the At pass s0 = A_t^-1 rhs_t
+    VecX finish_inverse(const VecX& rhs, const VecX& s0);
     // After solve(): out = A^-1 rhs for every column of rhs at once (the At solves batched 8
     // columns per pass through the tool's solve_response). Added for the contact solver's
     // Delassus operator. rows: only these rows of A^-1 rhs (indices into (v_h, v_t)), in that
