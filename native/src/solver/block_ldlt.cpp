@@ -1070,7 +1070,8 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
 }
 
 void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& rows, const std::vector<int>& wanted_nodes,
-                            double* out, long ld) const {
+                            double* out, long ld, int first_batch, int batch_step) const {
+    if (first_batch < 0 || batch_step < 1) throw std::logic_error("BlockLDLT::solve_units: no such batches");
     const unsigned char* wanted = wanted_mask(wanted_nodes);
     // The nodes a pass may leave nonzero: the wanted ones and their ancestors (the backward
     // pass), which hold the units' ancestors (the forward pass); with supernodes, whole
@@ -1088,7 +1089,7 @@ void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& row
     const int most = supernodal_ ? kWidestSolve : 8;
     std::vector<double>& work = scratch().work;
     int zeroed = 0;  // the width work was last laid out and cleared for
-    for (int first = 0; first < k; first += most) {
+    for (int first = first_batch * most; first < k; first += batch_step * most) {
         const int c = std::min(most, k - first);
         const int w = padded_width(c);
         // straight in the factor's node order (node i's 3 x w values at 3 w i): no full-length

@@ -63,8 +63,11 @@ public:
     // j < k (scalar unknowns, original numbering), without the full-length columns. The nodes of
     // `rows` and of `units` must be among wanted_nodes (the backward pass visits them and their
     // ancestors only; the other rows are never computed). The contact responses' solves.
+    // The units go in batches of kWidestSolve; first_batch and batch_step: only the batches
+    // first_batch, first_batch + batch_step, ... (calls for different batches may run on two
+    // threads at once: each batch's columns are its own, and come out the same either way).
     void solve_units(const int* units, int k, const std::vector<int>& rows, const std::vector<int>& wanted_nodes,
-                     double* out, long ld) const;
+                     double* out, long ld, int first_batch = 0, int batch_step = 1) const;
     // The same on node-major storage: x holds n nodes x 3 x w values (w = 1, 4 or 8; node i's
     // 3 x w block at x + 3 w i, row-major), in the matrix's own node order. Panels::Single:
     // with the single-precision copy of the factor (half the memory traffic; the arithmetic

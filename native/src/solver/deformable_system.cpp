@@ -343,7 +343,7 @@ void DeformableSystem::solve_response_single(const VecX& b, VecX& x) {
 
 bool DeformableSystem::response_blocks(const std::vector<int>& columns, const std::vector<int>& rows, const double*& data,
                                        long& ld, const std::vector<int>*& row_slot, const std::vector<int>*& column_slot,
-                                       const std::vector<Mat3>*& warp) {
+                                       const std::vector<Mat3>*& warp, const Beside& beside) {
     Impl& m = *impl_;
     if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) return false;
     const int n = m.cholesky.nodes();
@@ -414,8 +414,17 @@ bool DeformableSystem::response_blocks(const std::vector<int>& columns, const st
         if (!units.empty()) {
             std::vector<int> wanted = m.row_nodes;
             std::sort(wanted.begin(), wanted.end());
-            m.cholesky.solve_units(units.data(), static_cast<int>(units.size()), unknowns_at, wanted,
-                                   b.data() + 3 * kept_columns * b.rows(), b.rows());
+            // in two shares (every other batch of units), side by side when beside lets them
+            auto share = [&](int part) {
+                m.cholesky.solve_units(units.data(), static_cast<int>(units.size()), unknowns_at, wanted,
+                                       b.data() + 3 * kept_columns * b.rows(), b.rows(), part, 2);
+            };
+            if (beside && static_cast<int>(units.size()) > kWidestSolve) {
+                beside([&] { share(0); }, [&] { share(1); });
+            } else {
+                share(0);
+                share(1);
+            }
             if (!b.block(0, 3 * kept_columns, 3 * total_rows, 3 * (total_columns - kept_columns)).allFinite())
                 throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
         }

@@ -113,9 +113,12 @@ public:
     // data + 3 column_slot[k] ld + 3 row_slot[i] (3x3, column-major, leading dimension ld;
     // valid until the next call); warp: W (null: the identity). Then column d of node k's
     // response at node i is W_i (Af^-1)_{ik} W_k^T e_d.
+    // beside (World::step's hand, HandSystem::beside): the fresh columns' unit solves in two
+    // shares, every other batch, that may run side by side (after a factorization, every
+    // touched node's: ~20-35 ms of one thread on the ~17000-tet hand); same blocks either way.
     bool response_blocks(const std::vector<int>& columns, const std::vector<int>& rows, const double*& data, long& ld,
                          const std::vector<int>*& row_slot, const std::vector<int>*& column_slot,
-                         const std::vector<Mat3>*& warp);
+                         const std::vector<Mat3>*& warp, const Beside& beside = nullptr);
     // Element rotations of the step (the co-rotation), for ReusedCholesky's warp: each node's
     // rotation (the rotation of the sum of its elements' rotations) relative to its rotation
     // when the factor was made. Ignored by the other solvers.

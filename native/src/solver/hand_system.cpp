@@ -263,7 +263,7 @@ bool HandSystem::apply_inverse_units(const std::vector<int>& unknowns, const std
     const std::vector<int>* row_slot = nullptr;
     const std::vector<int>* column_slot = nullptr;
     const std::vector<Mat3>* warp = nullptr;
-    if (!tool.response_blocks(columns, at, blocks, ld, row_slot, column_slot, warp)) return false;
+    if (!tool.response_blocks(columns, at, blocks, ld, row_slot, column_slot, warp, beside)) return false;
     auto rot = [&](int node) -> Mat3 { return warp ? (*warp)[node] : Mat3::Identity(); };
     Eigen::FullPivLU<Mat6> schur(handle.A);  // handle.A still holds the Schur complement
     const Eigen::Index nr = static_cast<Eigen::Index>(rows.size()), k = static_cast<Eigen::Index>(unknowns.size());

@@ -23,7 +23,8 @@ public:
 
     // When set (the world's hand, World::step), solve() solves b_t and the Schur columns as two
     // groups that may run side by side on two threads (DeformableSystem::solve_many_split; the
-    // same result either way). Empty: one batch.
+    // same result either way), and apply_inverse_units the fresh response columns in two shares
+    // (DeformableSystem::response_blocks). Empty: one batch, one after the other.
     Beside beside;
     // Set before solve() (the world's hand: the last step's contact impulses, World::solve_free):
     // solve() then also forms carried_response = apply_inverse(carried, true) and empties
