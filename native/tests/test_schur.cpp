@@ -1,15 +1,17 @@
 // The Schur-complement solve (Eqs. 12-13, Section 6) against the monolithic reference of
 // Eq. 7, and the handle's mass properties (Eq. 3).
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <functional>
 #include <random>
 #include <thread>
-#include <functional>
 
 #include "box_mesh.h"
 #include "check.h"
 #include "rigid/quaternion.h"
 #include "sim/data.h"
+#include "solver/block_ldlt.h"
 
 using namespace hh;
 
@@ -222,6 +224,71 @@ TEST(reused_cholesky_split_lanes_match_the_monolithic_step_on_one_thread_or_two)
         CHECK(one.x.size() == two.x.size() && (one.x - two.x).cwiseAbs().maxCoeff() == 0.0);
         CHECK(one.iterations == two.iterations && one.factorizations == two.factorizations);
         if (limit == 1) CHECK(one.factorizations >= 3);  // (renewed mid-step: the stale path ran)
+    }
+}
+
+TEST(reused_cholesky_carried_and_fresh_response_solves_beside_b_t_are_the_plain_ones) {
+    // The world's hand runs two more things on the Schur columns' side (HandSystem::beside):
+    // the carried impulses' flesh pass (HandSystem::carried) and half the fresh response
+    // columns' unit solves (DeformableSystem::response_blocks). On a second thread they give
+    // bit for bit what the plain calls give one after the other: carried_response is
+    // apply_inverse(carried, true) after the solve, also when the groups' stale path renews
+    // the factor after the pass (iteration limit 1), and the unit columns (more than one
+    // batch of them) are the same.
+    const Beside threaded = [](const std::function<void()>& a, const std::function<void()>& b) {
+        std::thread other(b);
+        a();
+        other.join();
+    };
+    const Beside sequential = [](const std::function<void()>& a, const std::function<void()>& b) {
+        a();
+        b();
+    };
+    const Model m = reused_box_model();
+    const hh_params& p = m.params;
+    for (int limit : {25, 1}) {
+        Data beside(m), plain(m);
+        beside.hand.beside = threaded;
+        plain.hand.beside = sequential;  // (the same split of b_t and the Schur columns)
+        int renewed_after_groups = 0;
+        for (Data* d : {&beside, &plain}) {
+            d->tool.reuse_iteration_limit = limit;
+            d->device.enabled = true;
+        }
+        std::mt19937 rng(9);
+        std::normal_distribution<double> g(0, 1);
+        for (int s = 0; s < 10; ++s) {
+            const double t = s * p.dt;
+            const Eigen::Index n = 6 + 3 * m.mesh.n_nodes;
+            VecX carried(n);
+            for (Eigen::Index i = 0; i < n; ++i) carried[i] = 1e-3 * g(rng);
+            std::vector<int> touched;  // 12 nodes' unknowns, a node more each step
+            for (int k = 0; k < 12 + s; ++k)
+                for (int d = 0; d < 3; ++d) touched.push_back(6 + 3 * ((5 * k + s) % m.mesh.n_nodes) + d);
+            std::sort(touched.begin(), touched.end());
+            touched.erase(std::unique(touched.begin(), touched.end()), touched.end());
+            CHECK(touched.size() > static_cast<size_t>(kWidestSolve));
+            MatX units[2];
+            for (int which = 0; which < 2; ++which) {
+                Data& d = which ? plain : beside;
+                d.device.position = m.handle.rest_com + 0.03 * Vec3(std::sin(4 * t), 0.3 * t, 0);
+                d.device.quaternion = quat_from_rotation_vector(Vec3(0, 0.5 * std::sin(3 * t), t));
+                formulate(m, d);
+                d.tool.reset_counters();
+                if (which == 0) d.hand.carried = carried;
+                d.hand.solve();
+                if (which == 0) renewed_after_groups += d.tool.factorizations > 0 && d.tool.iterations > 0;
+                CHECK(d.hand.apply_inverse_units(touched, touched, units[which]));
+            }
+            CHECK((beside.hand.s - plain.hand.s).cwiseAbs().maxCoeff() == 0.0);
+            CHECK(beside.hand.carried.size() == 0);  // (used up)
+            const VecX reference = plain.hand.apply_inverse(carried, true);
+            CHECK((beside.hand.carried_response - reference).cwiseAbs().maxCoeff() == 0.0);
+            CHECK((units[0] - units[1]).cwiseAbs().maxCoeff() == 0.0);
+            integrate(m, beside, beside.hand.s);
+            integrate(m, plain, plain.hand.s);
+        }
+        if (limit == 1) CHECK(renewed_after_groups >= 1);  // (the pass was solved again)
     }
 }
 
