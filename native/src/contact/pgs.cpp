@@ -369,25 +369,29 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
     std::vector<int> all(c), live;
     std::vector<double> own(c, 0.0);
     for (int i = 0; i < c; ++i) all[i] = i;
+    // contact i's conditions at relative velocity ui and its current impulses
+    auto local_residual = [&](int i, const Vec3& ui) {
+        const int n = 3 * i;
+        const double un = ui[0] + bias[i];
+        double r = lambda[n] > 0 ? std::abs(un) : std::max(0.0, -un);
+        const Eigen::Vector2d ut(ui[1], ui[2]), lt(lambda[n + 1], lambda[n + 2]);
+        const double limit = coefficient[i] * lambda[n];
+        // without normal impulse there is no friction (its disk is the point 0): any sliding is allowed
+        if (limit > 0) {
+            if (lt.norm() < limit * (1 - 1e-9) || lt.norm() == 0)
+                r = std::max(r, ut.norm());  // sticking: no sliding allowed
+            else
+                r = std::max(r, (ut + (ut.norm() / lt.norm()) * lt).norm());  // anti-parallel
+        }
+        return r;
+    };
     auto residual = [&](const std::vector<int>& contacts) {
         double worst = 0;
         for (const int i : contacts) {
-            const int n = 3 * i;
             const Vec3 ui = op.velocity(i);
             u[i] = ui;
-            const double un = ui[0] + bias[i];
-            double r = lambda[n] > 0 ? std::abs(un) : std::max(0.0, -un);
-            const Eigen::Vector2d ut(ui[1], ui[2]), lt(lambda[n + 1], lambda[n + 2]);
-            const double limit = coefficient[i] * lambda[n];
-            // without normal impulse there is no friction (its disk is the point 0): any sliding is allowed
-            if (limit > 0) {
-                if (lt.norm() < limit * (1 - 1e-9) || lt.norm() == 0)
-                    r = std::max(r, ut.norm());  // sticking: no sliding allowed
-                else
-                    r = std::max(r, (ut + (ut.norm() / lt.norm()) * lt).norm());  // anti-parallel
-            }
-            own[i] = r;
-            worst = std::max(worst, r);
+            own[i] = local_residual(i, ui);
+            worst = std::max(worst, own[i]);
         }
         return worst;
     };
@@ -451,11 +455,22 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         const bool full = it >= next_full;
         if (full && it > 0) op.refresh(lambda);
         const std::vector<int>& visit = full ? all : live;
+        // A partial sweep measures no residual of its own: each contact's conditions as the
+        // sweep finds it (before its update, with the contacts visited before it updated)
+        // estimate where the last sweep left them, and only when that estimate is within the
+        // tolerance is every contact's residual measured (see `deciding` below: every decision
+        // stays on the residual of every contact). The measurement after each partial sweep
+        // was a second pass of velocities over the visited contacts.
+        double estimate = 0;
         for (const int i : visit) {
             const int n = 3 * i;
             const Mat3& w = op.block(i);
-            if (w(0, 0) <= 0) continue;  // both sides immovable
+            if (w(0, 0) <= 0) {  // both sides immovable: no impulse changes its residual
+                estimate = std::max(estimate, own[i]);
+                continue;
+            }
             Vec3 ui = op.velocity(i);
+            if (!full) estimate = std::max(estimate, local_residual(i, ui));
             const double ln = std::max(0.0, lambda[n] - (ui[0] + bias[i]) / w(0, 0));
             Vec3 delta(ln - lambda[n], 0, 0);
             lambda[n] = ln;
@@ -477,7 +492,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             op.apply(i, delta);
         }
         result.iterations = it + 1;
-        result.residual = residual(visit);
+        result.residual = full ? residual(visit) : estimate;
         if (full) {
             select_live(result.residual);
             next_full = it + (large ? kFullEveryLarge : kFullEvery);
