@@ -460,8 +460,7 @@ def main(argv=None) -> int:
                         help="frames per paper-scene run (default: the whole scene, 150 bunny / 120 letters; "
                              "--quick: 10)")
     parser.add_argument("--frames-10x", type=int, default=None,
-                        help="frames per 10x run (default: --frames, else 60 for bunny_press (of 150) "
-                             "and 120 for letters_push (all))")
+                        help="frames per 10x run (default: --frames, else the whole scene)")
     parser.add_argument("--no-10x", action="store_true", help="skip the 10x scenes")
     parser.add_argument("--remesh", action="store_true", help="tetrahedralize again instead of using the cache")
     parser.add_argument("--out", type=Path, default=OUT_DIR, help="where to write bench_visual.json and .png")

@@ -36,6 +36,19 @@ SpMat system_matrix(int nx, int ny, int nz, unsigned seed) {
     return a;
 }
 
+// n random rotations (a warp: one per node), and the same as a dense block-diagonal matrix
+std::vector<Mat3> random_rotations(int n, std::mt19937& rng) {
+    std::normal_distribution<double> g(0, 1);
+    std::vector<Mat3> w(n);
+    for (int i = 0; i < n; ++i) w[i] = quat_to_matrix(Vec4(g(rng), g(rng), g(rng), g(rng)).normalized());
+    return w;
+}
+MatX block_diagonal(const std::vector<Mat3>& w) {
+    MatX out = MatX::Zero(3 * static_cast<Eigen::Index>(w.size()), 3 * static_cast<Eigen::Index>(w.size()));
+    for (size_t i = 0; i < w.size(); ++i) out.block<3, 3>(3 * i, 3 * i) = w[i];
+    return out;
+}
+
 BlockLDLT factored(const SpMat& a, bool supernodal) {
     BlockLDLT f;
     f.set_supernodal(supernodal);
@@ -116,12 +129,8 @@ TEST(block_ldlt_warped_solve_inverts_the_rotated_matrix) {
     f.factorize(a);
     std::mt19937 rng(9);
     std::normal_distribution<double> g(0, 1);
-    std::vector<Mat3> w(n);
-    MatX wd = MatX::Zero(a.rows(), a.rows());
-    for (int i = 0; i < n; ++i) {
-        w[i] = quat_to_matrix(Vec4(g(rng), g(rng), g(rng), g(rng)).normalized());
-        wd.block<3, 3>(3 * i, 3 * i) = w[i];
-    }
+    const std::vector<Mat3> w = random_rotations(n, rng);
+    const MatX wd = block_diagonal(w);
     const MatX rotated = wd * MatX(a) * wd.transpose();
     MatX b(a.rows(), 6);
     for (int i = 0; i < b.size(); ++i) b.data()[i] = g(rng);
@@ -178,12 +187,8 @@ TEST(supernodal_factor_solves_like_a_dense_solver_at_every_simd_level) {
     CHECK(f.has_half() == has_f16c());
     std::mt19937 rng(12);
     std::normal_distribution<double> g(0, 1);
-    std::vector<Mat3> w(n);
-    MatX wd = MatX::Zero(a.rows(), a.rows());
-    for (int i = 0; i < n; ++i) {
-        w[i] = quat_to_matrix(Vec4(g(rng), g(rng), g(rng), g(rng)).normalized());
-        wd.block<3, 3>(3 * i, 3 * i) = w[i];
-    }
+    const std::vector<Mat3> w = random_rotations(n, rng);
+    const MatX wd = block_diagonal(w);
     const MatX dense_a = MatX(a);
     const Eigen::LDLT<MatX> plain(dense_a);
 
@@ -250,12 +255,8 @@ TEST(half_precision_passes_apply_the_inverse_of_the_rounded_factor) {
     const Eigen::LLT<MatX> rounded(lh * lh.transpose());  // (its factor is lh itself)
     std::mt19937 rng(5);
     std::normal_distribution<double> g(0, 1);
-    std::vector<Mat3> w(n);
-    MatX wd = MatX::Zero(a.rows(), a.rows());
-    for (int i = 0; i < n; ++i) {
-        w[i] = quat_to_matrix(Vec4(g(rng), g(rng), g(rng), g(rng)).normalized());
-        wd.block<3, 3>(3 * i, 3 * i) = w[i];
-    }
+    const std::vector<Mat3> w = random_rotations(n, rng);
+    const MatX wd = block_diagonal(w);
     const Eigen::LDLT<MatX> plain(dense_a);
     for (int level = 1; level <= detected_simd_level(); ++level) {
         simd_level_override() = level;
@@ -399,10 +400,8 @@ TEST(solves_asked_for_some_nodes_give_those_rows_of_the_inverse_in_both_forms) {
     const int n3 = static_cast<int>(a.rows()), n = n3 / 3;
     std::mt19937 rng(24);
     std::normal_distribution<double> g(0, 1);
-    std::vector<Mat3> warp;
-    for (int i = 0; i < n; ++i) warp.push_back(quat_to_matrix(Vec4(g(rng), g(rng), g(rng), g(rng)).normalized()));
-    MatX wb = MatX::Zero(n3, n3);  // the warp as a matrix: x = W A^-1 W^T b
-    for (int i = 0; i < n; ++i) wb.block<3, 3>(3 * i, 3 * i) = warp[i];
+    const std::vector<Mat3> warp = random_rotations(n, rng);
+    const MatX wb = block_diagonal(warp);  // the warp as a matrix: x = W A^-1 W^T b
     const MatX inverse = MatX(a).ldlt().solve(MatX::Identity(n3, n3));
     const MatX warped_inverse = wb * inverse * wb.transpose();
     const std::vector<std::vector<int>> wanted_sets = {{n / 2}, {0, n - 1}, {3, 17, n / 3, 2 * n / 3, n - 7}};
