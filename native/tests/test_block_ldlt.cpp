@@ -222,9 +222,10 @@ TEST(supernodal_factor_solves_like_a_dense_solver_at_every_simd_level) {
 TEST(half_precision_passes_apply_the_inverse_of_the_rounded_factor) {
     // A half pass applies W P^T (L_h L_h^T)^-1 P W^T in double arithmetic, with L_h each scalar
     // column of L below the diagonal rounded to binary16 over the column's largest magnitude c_k
-    // (solver/half.h) and multiplied back, the diagonal L's own: rebuilt here from a dense Cholesky of the permuted matrix (the same L to
-    // round-off, so the same halves but with probability ~1e-13 per entry), the pass must match
-    // that operator to double round-off, while it departs from A^-1 by the halves' rounding.
+    // (solver/half.h) and multiplied back, the diagonal L's own. Rebuilt here from a dense
+    // Cholesky of the permuted matrix (the same L to round-off, so the same halves but with
+    // probability ~1e-13 per entry), that operator must match the pass to double round-off,
+    // while the pass departs from A^-1 by the halves' rounding.
     if (!has_f16c()) return;
     const SpMat a = system_matrix(7, 5, 4, 11);
     const int n = static_cast<int>(a.rows() / 3);
