@@ -120,9 +120,10 @@ struct DeformableSystem::Impl {
         return panels == "double" ? Panels::Double : panels == "single" ? Panels::Single : Panels::Half;
     }();
     bool supernodal = std::getenv("HH_REUSE_UPLOOKING") == nullptr;
-    // the panels a preconditioner pass reads: the narrowest copy the factor keeps
-    Panels pass_panels() const {
-        if (preconditioner == Panels::Half && cholesky.has_half()) return Panels::Half;
+    // the panels a preconditioner pass of `width` lanes reads: the narrowest copy the factor
+    // keeps, half precision for one lane only (see pcg_block)
+    Panels pass_panels(int width) const {
+        if (preconditioner == Panels::Half && cholesky.has_half() && width == 1) return Panels::Half;
         return preconditioner != Panels::Double && cholesky.has_single() ? Panels::Single : Panels::Double;
     }
     // Cost bookkeeping of the refactorization policy, in work units (one unit: a one-lane pass
@@ -629,7 +630,6 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
     // against 2.3-2.6 in cache). Its rounding (2^-11 of each column's largest entry) limits
     // CG's contraction to ~5e-4 an iteration on an exact factor, far below what the staleness
     // of a reused one allows (0.2-0.3 an iteration on that hand).
-    Panels panels = pass_panels();
     // lanes[l] = column of b held in lane l (-1: an idle lane, all zeros)
     std::vector<int> lanes;
     std::vector<double> bnorm(count, 0.0);
@@ -747,7 +747,7 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         if (!any) break;
         const size_t total = static_cast<size_t>(n3) * wd;
         std::copy(nr.begin(), nr.begin() + total, nz.begin());  // z = M^-1 r
-        cholesky.solve_node_major(nz.data(), wd, w, panels == Panels::Half && wd > 1 ? Panels::Single : panels);
+        cholesky.solve_node_major(nz.data(), wd, w, pass_panels(wd));
         tally.units += pass_units(wd);
         lane_dot(nr, nz, rz_new);
         double beta[8] = {};
@@ -798,7 +798,6 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
             tally.units = 0;
             factor(sys);
             w = nullptr;
-            panels = pass_panels();
             restarted = true;
             fresh = true;
             residual();
