@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <random>
 #include <thread>
 
@@ -561,4 +562,67 @@ TEST(supernodal_factor_in_two_parts_is_the_same_side_by_side_or_not) {
     MatX x2 = b;
     f.solve(x2);
     CHECK_LT((MatX(a2 * x2) - b).norm() / b.norm(), 1e-12);
+}
+
+TEST(a_solve_over_the_two_parts_side_by_side_is_the_plain_solve_to_round_off) {
+    // solve_node_major_split: the parts' passes as two jobs, on two threads or one after the
+    // other. The same bits either way, and the plain pass's result to round-off (only the rest's
+    // rows sum the parts' contributions in another order), for dense and sparse right-hand
+    // sides (the forward pass skips supernodes still zero), every copy of the panels, with and
+    // without a warp. A factor without parts: the plain pass itself.
+    const SpMat a = system_matrix(12, 8, 6, 41);
+    const int n = static_cast<int>(a.rows() / 3);
+    BlockLDLT f;
+    f.set_supernodal(true);
+    f.set_keep_half(true);
+    f.analyze(a);
+    f.factorize(a);
+    CHECK(f.factor_parts() == 2);
+    const Beside one_after_the_other = [](const std::function<void()>& mine, const std::function<void()>& other) {
+        mine();
+        other();
+    };
+    const Beside side_by_side = [](const std::function<void()>& mine, const std::function<void()>& other) {
+        std::thread t(other);
+        mine();
+        t.join();
+    };
+    std::mt19937 rng(44);
+    std::normal_distribution<double> g(0, 1);
+    const std::vector<Mat3> w = random_rotations(n, rng);
+    std::vector<Panels> copies = {Panels::Double, Panels::Single};
+    if (f.has_half()) copies.push_back(Panels::Half);
+    for (Panels panels : copies)
+        for (int width : {1, 8})
+            for (bool warped : {false, true})
+                for (bool sparse : {false, true}) {
+                    MatX b = MatX::Zero(a.rows(), width);
+                    if (sparse) {
+                        for (int node : {3, n / 2, n - 5})
+                            for (int e = 0; e < 3 * width; ++e) b(3 * node + e % 3, e / 3) = g(rng);
+                    } else {
+                        for (int i = 0; i < b.size(); ++i) b.data()[i] = g(rng);
+                    }
+                    std::vector<double> plain = node_major(b, width), seq = plain, thr = plain;
+                    f.solve_node_major(plain.data(), width, warped ? &w : nullptr, panels);
+                    f.solve_node_major_split(seq.data(), width, warped ? &w : nullptr, panels, one_after_the_other);
+                    f.solve_node_major_split(thr.data(), width, warped ? &w : nullptr, panels, side_by_side);
+                    CHECK(seq == thr);
+                    double diff = 0, size = 0;
+                    for (size_t e = 0; e < plain.size(); ++e) {
+                        diff = std::max(diff, std::abs(seq[e] - plain[e]));
+                        size = std::max(size, std::abs(plain[e]));
+                    }
+                    CHECK(size > 0);
+                    CHECK_LT(diff / size, 1e-13);
+                }
+    const SpMat small = system_matrix(4, 3, 3, 45);
+    const BlockLDLT s = factored(small, true);
+    CHECK(s.factor_parts() == 0);
+    MatX b(small.rows(), 1);
+    for (int i = 0; i < b.size(); ++i) b.data()[i] = g(rng);
+    std::vector<double> plain = node_major(b, 1), split = plain;
+    s.solve_node_major(plain.data(), 1, nullptr);
+    s.solve_node_major_split(split.data(), 1, nullptr, Panels::Double, side_by_side);
+    CHECK(split == plain);
 }

@@ -635,6 +635,10 @@ struct SupernodalFactor {
     const unsigned char* wanted;  // null, or per supernode (as Factor::wanted)
     const Half* val_half;  // the half-precision copy: each scalar column over its scale, or null
     const float* scale;    // per scalar column (as diag_inverse), with val_half
+    const unsigned char* part = nullptr;  // per supernode its part (BlockLDLT::sn_part_), with `only`
+    int only = -1;                        // -1: every supernode, else only those of this part
+    bool forward = true, backward = true;  // the passes to make
+    bool skips(int j) const { return only >= 0 && part[j] != only; }
 };
 
 template <typename PT> struct PanelVec;
@@ -700,7 +704,8 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
     // multiplied by its scale (the group's right-hand values in the forward pass, its sums in
     // the backward one, each triangle entry), in double
     constexpr bool kHalf = std::is_same_v<PT, Half>;
-    for (int j = 0; j < f.ns; ++j) {  // L z = b
+    for (int j = 0; j < (f.forward ? f.ns : 0); ++j) {  // L z = b
+        if (f.skips(j)) continue;
         const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
         const int* rows = f.rows + f.rows_ptr[j];
         const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
@@ -773,8 +778,8 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
             for (int e = 0; e < 3 * W; ++e) to[e] += from[e];
         }
     }
-    for (int j = f.ns - 1; j >= 0; --j) {  // L^T x = z
-        if (f.wanted && !f.wanted[j]) continue;  // (see solve_permuted)
+    for (int j = f.backward ? f.ns - 1 : -1; j >= 0; --j) {  // L^T x = z
+        if ((f.wanted && !f.wanted[j]) || f.skips(j)) continue;  // (see solve_permuted)
         const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
         const int* rows = f.rows + f.rows_ptr[j];
         const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
@@ -1019,6 +1024,7 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
 namespace {
 struct SolveScratch {
     std::vector<double> work, packed, gather;
+    std::vector<double> saved, copy;  // solve_node_major_split: the rest's right-hand rows; part 1's copy
     std::vector<unsigned char> wanted_node, wanted_sn;
     std::vector<int> dirty;
 };
@@ -1031,13 +1037,19 @@ SolveScratch& scratch() {
 }  // namespace
 
 // The forward, diagonal and backward passes on x in the factor's own node order
-void BlockLDLT::solve_in_order(double* x, int w, Panels panels, const unsigned char* wanted) const {
+void BlockLDLT::check_panels(int w, Panels panels) const {
     if (panels == Panels::Half && !half_valid_)
         throw std::logic_error("BlockLDLT::solve_node_major: no half-precision copy of the factor");
     if (panels == Panels::Half && !(w == 1 || w == 4 || w == 8))
         throw std::logic_error("BlockLDLT::solve_node_major: half-precision passes take 1, 4 or 8 columns");
-    const bool single = panels != Panels::Double;  // (half falls back on single where it cannot run)
-    if (single && !single_valid_) throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
+    // (half falls back on single where it cannot run)
+    if (panels != Panels::Double && !single_valid_)
+        throw std::logic_error("BlockLDLT::solve_node_major: no single-precision copy of the factor");
+}
+
+void BlockLDLT::solve_in_order(double* x, int w, Panels panels, const unsigned char* wanted) const {
+    check_panels(w, panels);
+    const bool single = panels != Panels::Double;
     if (supernodal_) {
         solve_supernodal(x, w, panels, wanted);
     } else if (single) {
@@ -1049,6 +1061,17 @@ void BlockLDLT::solve_in_order(double* x, int w, Panels panels, const unsigned c
     }
 }
 
+namespace {
+// to = W^T from in the factor's node order (in), or back (out); see warp_permute
+void warp_permute_any(int w, bool in, int n, const int* order, const std::vector<Mat3>* warp, const double* from, double* to) {
+    if (w == 1) in ? warp_permute<1, true>(n, order, warp, from, to) : warp_permute<1, false>(n, order, warp, from, to);
+    else if (w == 4) in ? warp_permute<4, true>(n, order, warp, from, to) : warp_permute<4, false>(n, order, warp, from, to);
+    else if (w == 16) in ? warp_permute<16, true>(n, order, warp, from, to) : warp_permute<16, false>(n, order, warp, from, to);
+    else if (w == 32) in ? warp_permute<32, true>(n, order, warp, from, to) : warp_permute<32, false>(n, order, warp, from, to);
+    else in ? warp_permute<8, true>(n, order, warp, from, to) : warp_permute<8, false>(n, order, warp, from, to);
+}
+}  // namespace
+
 void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp, Panels panels,
                                  const unsigned char* wanted) const {
     if (!(w == 1 || w == 4 || w == 8 || (supernodal_ && (w == 16 || w == 32))))
@@ -1056,17 +1079,48 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
     std::vector<double>& work = scratch().work;
     work.resize(static_cast<size_t>(3) * n_ * w);
     double* x = work.data();
-    if (w == 1) warp_permute<1, true>(n_, order_.data(), warp, b, x);
-    else if (w == 4) warp_permute<4, true>(n_, order_.data(), warp, b, x);
-    else if (w == 16) warp_permute<16, true>(n_, order_.data(), warp, b, x);
-    else if (w == 32) warp_permute<32, true>(n_, order_.data(), warp, b, x);
-    else warp_permute<8, true>(n_, order_.data(), warp, b, x);
+    warp_permute_any(w, true, n_, order_.data(), warp, b, x);
     solve_in_order(x, w, panels, wanted);
-    if (w == 1) warp_permute<1, false>(n_, order_.data(), warp, x, b);
-    else if (w == 4) warp_permute<4, false>(n_, order_.data(), warp, x, b);
-    else if (w == 16) warp_permute<16, false>(n_, order_.data(), warp, x, b);
-    else if (w == 32) warp_permute<32, false>(n_, order_.data(), warp, x, b);
-    else warp_permute<8, false>(n_, order_.data(), warp, x, b);
+    warp_permute_any(w, false, n_, order_.data(), warp, x, b);
+}
+
+void BlockLDLT::solve_node_major_split(double* b, int w, const std::vector<Mat3>* warp, Panels panels, const Beside& beside) const {
+    if (!supernodal_ || factor_parts_ != 2 || !beside) return solve_node_major(b, w, warp, panels);
+    if (!(w == 1 || w == 4 || w == 8 || w == 16 || w == 32))
+        throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4, 8, 16 or 32");
+    check_panels(w, panels);
+    SolveScratch& s = scratch();  // (the caller's; the other job's kernels use their own thread's gather)
+    const size_t row = static_cast<size_t>(3) * w;  // values per node
+    s.work.resize(row * n_);
+    double* x = s.work.data();
+    warp_permute_any(w, true, n_, order_.data(), warp, b, x);
+    // the rest's rows start at zero in both copies (part 1's forward pass runs on its own)
+    const int ns = supernodes();
+    s.saved.clear();
+    for (int j = 0; j < ns; ++j)
+        if (sn_part_[j] == 2) {
+            double* from = x + row * sn_start_[j];
+            double* to = x + row * sn_start_[j + 1];
+            s.saved.insert(s.saved.end(), from, to);
+            std::fill(from, to, 0.0);
+        }
+    s.copy.assign(x, x + row * n_);
+    double* x1 = s.copy.data();
+    beside([&] { solve_supernodal(x, w, panels, nullptr, 0, true, false); },
+           [&] { solve_supernodal(x1, w, panels, nullptr, 1, true, false); });
+    size_t k = 0;
+    for (int j = 0; j < ns; ++j) {
+        const size_t from = row * sn_start_[j], to = row * sn_start_[j + 1];
+        if (sn_part_[j] == 1) {
+            std::copy(x1 + from, x1 + to, x + from);
+        } else if (sn_part_[j] == 2) {  // what the right-hand side had, then part 0's, then part 1's
+            for (size_t e = from; e < to; ++e) x[e] = (s.saved[k++] + x[e]) + x1[e];
+        }
+    }
+    solve_supernodal(x, w, panels, nullptr, 2, true, true);
+    beside([&] { solve_supernodal(x, w, panels, nullptr, 0, false, true); },
+           [&] { solve_supernodal(x, w, panels, nullptr, 1, false, true); });
+    warp_permute_any(w, false, n_, order_.data(), warp, x, b);
 }
 
 void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& rows, const std::vector<int>& wanted_nodes,
@@ -1172,7 +1226,8 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<
     }
 }
 
-void BlockLDLT::solve_supernodal(double* x, int w, Panels panels, const unsigned char* wanted) const {
+void BlockLDLT::solve_supernodal(double* x, int w, Panels panels, const unsigned char* wanted, int part, bool forward,
+                                 bool backward) const {
     const bool single = panels != Panels::Double, half = panels == Panels::Half;
     const int ns = supernodes();
     size_t most = 0;
@@ -1191,7 +1246,11 @@ void BlockLDLT::solve_supernodal(double* x, int w, Panels panels, const unsigned
                              single ? sn_diag_inverse_.data() : nullptr,
                              wanted,
                              half ? sn_val_half_.data() : nullptr,
-                             half ? sn_scale_.data() : nullptr};
+                             half ? sn_scale_.data() : nullptr,
+                             sn_part_.data(),
+                             part,
+                             forward,
+                             backward};
     supernodal_solve_dispatch(f, x, w, gather.data());
 }
 

@@ -342,6 +342,19 @@ void DeformableSystem::solve_response_single(const VecX& b, VecX& x) {
     if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 
+void DeformableSystem::solve_response_split(const VecX& b, VecX& x, const Beside& beside) {
+    Impl& m = *impl_;
+    if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) {
+        MatX xm;
+        solve_response(b, xm);
+        x = xm.col(0);
+        return;
+    }
+    x = b;  // (one column: node-major storage is the plain vector)
+    m.cholesky.solve_node_major_split(x.data(), 1, m.response_warp(), Panels::Double, beside);
+    if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
+}
+
 bool DeformableSystem::response_blocks(const std::vector<int>& columns, const std::vector<int>& rows, const double*& data,
                                        long& ld, const std::vector<int>*& row_slot, const std::vector<int>*& column_slot,
                                        const std::vector<Mat3>*& warp, const Beside& beside) {

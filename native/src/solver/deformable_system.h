@@ -21,15 +21,13 @@
 #include <memory>
 #include <vector>
 
+#include "common/beside.h"
 #include "solver/linear_system.h"
 
 namespace hh {
 
 enum class DeformableSolver { Cholesky, ConjugateGradient, ReusedCholesky };
 
-// Runs two jobs, possibly side by side on two threads (World::step's task graph,
-// TaskGraph::run_beside), and returns once both are done; empty: one after the other.
-using Beside = std::function<void(const std::function<void()>&, const std::function<void()>&)>;
 
 class DeformableSystem : public LinearSystem {
 public:
@@ -103,6 +101,10 @@ public:
     // float round-off of solve_response's). For what need not be the very same operator: the
     // hand's carried impulses (World::solve_free).
     void solve_response_single(const VecX& b, VecX& x);
+    // solve_response for one column, with ReusedCholesky the factor's two parts as two jobs for
+    // `beside` (BlockLDLT::solve_node_major_split: the same operator to round-off, and the same
+    // result whether the jobs run side by side or not).
+    void solve_response_split(const VecX& b, VecX& x, const Beside& beside);
     // ReusedCholesky only (false otherwise, outputs untouched): the response operator's columns
     // of the nodes `columns` at the nodes `columns` and `rows`, as unwarped 3x3 blocks. The
     // operator is W Af^-1 W^T with Af fixed until the next factorization, so these blocks of

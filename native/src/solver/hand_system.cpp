@@ -94,6 +94,8 @@ VecX HandSystem::apply_inverse(const VecX& rhs, bool single) {
     VecX s0;
     if (single) {
         tool.solve_response_single(rhs.tail(n3), s0);
+    } else if (beside) {
+        tool.solve_response_split(rhs.tail(n3), s0, beside);
     } else {
         MatX solved;
         tool.solve_response(rhs.tail(n3), solved);

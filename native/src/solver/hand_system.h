@@ -38,7 +38,9 @@ public:
     // contact solver applies the impulses' velocities with it. The At solve is the tool's
     // response operator (DeformableSystem::solve_response: with ReusedCholesky the warped
     // factor, not CG), the same as apply_inverse_many's.
-    // single: the At solve through DeformableSystem::solve_response_single instead.
+    // single: the At solve through DeformableSystem::solve_response_single instead; else, with
+    // `beside`, through solve_response_split (the contact impulses' velocities, World::step: the
+    // factor's two parts on the two threads, the other otherwise idle then).
     VecX apply_inverse(const VecX& rhs, bool single = false);
     // ... its handle part and Eq. 12, given the At pass s0 = A_t^-1 rhs_t
     VecX finish_inverse(const VecX& rhs, const VecX& s0);
