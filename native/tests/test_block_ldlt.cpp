@@ -525,13 +525,20 @@ TEST(panel_kernels_match_dense_products_and_cholesky_at_every_simd_level) {
 
 TEST(supernodal_factor_in_two_parts_is_the_same_side_by_side_or_not) {
     // a factor large enough to be split in two parts (whole subtrees) and the rest: the parts
-    // run on two threads at once, one after the other, or inside factorize(), and the factor
+    // run on two threads at once, one after the other, or inside factorize(), and the rest's
+    // large supernodes take their updates in two shares, side by side or not, and the factor
     // (its solves) is the same bit for bit, and solves A
     const SpMat a = system_matrix(12, 8, 6, 41);
     BlockLDLT f;
     f.set_supernodal(true);
     f.analyze(a);
     CHECK(f.factor_parts() == 2);
+    CHECK(f.rest_shares() > 0);
+    const Beside side_by_side = [](const std::function<void()>& mine, const std::function<void()>& other) {
+        std::thread t(other);
+        mine();
+        t.join();
+    };
     std::mt19937 rng(42);
     std::normal_distribution<double> g(0, 1);
     MatX b(a.rows(), 3);
@@ -540,16 +547,16 @@ TEST(supernodal_factor_in_two_parts_is_the_same_side_by_side_or_not) {
     MatX plain = b;
     f.solve(plain);
     CHECK_LT((MatX(a * plain) - b).norm() / b.norm(), 1e-12);
-    for (int mode = 0; mode < 2; ++mode) {
+    for (int mode = 0; mode < 3; ++mode) {
         if (mode == 0) {
             f.factorize_part(a, 1);
             f.factorize_part(a, 0);
-        } else {
+        } else if (mode == 1) {
             std::thread other([&] { f.factorize_part(a, 1); });
             f.factorize_part(a, 0);
             other.join();
         }
-        f.factorize(a);
+        f.factorize(a, mode == 2 ? side_by_side : Beside());
         MatX x = b;
         f.solve(x);
         CHECK(x == plain);

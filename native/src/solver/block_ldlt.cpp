@@ -184,10 +184,10 @@ void BlockLDLT::analyze_supernodes() {
     li_.assign(cp[n_], 0);
 }
 
-void BlockLDLT::factorize(const SpMat& a) {
+void BlockLDLT::factorize(const SpMat& a, const Beside& beside) {
     factored_ = false;
     if (supernodal_) {
-        factorize_supernodal(a);
+        factorize_supernodal(a, beside);
         factored_ = true;
         single_valid_ = half_valid_ = false;
         if (keep_single_ || keep_half_) make_single();
@@ -254,11 +254,11 @@ void BlockLDLT::factorize_part(const SpMat& a, int part) {
         if (sn_part_[j] == part) link_head_[j] = -1;
     part_work_[part].pending.clear();
     for (int j = 0; j < ns; ++j)
-        if (sn_part_[j] == part) factor_supernode(a.valuePtr(), j, part);
+        if (sn_part_[j] == part) factor_supernode(a.valuePtr(), j, part, nullptr);
     part_done_[part] = true;
 }
 
-void BlockLDLT::factorize_supernodal(const SpMat& a) {
+void BlockLDLT::factorize_supernodal(const SpMat& a, const Beside& beside) {
     const int ns = supernodes();
     for (int part = 0; part < factor_parts_; ++part)
         if (!part_done_[part]) factorize_part(a, part);
@@ -273,12 +273,12 @@ void BlockLDLT::factorize_supernodal(const SpMat& a) {
             link_head_[target] = k;
         }
     for (int j = 0; j < ns; ++j)
-        if (sn_part_[j] == 2) factor_supernode(a.valuePtr(), j, 2);
+        if (sn_part_[j] == 2) factor_supernode(a.valuePtr(), j, 2, &beside);
 }
 
 // Supernode j: A's columns, the updates of the descendants queued for it, its panel's Cholesky,
 // then queued for its own next target (in its part, or pending for the rest).
-void BlockLDLT::factor_supernode(const double* values, int j, int part) {
+void BlockLDLT::factor_supernode(const double* values, int j, int part, const Beside* beside) {
     using Panel = Eigen::Map<MatX, 0, Eigen::OuterStride<>>;
     PartWork& work = part_work_[part == 2 ? 0 : part];
     std::vector<int>& relmap = work.relmap;
@@ -303,33 +303,63 @@ void BlockLDLT::factor_supernode(const double* values, int j, int part) {
             for (int r = 0; r < 3; ++r)
                 for (int q = 0; q < 3; ++q) to[static_cast<size_t>(q) * ld + r] = values[ref.offsets[3 * r + q]];
         }
-    // updates from the descendants whose next rows fall in this supernode's columns
-    for (int k = link_head_[j]; k != -1;) {
-        const int next = link_next_[k];
-        const int* krows = sn_rows_.data() + sn_rows_ptr_[k];
-        const int knr = sn_rows_ptr_[k + 1] - sn_rows_ptr_[k], kld = 3 * knr;
-        const int km = 3 * (sn_start_[k + 1] - sn_start_[k]);
-        const int first = sn_pos_[k];
-        int q1 = 0;
-        while (first + q1 < knr && krows[first + q1] < c1) ++q1;
-        const int q = knr - first;
-        const Panel lq(sn_val_.data() + sn_val_ptr_[k] + 3 * first, 3 * q, km, Eigen::OuterStride<>(kld));
-        work.update.resize(static_cast<size_t>(9) * q * q1);
-        // U = Lq Lq(top rows)^T: the dense update, the bulk of the factorization's flops
-        panel_outer_product(lq.data(), kld, 3 * q, 3 * q1, km, work.update.data());
-        for (int cc = 0; cc < 3 * q1; ++cc) {  // (its lower part: the panel's upper one is never read)
-            double* to = p + static_cast<size_t>(3 * (krows[first + cc / 3] - c0) + cc % 3) * ld;
-            const double* from = work.update.data() + static_cast<size_t>(cc) * 3 * q;
-            for (int t = cc / 3; t < q; ++t) {
-                double* dst = to + 3 * relmap[krows[first + t]];
-                dst[0] -= from[3 * t];
-                dst[1] -= from[3 * t + 1];
-                dst[2] -= from[3 * t + 2];
+    // updates from the descendants whose next rows fall in this supernode's columns, in the
+    // order they were queued; the panel's columns [0, split) and [split, m) as two shares (each
+    // its own update buffer; they write disjoint columns), side by side when `beside` runs them
+    // so. Each entry of the panel loses the same products in the same order either way.
+    std::vector<int>& descendants = work.descendants;
+    descendants.clear();
+    for (int k = link_head_[j]; k != -1; k = link_next_[k]) descendants.push_back(k);
+    auto share = [&](int from_column, int to_column, std::vector<double>& update) {
+        for (const int k : descendants) {
+            const int* krows = sn_rows_.data() + sn_rows_ptr_[k];
+            const int knr = sn_rows_ptr_[k + 1] - sn_rows_ptr_[k], kld = 3 * knr;
+            const int km = 3 * (sn_start_[k + 1] - sn_start_[k]);
+            const int first = sn_pos_[k];
+            const int q = knr - first;
+            // its rows [a, b) among those in this supernode's columns fall in the share's columns
+            int a = 0;
+            while (first + a < knr && krows[first + a] < c0 + from_column / 3) ++a;
+            int b = a;
+            while (first + b < knr && krows[first + b] < c0 + to_column / 3) ++b;
+            if (b == a) continue;
+            // U = Lq Lq(rows a..b)^T from row a down: the dense update, the bulk of the
+            // factorization's flops
+            const int rows = 3 * (q - a), columns = 3 * (b - a);
+            const double* lq = sn_val_.data() + sn_val_ptr_[k] + 3 * (first + a);
+            update.resize(static_cast<size_t>(rows) * columns);
+            panel_outer_product(lq, kld, rows, columns, km, update.data());
+            for (int cc = 0; cc < columns; ++cc) {  // (its lower part: the panel's upper one is never read)
+                const int t0 = a + cc / 3;
+                double* to = p + static_cast<size_t>(3 * (krows[first + t0] - c0) + cc % 3) * ld;
+                const double* from = update.data() + static_cast<size_t>(cc) * rows - 3 * static_cast<size_t>(a);
+                for (int t = t0; t < q; ++t) {
+                    double* dst = to + 3 * relmap[krows[first + t]];
+                    dst[0] -= from[3 * t];
+                    dst[1] -= from[3 * t + 1];
+                    dst[2] -= from[3 * t + 2];
+                }
             }
         }
-        sn_pos_[k] = first + q1;
-        if (sn_pos_[k] < knr) link(k);
-        k = next;
+    };
+    const int split = part == 2 ? sn_split_[j] : 0;
+    if (split > 0) {
+        std::vector<double>& other = part_work_[1].update;
+        if (beside && *beside) (*beside)([&] { share(0, split, work.update); }, [&] { share(split, m, other); });
+        else {
+            share(0, split, work.update);
+            share(split, m, other);
+        }
+    } else {
+        share(0, m, work.update);
+    }
+    for (const int k : descendants) {  // each one on to its next target
+        const int* krows = sn_rows_.data() + sn_rows_ptr_[k];
+        const int knr = sn_rows_ptr_[k + 1] - sn_rows_ptr_[k];
+        int first = sn_pos_[k];
+        while (first < knr && krows[first] < c1) ++first;
+        sn_pos_[k] = first;
+        if (first < knr) link(k);
     }
     if (!panel_cholesky(p, ld, m))
         throw NumericalError(
@@ -352,6 +382,7 @@ void BlockLDLT::factor_supernode(const double* values, int j, int part) {
 void BlockLDLT::split_supernodes() {
     const int ns = supernodes();
     sn_part_.assign(ns, 2);
+    sn_split_.assign(ns, 0);
     factor_parts_ = 0;
     std::vector<double> work(ns, 0.0), subtree(ns, 0.0);
     std::vector<int> sn_parent(ns, -1);
@@ -415,6 +446,28 @@ void BlockLDLT::split_supernodes() {
         else if (sn_parent[k] >= 0 && sn_part_[sn_parent[k]] != 2) sn_part_[k] = sn_part_[sn_parent[k]];
     }
     factor_parts_ = 2;
+    // The rest's large supernodes take their descendants' updates in two shares of their
+    // columns (factor_supernode), split where the estimated flops of the updates even out. The
+    // rest ran alone on one thread: ~13 of the ~25 ms of the ~17000-tet hand's factorization,
+    // two thirds of it these updates.
+    std::vector<double> node_work(n_, 0.0);  // per node of the rest: the update flops its columns receive
+    for (int k = 0; k < ns; ++k) {
+        const int w = 3 * (sn_start_[k + 1] - sn_start_[k]);
+        const int* krows = sn_rows_.data() + sn_rows_ptr_[k];
+        const int own = sn_start_[k + 1] - sn_start_[k], nr = sn_rows_ptr_[k + 1] - sn_rows_ptr_[k];
+        for (int t = own; t < nr; ++t)
+            if (sn_part_[node_sn_[krows[t]]] == 2) node_work[krows[t]] += 3.0 * (nr - t) * 3.0 * w;
+    }
+    for (int j = 0; j < ns; ++j) {
+        if (sn_part_[j] != 2) continue;
+        double total = 0;
+        for (int i = sn_start_[j]; i < sn_start_[j + 1]; ++i) total += node_work[i];
+        if (total < kSplitUpdateFlops) continue;
+        double sum = 0;
+        int i = sn_start_[j];
+        while (i < sn_start_[j + 1] && sum + node_work[i] <= 0.5 * total) sum += node_work[i++];
+        if (i > sn_start_[j] && i < sn_start_[j + 1]) sn_split_[j] = 3 * (i - sn_start_[j]);
+    }
 }
 
 void BlockLDLT::make_single() {
@@ -1198,6 +1251,15 @@ const unsigned char* BlockLDLT::wanted_mask(const std::vector<int>& nodes) const
 }
 
 void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes) const {
+    solve_packed(b, warp, wanted_nodes, nullptr);
+}
+
+void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const Beside& beside) const {
+    solve_packed(b, warp, nullptr, beside ? &beside : nullptr);
+}
+
+void BlockLDLT::solve_packed(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes,
+                             const Beside* beside) const {
     if (b.rows() != 3 * n_) throw std::logic_error("BlockLDLT::solve: right-hand side of the wrong size");
     const unsigned char* wanted = wanted_nodes ? wanted_mask(*wanted_nodes) : nullptr;
     // Columns per pass: the passes stream the factor from memory, so more columns share each
@@ -1216,7 +1278,8 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<
             for (int j = 0; j < k; ++j) row[j] = in[j][e];
             for (int j = k; j < w; ++j) row[j] = 0.0;
         }
-        solve_node_major(packed.data(), w, warp, Panels::Double, wanted);
+        if (beside) solve_node_major_split(packed.data(), w, warp, Panels::Double, *beside);
+        else solve_node_major(packed.data(), w, warp, Panels::Double, wanted);
         double* out[32];
         for (int j = 0; j < k; ++j) out[j] = b.col(first + j).data();
         for (int e = 0; e < 3 * n_; ++e) {

@@ -7,6 +7,7 @@
 // Solves take several right-hand sides at once: one pass over L serves them all, and the
 // passes are memory bound, so k right-hand sides cost far less than k single solves.
 #pragma once
+#include <algorithm>
 #include <vector>
 
 #include "common/beside.h"
@@ -36,7 +37,10 @@ public:
     }
     bool supernodal() const { return supernodal_; }
     int supernodes() const { return static_cast<int>(sn_start_.size()) - 1; }
-    void factorize(const SpMat& a);
+    // beside (supernodal form with parts): the rest's large supernodes receive their
+    // descendants' updates in two shares of their columns, as two jobs for it (the same factor,
+    // bit for bit, whether they run side by side or not, and with or without `beside`).
+    void factorize(const SpMat& a, const Beside& beside = nullptr);
     // Supernodal form: the factorization in parts that may run side by side. The analysis splits
     // the supernodes into two sets of whole subtrees of the elimination tree (balanced by their
     // estimated flops) and the rest (their ancestors); factor_parts() is 2 then (large factors
@@ -46,6 +50,8 @@ public:
     // inside factorize().
     int factor_parts() const { return factor_parts_; }
     void factorize_part(const SpMat& a, int part);
+    // Supernodes of the rest whose updates go in two shares (see factorize).
+    int rest_shares() const { return static_cast<int>(std::count_if(sn_split_.begin(), sn_split_.end(), [](int s) { return s > 0; })); }
     // Forget parts done for an earlier matrix (the values changed since).
     void discard_parts() { part_done_[0] = part_done_[1] = false; }
     VecX solve(const VecX& b) const;
@@ -60,6 +66,9 @@ public:
     // inverse at a few touched nodes: with unit right-hand sides the forward pass already skips
     // all but the paths above them, so a column costs its paths instead of all of L.
     void solve(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes) const;
+    // solve(b, warp) with each pass through the factor's two parts as two jobs for `beside`
+    // (solve_node_major_split).
+    void solve(MatX& b, const std::vector<Mat3>* warp, const Beside& beside) const;
     // Columns of A^-1 for unit right-hand sides: out[r + j ld] = (A^-1)(rows[r], units[j]) for
     // j < k (scalar unknowns, original numbering), without the full-length columns. The nodes of
     // `rows` and of `units` must be among wanted_nodes (the backward pass visits them and their
@@ -145,17 +154,23 @@ private:
         std::vector<int> relmap;
         std::vector<double> update;
         std::vector<int> pending;
+        std::vector<int> descendants;  // factor_supernode's: those whose updates it takes
     };
+    // per supernode of the rest: 0, or the first column (scalar) of its second share of updates
+    std::vector<int> sn_split_;
+    static constexpr double kSplitUpdateFlops = 2e6;  // below it one share (a share costs a hand-over)
     PartWork part_work_[2];
     int factor_parts_ = 0;
     bool part_done_[2] = {false, false};  // (one flag per part: the parts may run at once)
     void analyze_supernodes();
     void split_supernodes();
-    void factorize_supernodal(const SpMat& a);
-    void factor_supernode(const double* values, int j, int part);
+    void factorize_supernodal(const SpMat& a, const Beside& beside);
+    void factor_supernode(const double* values, int j, int part, const Beside* beside);
     void factorize_up_looking(const SpMat& a);
     // part: only the supernodes of that part (0, 1, or 2: the rest), and only the passes asked
     // (forward, backward); -1: every supernode, both passes
+    // the solves on MatX: columns packed node-major, kWidestSolve a pass; beside: split passes
+    void solve_packed(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes, const Beside* beside) const;
     void solve_supernodal(double* x, int w, Panels panels, const unsigned char* wanted, int part = -1, bool forward = true,
                           bool backward = true) const;
     void check_panels(int w, Panels panels) const;

@@ -192,9 +192,10 @@ struct DeformableSystem::Impl {
                            (flops_per_entry_pass * 9.0 * std::max(1L, cholesky.block_nonzeros() + cholesky.nodes()));
         }
     }
-    void factor(DeformableSystem& sys) {
+    // beside: the rest's shares of updates as two jobs for it (BlockLDLT::factorize)
+    void factor(DeformableSystem& sys, const Beside* beside = nullptr) {
         analyse(sys);
-        cholesky.factorize(sys.A);  // (the rest, after factorize_part's parts when they ran)
+        cholesky.factorize(sys.A, beside ? *beside : Beside());  // (the rest, after factorize_part's parts when they ran)
         ++sys.factorizations;
         have_factor = factor_current = true;
         drop_blocks();  // of the former factor
@@ -244,7 +245,9 @@ struct DeformableSystem::Impl {
         }
     }
     // split > 0: columns [0, split) and [split, k) as two groups that `beside` may run side by side
-    void pcg(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int split = 0, const Beside* beside = nullptr);
+    // after_second: run on the second group's thread once it is done (solve_many_split)
+    void pcg(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int split = 0, const Beside* beside = nullptr,
+             const std::function<void()>* after_second = nullptr);
     // may_renew: a lane at reuse_iteration_limit renews the factor on the spot and the block
     // restarts; else (a group solved beside another, which reads the factor) the block stops
     // and reports the factor stale
@@ -506,14 +509,15 @@ int DeformableSystem::elimination_position(int node) const {
     return m.cholesky.position(node);
 }
 
-void DeformableSystem::solve_many_split(const MatX& b, MatX& x, int first_slot, int split, const Beside& beside) {
+void DeformableSystem::solve_many_split(const MatX& b, MatX& x, int first_slot, int split, const Beside& beside,
+                                        const std::function<void()>& after_second) {
     Impl& m = *impl_;
     if (m.solver != DeformableSolver::ReusedCholesky) {
         solve_many(b, x, first_slot);
         return;
     }
     const Impl::ReferenceScope references{m.reference_norm};
-    m.pcg(*this, b, x, first_slot, split, &beside);
+    m.pcg(*this, b, x, first_slot, split, &beside, after_second ? &after_second : nullptr);
     if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 
@@ -558,10 +562,11 @@ void DeformableSystem::solve_many(const MatX& b, MatX& x, int first_slot, const 
 // factor. The iterates live in node-major blocks (node i's 3 x w values together, w = 1, 4 or 8
 // lanes), so that each iteration is one batched pass over the factor and one over At; a
 // converged column leaves its lane, and the block narrows (8 -> 4 -> 1) when it can.
-void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int split, const Beside* beside) {
+void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int split, const Beside* beside,
+                                 const std::function<void()>* after_second) {
     const int n3 = static_cast<int>(sys.A.rows());
     const int k = static_cast<int>(b.cols());
-    if (!have_factor || renew) factor(sys);
+    if (!have_factor || renew) factor(sys, beside);
     x.resize(n3, k);
     for (int j = 0; j < k; ++j) {
         const int slot = first_slot + j;
@@ -572,7 +577,7 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
     }
     if (factor_current) {  // the factor is this step's: a direct solve
         x = b;
-        cholesky.solve(x, nullptr);
+        cholesky.solve(x, nullptr, beside ? *beside : Beside());  // (its parts side by side)
         for (int first = 0; first < k; first += 8) count_pass(padded_width(std::min(8, k - first)));
         for (int j = 0; j < k; ++j) {
             warm2[first_slot + j].swap(warm[first_slot + j]);
@@ -588,10 +593,14 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
             for (int first = begin; first < end; first += 8)
                 pcg_block(sys, b, x, first_slot, first, std::min(8, end - first), pcg_work[g], tally[g], w, false);
         };
-        if (beside && *beside) (*beside)([&] { group(0); }, [&] { group(1); });
+        auto second = [&] {
+            group(1);
+            if (after_second) (*after_second)();
+        };
+        if (beside && *beside) (*beside)([&] { group(0); }, second);
         else {
             group(0);
-            group(1);
+            second();
         }
     } else {
         for (int first = 0; first < k; first += 8)  // (a block's renewal changes the next one's warp)
@@ -604,9 +613,9 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
     }
     if (tally[0].stale || tally[1].stale) {
         // (split groups only) the factor is too stale: renewed now, and every column solved on it
-        factor(sys);
+        factor(sys, beside);
         x = b;
-        cholesky.solve(x, nullptr);
+        cholesky.solve(x, nullptr, beside ? *beside : Beside());
         for (int first = 0; first < k; first += 8) count_pass(padded_width(std::min(8, k - first)));
     }
     for (int j = 0; j < k; ++j) {

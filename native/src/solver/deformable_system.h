@@ -65,7 +65,11 @@ public:
     // the ~17000-tet hand, its Schur columns 1-3 from their warm starts: solved together, the
     // columns' 8-lane passes held up b_t's one-lane ones. The result does not depend on whether
     // the groups ran side by side. Other solvers: solve_many.
-    void solve_many_split(const MatX& b, MatX& x, int first_slot, int split, const Beside& beside);
+    // after_second: a job for the second group's thread once that group is done (the hand's
+    // carried impulses' pass, HandSystem::solve). A step that renews the factor gives `beside`
+    // its rest's shares of updates too (BlockLDLT::factorize).
+    void solve_many_split(const MatX& b, MatX& x, int first_slot, int split, const Beside& beside,
+                          const std::function<void()>& after_second = nullptr);
     // Cholesky: factors the step's matrix now if that is not done yet; after it, solve_many
     // only reads the factor, so calls on different right-hand sides may run on two threads at
     // once (a soft body's contact responses, World::step). Returns whether that holds (false

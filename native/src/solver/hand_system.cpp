@@ -47,13 +47,7 @@ void HandSystem::solve() {
         tool.solve_response_single(carried.tail(n3), carried_flesh);
     };
     if (beside && carried.size()) {
-        const Beside with_carried = [&](const std::function<void()>& mine, const std::function<void()>& other) {
-            beside(mine, [&] {
-                other();
-                carried_pass();
-            });
-        };
-        tool.solve_many_split(rhs_, solved_, 0, 1, with_carried);
+        tool.solve_many_split(rhs_, solved_, 0, 1, beside, carried_pass);
     } else if (beside) {
         tool.solve_many_split(rhs_, solved_, 0, 1, beside);
     } else {
