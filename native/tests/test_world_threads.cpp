@@ -128,10 +128,12 @@ struct Stack {
     }
 
     // The device 1 cm below the handle's rest position: the hand presses down on the stack.
-    void press() {
-        const double q[4] = {0, 0, 0, 1}, zero[3] = {0, 0, 0};
+    // mode 2: the handle prescribed there instead (moving down at 1 cm/s), as in a session's
+    // visual loop (hh_world_set_device).
+    void press(int mode = 1) {
+        const double q[4] = {0, 0, 0, 1}, zero[3] = {0, 0, 0}, down[3] = {0, 0, -0.01};
         const double target[3] = {com[0], com[1], com[2] - 0.01};
-        CHECK(hh_world_set_device(world, hand, 1, target, q, zero, zero) == HH_OK);
+        CHECK(hh_world_set_device(world, hand, mode, target, q, mode == 2 ? down : zero, zero) == HH_OK);
     }
 
     std::vector<double> nodes_of(int body, int n) const {
@@ -234,6 +236,32 @@ TEST(a_large_hand_on_the_reused_factor_renews_it_in_parts_and_steps_exactly_as_o
     // side on the reused factor, HandSystem::beside)
     Stack one(1, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY), two(2, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY);
     CHECK(pressed_side_by_side(one, two, 3) > 0);
+}
+
+TEST(a_prescribed_handle_on_the_reused_factor_gives_the_same_coupling_model_on_two_threads) {
+    // with the handle prescribed (a session's visual loop) the handle-space linearization's
+    // solves (World::form_handle_terms) are a task of their own, which the thread the sweeps
+    // leave idle takes: the same steps and the same coupling model, bit for bit, as on one thread
+    Stack one(1, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY), two(2, 12, 8, 6, HH_SOLVER_REUSED_CHOLESKY);
+    one.press(2);
+    two.press(2);
+    int held_most = 0;
+    for (int step = 0; step < 3; ++step) {
+        hh_world_stats s1, s2;
+        CHECK(hh_world_step(one.world, &s1) == HH_OK);
+        CHECK(hh_world_step(two.world, &s2) == HH_OK);
+        CHECK(s1.contacts == s2.contacts && s1.iterations == s2.iterations);
+        const std::vector<double> a = one.state(), b = two.state();
+        CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(double)) == 0);
+        double w1[6], w2[6], k1[36], k2[36];
+        int h1 = -1, h2 = -1;
+        CHECK(hh_world_coupling_model(one.world, one.hand, w1, k1, &h1) == HH_OK);
+        CHECK(hh_world_coupling_model(two.world, two.hand, w2, k2, &h2) == HH_OK);
+        CHECK(h1 == h2);
+        CHECK(std::memcmp(w1, w2, sizeof w1) == 0 && std::memcmp(k1, k2, sizeof k1) == 0);
+        held_most = std::max(held_most, h1);
+    }
+    CHECK(held_most > 0);  // (the contacts' terms were in the model)
 }
 
 // A body whose state went bad (NaN: here written past the C API's checks) makes its solve fail

@@ -359,7 +359,7 @@ void World::step() {
     // both threads start at once), then detection and the preparation that unlock the contact
     // work, then the free solves, the responses and the sweeps, largest first within each kind.
     constexpr double kElementPass = 5e9, kDetection = 4e9, kPrepare = 3e9, kFreeSolve = 2e9, kResponses = 1e9,
-                     kSweeps = 5e8;
+                     kSweeps = 5e8, kHandleTerms = 1e8;
     // runs f and writes its wall time to `seconds` (each task its own slot: no two write one)
     auto timed = [](double& seconds, const auto& f) {
         const auto t = std::chrono::steady_clock::now();
@@ -449,7 +449,7 @@ void World::step() {
             std::vector<int> build_task(n, -1);
             for (int bi : contact_involved()) {
                 const int parts = contact_body_parts(bi);
-                build_part_seconds[bi].assign(parts + 3, 0.0);
+                build_part_seconds[bi].assign(parts + 4, 0.0);
                 const double priority = kResponses + bodies[bi]->dofs();
                 // (the begin, bookkeeping on the contacts alone, may run beside the body's free
                 // solve; its solves then wait for both)
@@ -468,6 +468,10 @@ void World::step() {
                 build_task[bi] = graph.add(
                     [&, bi, parts] { timed(build_part_seconds[bi][1 + parts], [&] { finish_contact_body(bi); }); }, shares,
                     priority);
+                // (below the sweeps: the thread they leave idle takes it)
+                if (handle_terms_apart(bi))
+                    graph.add([&, bi, parts] { timed(build_part_seconds[bi][3 + parts], [&] { form_handle_terms(bi); }); },
+                              {ready}, kHandleTerms);
             }
             // per group: setup, its columns in shares (side by side), the sweeps; each part's
             // time in its own slot (the sweeps' time is the three kinds together)

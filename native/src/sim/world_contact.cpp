@@ -301,13 +301,7 @@ void World::ready_contact_body(int bi) {
                        b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
     if (b.kind == BodyKind::Hand) {
         if (!cb.row_basis && !units) b.hand->hand.prepare_unit_columns(cb.touched);
-        // the handle-space linearization's terms (haptics/coupling_model.cpp): six solves here
-        // (twelve on the reused factor) instead of every contact response at the handle nodes
-        if (b.hand->device.prescribed) {
-            MatX at_touched;
-            b.hand->hand.handle_columns(cb.touched, b.hand->coupling.aht, at_touched);
-            cb.handle_terms = cb.G * at_touched;
-        }
+        if (!handle_terms_apart(bi)) form_handle_terms(bi);
     }
     ContactSetup::Build& build = setup_->build.at(bi);
     build.first = units ? static_cast<int>(cb.K.cols()) : 0;
@@ -327,6 +321,28 @@ void World::ready_contact_body(int bi) {
         std::stable_sort(keyed.begin(), keyed.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
         for (const auto& e : keyed) build.unit_order.push_back(e.second);
     }
+}
+
+// The handle-space linearization's terms (haptics/coupling_model.cpp) of a hand with a
+// prescribed handle: six solves (twelve on the reused factor) instead of every contact response
+// at the handle nodes. Only the coupling model reads them, after the step.
+void World::form_handle_terms(int bi) {
+    Body& b = *bodies[bi];
+    if (b.kind != BodyKind::Hand || !b.hand->device.prescribed) return;
+    ContactBody& cb = contact_bodies.at(bi);
+    MatX at_touched;
+    b.hand->hand.handle_columns(cb.touched, b.hand->coupling.aht, at_touched);
+    cb.handle_terms = cb.G * at_touched;
+}
+
+// Whether the step runs form_handle_terms as a task of its own, which may run beside the
+// sweeps and the final solves (on the 10x bunny with the ~17000-tet hand the other thread idles
+// through the sweeps, ~7 ms): on the reused factor, whose response solves only read it (a
+// pass through the factor, DeformableSystem::solve_response; the other solvers' solve_many
+// writes the solve's bookkeeping).
+bool World::handle_terms_apart(int bi) const {
+    const Body& b = *bodies[bi];
+    return b.kind == BodyKind::Hand && b.hand->device.prescribed && b.hand->tool.solver() == DeformableSolver::ReusedCholesky;
 }
 
 // Share `part` of `parts` of the body's solves: every parts-th batch of kWidestSolve columns
