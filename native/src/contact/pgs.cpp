@@ -601,6 +601,16 @@ struct ReducedOp {
     std::vector<std::vector<int>> s_index, s_entries;
     std::vector<VecX> ys;
     std::vector<MatX> hc;
+    // per focused contact, its entries as they read ys: (body's ys, position in it, coefficient),
+    // contact i's at [gather_begin[i], gather_begin[i] + p.begin[i + 1] - p.begin[i]); a visit
+    // then reads them in a row instead of looking up each entry's position in S_b (same
+    // products, same order)
+    struct Gather {
+        const double* y;
+        Vec3 coefficient;
+    };
+    std::vector<Gather> gather;
+    std::vector<int> gather_begin;
     std::vector<std::vector<std::pair<int, int>>> focus_parts;
     const std::vector<Mat3>& blocks;
     const std::vector<MatX>& h;                                  // (see ReducedColumns)
@@ -665,6 +675,15 @@ struct ReducedOp {
             for (int k = 0; k < sb; ++k) ys[b][k] = y[b][s_entries[b][k]];
             hc[b].resize(sb, columns[b]);
         }
+        gather.clear();
+        gather_begin.resize(parts.size());
+        for (const int i : live) {
+            gather_begin[i] = static_cast<int>(gather.size());
+            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
+                const auto& a = p.entries[e];
+                gather.push_back(Gather{ys[a.body].data() + s_index[a.body][a.index], a.coefficient});
+            }
+        }
         for (const int i : live)
             for (size_t k = 0; k < parts[i].size(); ++k) {
                 const int b = parts[i][k].first, from = parts[i][k].second, to = focus_parts[i][k].second;
@@ -677,8 +696,8 @@ struct ReducedOp {
     Vec3 velocity(int i) const {
         Vec3 out = p.u_free.segment<3>(3 * i);
         if (focused) {
-            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e)
-                out += p.entries[e].coefficient * ys[p.entries[e].body][s_index[p.entries[e].body][p.entries[e].index]];
+            const Gather* g = gather.data() + gather_begin[i];
+            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e, ++g) out += g->coefficient * *g->y;
             return out;
         }
         for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) out += p.entries[e].coefficient * y[p.entries[e].body][p.entries[e].index];
