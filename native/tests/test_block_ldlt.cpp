@@ -50,12 +50,25 @@ MatX block_diagonal(const std::vector<Mat3>& w) {
     return out;
 }
 
-BlockLDLT factored(const SpMat& a, bool supernodal) {
+// keep_half: with the half- and single-precision copies of the panels (supernodal form)
+BlockLDLT factored(const SpMat& a, bool supernodal, bool keep_half = false) {
     BlockLDLT f;
     f.set_supernodal(supernodal);
+    f.set_keep_half(keep_half);
     f.analyze(a);
     f.factorize(a);
     return f;
+}
+
+// Beside's two ways (common/beside.h): a thread for the other job, or one after the other
+void side_by_side(const std::function<void()>& mine, const std::function<void()>& other) {
+    std::thread t(other);
+    mine();
+    t.join();
+}
+void one_after_the_other(const std::function<void()>& mine, const std::function<void()>& other) {
+    mine();
+    other();
 }
 }  // namespace
 
@@ -534,11 +547,6 @@ TEST(supernodal_factor_in_two_parts_is_the_same_side_by_side_or_not) {
     f.analyze(a);
     CHECK(f.factor_parts() == 2);
     CHECK(f.rest_shares() > 0);
-    const Beside side_by_side = [](const std::function<void()>& mine, const std::function<void()>& other) {
-        std::thread t(other);
-        mine();
-        t.join();
-    };
     std::mt19937 rng(42);
     std::normal_distribution<double> g(0, 1);
     MatX b(a.rows(), 3);
@@ -556,7 +564,7 @@ TEST(supernodal_factor_in_two_parts_is_the_same_side_by_side_or_not) {
             f.factorize_part(a, 0);
             other.join();
         }
-        f.factorize(a, mode == 2 ? side_by_side : Beside());
+        f.factorize(a, mode == 2 ? Beside(side_by_side) : Beside());
         MatX x = b;
         f.solve(x);
         CHECK(x == plain);
@@ -579,21 +587,8 @@ TEST(a_solve_over_the_two_parts_side_by_side_is_the_plain_solve_to_round_off) {
     // without a warp. A factor without parts: the plain pass itself.
     const SpMat a = system_matrix(12, 8, 6, 41);
     const int n = static_cast<int>(a.rows() / 3);
-    BlockLDLT f;
-    f.set_supernodal(true);
-    f.set_keep_half(true);
-    f.analyze(a);
-    f.factorize(a);
+    const BlockLDLT f = factored(a, true, true);
     CHECK(f.factor_parts() == 2);
-    const Beside one_after_the_other = [](const std::function<void()>& mine, const std::function<void()>& other) {
-        mine();
-        other();
-    };
-    const Beside side_by_side = [](const std::function<void()>& mine, const std::function<void()>& other) {
-        std::thread t(other);
-        mine();
-        t.join();
-    };
     std::mt19937 rng(44);
     std::normal_distribution<double> g(0, 1);
     const std::vector<Mat3> w = random_rotations(n, rng);
