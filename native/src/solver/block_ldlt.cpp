@@ -279,7 +279,6 @@ void BlockLDLT::factorize_supernodal(const SpMat& a, const Beside& beside) {
 // Supernode j: A's columns, the updates of the descendants queued for it, its panel's Cholesky,
 // then queued for its own next target (in its part, or pending for the rest).
 void BlockLDLT::factor_supernode(const double* values, int j, int part, const Beside* beside) {
-    using Panel = Eigen::Map<MatX, 0, Eigen::OuterStride<>>;
     PartWork& work = part_work_[part == 2 ? 0 : part];
     std::vector<int>& relmap = work.relmap;
     auto link = [&](int k) {  // queue supernode k for the supernode owning its next row
