@@ -193,9 +193,9 @@ struct DeformableSystem::Impl {
         }
     }
     // beside: the rest's shares of updates as two jobs for it (BlockLDLT::factorize)
-    void factor(DeformableSystem& sys, const Beside* beside = nullptr) {
+    void factor(DeformableSystem& sys, const Beside& beside = Beside()) {
         analyse(sys);
-        cholesky.factorize(sys.A, beside ? *beside : Beside());  // (the rest, after factorize_part's parts when they ran)
+        cholesky.factorize(sys.A, beside);  // (the rest, after factorize_part's parts when they ran)
         ++sys.factorizations;
         have_factor = factor_current = true;
         drop_blocks();  // of the former factor
@@ -332,29 +332,24 @@ void DeformableSystem::solve_response(const MatX& b, MatX& x, const std::vector<
         throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 
-void DeformableSystem::solve_response_single(const VecX& b, VecX& x) {
-    Impl& m = *impl_;
-    if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor || !m.cholesky.has_single()) {
-        MatX xm;
-        solve_response(b, xm);
-        x = xm.col(0);
-        return;
-    }
-    x = b;  // (one column: node-major storage is the plain vector)
-    m.cholesky.solve_node_major(x.data(), 1, m.response_warp(), Panels::Single);
-    if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
-}
+void DeformableSystem::solve_response_single(const VecX& b, VecX& x) { solve_response_column(b, x, true, Beside()); }
 
 void DeformableSystem::solve_response_split(const VecX& b, VecX& x, const Beside& beside) {
+    solve_response_column(b, x, false, beside);
+}
+
+// One column through the reused factor itself (node-major storage is the plain vector); the
+// other solvers, or a factor without the panels asked for: solve_response.
+void DeformableSystem::solve_response_column(const VecX& b, VecX& x, bool single, const Beside& beside) {
     Impl& m = *impl_;
-    if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) {
+    if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor || (single && !m.cholesky.has_single())) {
         MatX xm;
         solve_response(b, xm);
         x = xm.col(0);
         return;
     }
-    x = b;  // (one column: node-major storage is the plain vector)
-    m.cholesky.solve_node_major_split(x.data(), 1, m.response_warp(), Panels::Double, beside);
+    x = b;
+    m.cholesky.solve_node_major_split(x.data(), 1, m.response_warp(), single ? Panels::Single : Panels::Double, beside);  // (without beside: the plain pass)
     if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 
@@ -566,7 +561,9 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
                                  const std::function<void()>* after_second) {
     const int n3 = static_cast<int>(sys.A.rows());
     const int k = static_cast<int>(b.cols());
-    if (!have_factor || renew) factor(sys, beside);
+    static const Beside none;
+    const Beside& two = beside ? *beside : none;  // (empty: one job after the other)
+    if (!have_factor || renew) factor(sys, two);
     x.resize(n3, k);
     for (int j = 0; j < k; ++j) {
         const int slot = first_slot + j;
@@ -577,7 +574,7 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
     }
     if (factor_current) {  // the factor is this step's: a direct solve
         x = b;
-        cholesky.solve(x, nullptr, beside ? *beside : Beside());  // (its parts side by side)
+        cholesky.solve(x, nullptr, two);  // (its parts side by side)
         for (int first = 0; first < k; first += 8) count_pass(padded_width(std::min(8, k - first)));
         for (int j = 0; j < k; ++j) {
             warm2[first_slot + j].swap(warm[first_slot + j]);
@@ -597,7 +594,7 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
             group(1);
             if (after_second) (*after_second)();
         };
-        if (beside && *beside) (*beside)([&] { group(0); }, second);
+        if (two) two([&] { group(0); }, second);
         else {
             group(0);
             second();
@@ -613,9 +610,9 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
     }
     if (tally[0].stale || tally[1].stale) {
         // (split groups only) the factor is too stale: renewed now, and every column solved on it
-        factor(sys, beside);
+        factor(sys, two);
         x = b;
-        cholesky.solve(x, nullptr, beside ? *beside : Beside());
+        cholesky.solve(x, nullptr, two);
         for (int first = 0; first < k; first += 8) count_pass(padded_width(std::min(8, k - first)));
     }
     for (int j = 0; j < k; ++j) {

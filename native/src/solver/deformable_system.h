@@ -138,6 +138,7 @@ public:
     int reuse_iteration_limit = 25;
 
 private:
+    void solve_response_column(const VecX& b, VecX& x, bool single, const Beside& beside);
     struct Impl;
     std::unique_ptr<Impl> impl_;
     bool factor_valid_ = false;
