@@ -55,10 +55,26 @@ TOLERANCE = 0.25  # a tet count within 25% of the target is accepted
 # factor to a relative residual of 1e-6; the contact responses from that factor directly), the
 # one a ~17000-tet hand calls for.
 REUSED_10X = {"name": "reused_cholesky", "cg_tolerance": 1e-6, "cg_max_iterations": 5000}
+# ... and the same for the soft bodies too (the 10x bunny, each 10x letter: `solver` in the scene's
+# body descriptions), side by side with the scene's per-step factor for them
+REUSED_10X_BODIES = {**REUSED_10X, "bodies": True}
 
 
 def solver_label(solver: dict | None) -> str:
-    return "scene's" if solver is None else f"reused {solver['cg_tolerance']:g}"
+    if solver is None:
+        return "scene's"
+    return f"reused {solver['cg_tolerance']:g}" + ("+b" if solver.get("bodies") else "")
+
+
+def apply_solver(scene, solver: dict | None) -> None:
+    """The hand's solver (scene-wide `solver`) and, with "bodies", every soft body's."""
+    if solver is None:
+        return
+    scene.data["solver"] = {k: v for k, v in solver.items() if k != "bodies"}
+    if solver.get("bodies"):
+        for spec in scene.bodies:
+            if spec["type"] == "soft":
+                spec["solver"] = dict(scene.data["solver"])
 
 # The hand: the procedural hand surface (its collision surface, embedded in the tets) filled by
 # pytetwild near the target count. Settings (coarsen, epsilon, edge_length_fac) are tried in
@@ -339,7 +355,7 @@ def print_tables(results: list[dict]) -> None:
           "sweeps (GS it) per frame, mean;\n at cap: frames whose solve stopped at the scene's sweep cap "
           f"(contact.max_iterations = {results[0]['summary']['sweep_cap'] if results else '?'}) "
           "rather than at its tolerance);\n solver: the hand's (scene's: the scene's own, per-step Cholesky; reused 1e-6: "
-          "an earlier step's factor, CG to 1e-6); pen mm: the largest penetration past the contact thickness, any frame)")
+          "an earlier step's factor, CG to 1e-6; +b: the soft bodies' too, else theirs is per-step); pen mm: the largest penetration past the contact thickness, any frame)")
 
     print(f"\n== Frames in which the hand touches a body (contact force on the hand > {TOUCH_FORCE:g} N), ms mean / p95")
     header = (f"{'scene':<13} {'scale':<5} {'solver':<12} {'thr':>3} {'hand':>6} {'frames':>6} | {'detection':>13} {'dynamics':>13} "
@@ -521,7 +537,8 @@ def main(argv=None) -> int:
         # scene, Fig. 5) on its own exact solver, 1700 -> ~17000 tets as below
         cases += [(s, "10x", 3500, None, t) for s in ("bunny_press", "letters_push") for t in (1, 2)]
         cases += [(s, "10x", 17000, solver, t) for s in ("bunny_press", "letters_push")
-                  for solver, t in ((None, 2), (REUSED_10X, 1), (REUSED_10X, 2))]
+                  for solver, t in ((None, 2), (REUSED_10X, 1), (REUSED_10X, 2), (REUSED_10X_BODIES, 1),
+                                    (REUSED_10X_BODIES, 2))]
         # stress case: the ~3500-tet hand with 10x the scenes' hand surface (40x the paper's)
         cases += [("bunny_press", "10x", DENSE_10X, None, 2)]
     plan = []
@@ -542,8 +559,7 @@ def main(argv=None) -> int:
     for scene_name, scale, n, solver, threads, frames, full in plan:
         hand = hands[n]
         scene, radius, wanted = prepare_scene(scene_name, scale, hand, letters_10x, bunnies.get(scale))
-        if solver is not None:
-            scene.data["solver"] = dict(solver)
+        apply_solver(scene, solver)
         scene.data["contact"]["threads"] = threads
         t0 = time.perf_counter()
         run = run_case(scene, frames)

@@ -101,7 +101,7 @@ class HAPTIC_HAND_PT_bodies(_Panel, bpy.types.Panel):
             box = layout.box()
             box.label(text=f"{obj.name}: {o.role.lower()}")
             if o.role == "SOFT":
-                for name in ("young_modulus", "poisson_ratio", "density", "rayleigh_beta", "fix_bottom"):
+                for name in ("young_modulus", "poisson_ratio", "density", "rayleigh_beta", "fix_bottom", "reuse_factor"):
                     box.prop(o, name)
                 if not meshdata.has_tets(o.tet_object):
                     box.label(text="Needs tets: Rig > Tetrahedralize", icon="ERROR")

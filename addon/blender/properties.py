@@ -86,6 +86,10 @@ class HapticObjectSettings(bpy.types.PropertyGroup):
                             description="Coulomb coefficient of this body's surface")
     fix_bottom: BoolProperty(name="Fix bottom", default=False,
                              description="Hold the soft body's lowest nodes still")
+    reuse_factor: BoolProperty(name="Reuse factor", default=False,
+                               description="Large soft bodies: solve on an earlier step's factor (CG to 1e-6) and keep "
+                                           "its contact responses between factorizations, instead of factoring the "
+                                           "body every step")
     # bake bookkeeping (set by the bake, cleared by Free Bake)
     baked: BoolProperty(default=False, options={"HIDDEN"})
     bake_made_basis: BoolProperty(default=False, options={"HIDDEN"})

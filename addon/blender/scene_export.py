@@ -243,6 +243,8 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
                         material={"young_modulus": o.young_modulus, "poisson_ratio": o.poisson_ratio,
                                   "density": o.density, "rayleigh_alpha": 0.0, "rayleigh_beta": o.rayleigh_beta},
                         fixed="bottom" if o.fix_bottom else None)
+            if o.reuse_factor:
+                spec["solver"] = {"name": "reused_cholesky", "cg_tolerance": 1e-6, "cg_max_iterations": 5000}
         elif role == "RIGID":
             spec.update(type="rigid", density=o.density)
         elif role == "STATIC":

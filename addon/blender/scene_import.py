@@ -155,6 +155,7 @@ def _add_body(context, spec: dict, rate: float, frame_start: int):
         o.young_modulus, o.poisson_ratio, o.density = mat["young_modulus"], mat["poisson_ratio"], mat["density"]
         o.rayleigh_beta = mat["rayleigh_beta"]
         o.fix_bottom = spec["fixed"] == "bottom"
+        o.reuse_factor = spec["solver"]["name"] == "reused_cholesky"
         ops_rig.make_tet_object(context, obj, body.nodes - position, body.tets)
     elif kind == "kinematic":
         o.role = "MOVING"

@@ -37,6 +37,9 @@ DEFAULTS = {
     "point": [0.0, 0.0, 0.0],
     "normal": [0.0, 0.0, 1.0],
     "trajectory": [],
+    # soft bodies: "cholesky" (factored every step) or "reused_cholesky" with its CG tolerance
+    # (an earlier step's factor, kept with its contact response columns: for large soft bodies)
+    "solver": {"name": "cholesky", "cg_tolerance": 1e-6, "cg_max_iterations": 5000},
 }
 
 
@@ -90,6 +93,14 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
         friction = spec["friction"]
         if not isinstance(friction, (int, float)) or not np.isfinite(friction) or friction < 0:
             raise BodyError(f"body '{spec['name']}': friction = {friction!r} must be zero or positive")
+        solver = spec["solver"]
+        if solver["name"] not in ("cholesky", "reused_cholesky"):
+            raise BodyError(f"body '{spec['name']}': solver.name = {solver['name']!r}: use cholesky or reused_cholesky")
+        tol = solver["cg_tolerance"]
+        if not isinstance(tol, (int, float)) or not np.isfinite(tol) or not 0 < tol < 1:
+            raise BodyError(f"body '{spec['name']}': solver.cg_tolerance = {tol!r} must be in (0, 1), e.g. 1e-6")
+        if solver != DEFAULTS["solver"] and spec["type"] != "soft":
+            raise BodyError(f"body '{spec['name']}': only soft bodies take a solver (this one is {spec['type']})")
         spec["_base_dir"] = str(base_dir)
         out.append(spec)
     return out
@@ -167,6 +178,10 @@ def add_to_world(world: W.World, body: PreparedBody) -> int:
         sn, sw = W.embedded_surface(body.tets, body.tet_index, body.weights)
         body.index = world.add_soft_body(body.nodes, body.tets, sn, sw, body.faces, fixed_nodes=fixed_nodes(body),
                                          friction=friction, **m)
+        solver = spec["solver"]
+        if solver["name"] != "cholesky":
+            world.set_body_solver(body.index, solver["name"], float(solver["cg_tolerance"]),
+                                  int(solver["cg_max_iterations"]))
     else:
         body.index = world.add_mesh_body(body.kind, body.vertices, body.faces, density=float(spec["density"]),
                                          friction=friction)

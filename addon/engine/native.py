@@ -205,6 +205,7 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hh_world_add_plane": ([vp, pd, pd, d, pi], i),
         "hh_world_set_pose": ([vp, i, pd, pd, pd, pd], i),
         "hh_world_set_friction": ([vp, i, d, d], i),
+        "hh_world_set_body_solver": ([vp, i, i, d, i], i),
         "hh_world_get_pose": ([vp, i, pd, pd, pd, pd], i),
         "hh_world_set_device": ([vp, i, i, pd, pd, pd, pd], i),
         "hh_world_step": ([vp, ctypes.POINTER(WorldStats)], i),

@@ -7,7 +7,7 @@ import ctypes
 
 import numpy as np
 
-from .native import HandModel, InvalidInput, Material, StepStats, WorldParams, WorldStats, _check, _f64, _ptr, library
+from .native import SOLVERS, HandModel, InvalidInput, Material, StepStats, WorldParams, WorldStats, _check, _f64, _ptr, library
 
 HAND, SOFT, RIGID, KINEMATIC, STATIC, PLANE = range(6)
 KIND_NAMES = {HAND: "hand", SOFT: "soft", RIGID: "rigid", KINEMATIC: "kinematic", STATIC: "static", PLANE: "plane"}
@@ -110,6 +110,15 @@ class World:
         """Static and kinetic Coulomb coefficients (kinetic defaults to static)."""
         _check(library().hh_world_set_friction(self._handle, body, float(static),
                                                float(static if kinetic is None else kinetic)))
+
+    def set_body_solver(self, body: int, solver: str, cg_tolerance: float = 1e-6, cg_max_iterations: int = 5000) -> None:
+        """A soft body's solver: "cholesky" (factored every step, the default) or
+        "reused_cholesky" (an earlier step's factor preconditions CG and is the contact response
+        operator, its columns kept between factorizations: for large soft bodies)."""
+        if solver not in ("cholesky", "reused_cholesky"):
+            raise InvalidInput(f"a soft body's solver '{solver}' is unknown: use cholesky or reused_cholesky")
+        _check(library().hh_world_set_body_solver(self._handle, body, SOLVERS[solver], float(cg_tolerance),
+                                                  int(cg_max_iterations)))
 
     # --- driving ---
     def set_pose(self, body: int, position=None, quaternion=None, velocity=None, angular_velocity=None) -> None:

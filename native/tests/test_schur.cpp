@@ -662,6 +662,22 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
         d.hand.apply_inverse_many(et, via_many, &touched);
         CHECK(d.hand.apply_inverse_units(touched, touched, via_units));
         CHECK_LT((via_units - via_many).cwiseAbs().maxCoeff(), 1e-12 * via_many.cwiseAbs().maxCoeff());
+        // a soft body's path (World::ready_contact_body): the tool's own operator at the same
+        // flesh unknowns, from the same kept blocks, is its solve_response of unit columns
+        std::vector<int> flesh;
+        for (int u : touched) flesh.push_back(u - 6);
+        MatX ef = MatX::Zero(n - 6, static_cast<Eigen::Index>(flesh.size()));
+        for (size_t j = 0; j < flesh.size(); ++j) ef(flesh[j], static_cast<Eigen::Index>(j)) = 1.0;
+        MatX via_solve, via_tool_units;
+        d.tool.solve_response(ef, via_solve);
+        CHECK(d.tool.response_units(flesh, via_tool_units));
+        double worst = 0, largest = 0;
+        for (size_t r = 0; r < flesh.size(); ++r)
+            for (size_t j = 0; j < flesh.size(); ++j) {
+                worst = std::max(worst, std::abs(via_tool_units(r, j) - via_solve(flesh[r], j)));
+                largest = std::max(largest, std::abs(via_solve(flesh[r], j)));
+            }
+        CHECK_LT(worst, 1e-12 * largest);
         integrate(m, d, d.hand.s);
     }
     CHECK(stale >= 4);

@@ -238,6 +238,20 @@ TEST(a_large_hand_on_the_reused_factor_renews_it_in_parts_and_steps_exactly_as_o
     CHECK(pressed_side_by_side(one, two, 3) > 0);
 }
 
+TEST(soft_bodies_on_the_reused_factor_step_exactly_as_on_one_thread) {
+    // both soft boxes on the reused factor (hh_world_set_body_solver): their fresh response
+    // columns in two shares beside each other (DeformableSystem::response_units, more than one
+    // batch of units: two faces of 16 nodes each), their impulses carried into the next free
+    // solve; the same steps on one thread as on two, and the wrong solver kinds refused
+    Stack one(1), two(2);
+    for (Stack* s : {&one, &two})
+        for (int body : {s->lower, s->upper})
+            CHECK(hh_world_set_body_solver(s->world, body, HH_SOLVER_REUSED_CHOLESKY, 1e-8, 5000) == HH_OK);
+    CHECK(hh_world_set_body_solver(one.world, one.lower, HH_SOLVER_CG, 1e-8, 5000) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(hh_world_set_body_solver(one.world, one.hand, HH_SOLVER_REUSED_CHOLESKY, 1e-8, 5000) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(pressed_side_by_side(one, two, 8) > 32);
+}
+
 TEST(a_prescribed_handle_on_the_reused_factor_gives_the_same_coupling_model_on_two_threads) {
     // with the handle prescribed (a session's visual loop) the handle-space linearization's
     // solves (World::form_handle_terms) are a task of their own, which the thread the sweeps

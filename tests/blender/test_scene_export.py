@@ -53,11 +53,16 @@ def test_bunny_scene_exports_to_the_sample_scene(addon, built_scenes, tmp_path):
     finally:
         export.cleanup()
     assert export.folder is None
-    # the simulation threads the user picked reach the scene
+    # the simulation threads the user picked reach the scene, and a soft body's Reuse factor
+    # its solver (off: the default per-step factor, no solver written)
+    assert "solver" not in bunny
     context.scene.haptic_hand.world_threads = 1
+    bpy.data.objects["bunny"].haptic_hand.reuse_factor = True
     export = scene_export.export(context)
     try:
         assert export.scene.data["contact"]["threads"] == 1
+        bunny = next(b for b in export.scene.bodies if b["name"] == "bunny")
+        assert bunny["solver"]["name"] == "reused_cholesky"
     finally:
         export.cleanup()
 

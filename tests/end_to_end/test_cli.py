@@ -141,3 +141,14 @@ def test_a_bad_body_is_named(scene_dir):
     path.write_text(json.dumps(scene))
     proc = run_cli("simulate", str(path), "--out", str(scene_dir / "y.npz"))
     assert proc.returncode == 2 and "blob" in proc.stderr and "soft" in proc.stderr
+
+
+@pytest.mark.parametrize("solver, words", [({"name": "lu"}, "cholesky or reused_cholesky"),
+                                           ({"name": "reused_cholesky", "cg_tolerance": 2.0}, "cg_tolerance")])
+def test_a_bad_body_solver_is_named(scene_dir, solver, words):
+    scene = json.loads((scene_dir / "scene.json").read_text())
+    scene["bodies"] = [{"name": "cube", "type": "soft", "mesh": "box", "solver": solver}]
+    path = scene_dir / "bad_solver.json"
+    path.write_text(json.dumps(scene))
+    proc = run_cli("simulate", str(path), "--out", str(scene_dir / "z.npz"))
+    assert proc.returncode == 2 and "cube" in proc.stderr and words in proc.stderr

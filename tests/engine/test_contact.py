@@ -83,11 +83,16 @@ def test_static_friction_holds_and_kinetic_friction_slides():
     assert 2 * np.polyfit(t[10:], sliding[10:], 2)[0] == pytest.approx(expected, rel=0.05)
 
 
-def test_soft_block_on_the_ground_carries_its_weight():
+@pytest.mark.parametrize("solver", ["cholesky", "reused_cholesky"])
+def test_soft_block_on_the_ground_carries_its_weight(solver):
+    # reused_cholesky: the contact responses come from a lagged factor; the impulses carried
+    # into the next free solve keep the resting block's load exact (World::solve_free)
     world = W.World(dt=1 / 60, contact_thickness=1e-3)
     world.add_plane([0, 0, 0], [0, 0, 1], friction=0.5)
     size, density = 0.04, 1000.0
     block, _ = add_soft_block(world, size, 3, (-0.02, -0.02, 0.0009), young_modulus=1e5, density=density)
+    if solver != "cholesky":
+        world.set_body_solver(block, solver, cg_tolerance=1e-8)
     for _ in range(240):
         stats = world.step()
     _, v = world.nodes(block)
@@ -189,6 +194,55 @@ def test_fast_bodies_do_not_tunnel(target):
     assert fastest * dt > 20 * thickness  # it did fall fast enough to have tunnelled
     assert world.nodes(block)[0][:, 2].min() > 0  # it did land, on top
     assert deepest < thickness
+
+
+def sagging_beam_at_rest(solver: str):
+    """A 20 cm soft cantilever (fixed at x = 0) sagging under gravity onto a frictionless floor
+    5 cm below it, stepped to rest: the floor's force on it, its nodes, their largest speed,
+    and its rest nodes."""
+    world = W.World(dt=1 / 60, contact_thickness=1e-3)
+    world.add_plane([0, 0, -0.05], [0, 0, 1], friction=0.0)
+    nodes, tets = mesh.structured_box([0.2, 0.02, 0.02], [10, 1, 1], (0, -0.01, -0.01))
+    sn, sw = W.vertex_surface(len(nodes))
+    fixed = np.flatnonzero(nodes[:, 0] < 1e-9).astype(np.int32)
+    beam = world.add_soft_body(nodes, tets, sn, sw, mesh.tet_boundary_faces(tets), fixed_nodes=fixed, friction=0.0,
+                               young_modulus=1e4, density=1000.0, rayleigh_alpha=3.0, rayleigh_beta=0.02)
+    if solver != "cholesky":
+        world.set_body_solver(beam, solver, cg_tolerance=1e-8)
+    for _ in range(600):
+        world.step()
+    x, v = world.nodes(beam)
+    return world.contact_force(beam), x, np.abs(v).max(), nodes
+
+
+def test_a_soft_body_on_the_reused_factor_rests_where_the_per_step_factor_does():
+    # Without friction the resting state is unique: the beam's shape and the floor's force
+    # balance its weight and elasticity whatever solver found them. On the reused factor the
+    # contact responses come from a lagged, warped operator (its columns kept between
+    # factorizations) and the free solve is CG to 1e-8: the rest state must still be the
+    # per-step factor's, to far below the 1e-6 allowed here.
+    exact_force, exact_x, exact_v, rest = sagging_beam_at_rest("cholesky")
+    force, x, v, _ = sagging_beam_at_rest("reused_cholesky")
+    assert exact_v < 1e-6 and v < 1e-6  # both at rest
+    assert exact_force[2] > 0.1  # the beam lies on the floor...
+    tip = rest[:, 0] > 0.2 - 1e-9
+    assert exact_x[tip, 2].mean() < -0.03  # ... sagging through large rotations near its tip
+    assert force[2] == pytest.approx(exact_force[2], rel=1e-6)
+    assert np.abs(x - exact_x).max() < 1e-6
+
+
+def test_a_soft_body_solver_is_checked():
+    world = W.World()
+    plane = world.add_plane([0, 0, 0], [0, 0, 1])
+    block, _ = add_soft_block(world, 0.04, 2, (0, 0, 0.01))
+    with pytest.raises(native.InvalidInput, match="cholesky or reused_cholesky"):
+        world.set_body_solver(block, "cg")
+    with pytest.raises(native.InvalidInput, match="only soft bodies"):
+        world.set_body_solver(plane, "reused_cholesky")
+    with pytest.raises(native.InvalidInput, match="cg_tolerance"):
+        world.set_body_solver(block, "reused_cholesky", cg_tolerance=float("nan"))
+    world.set_body_solver(block, "reused_cholesky")
+    world.step()  # (the body steps on the reused factor)
 
 
 @pytest.mark.parametrize("threads", [0, 3, True, 1.5])

@@ -265,6 +265,26 @@ int hh_world_set_friction(hh_world* world, int body, double static_friction, dou
     });
 }
 
+int hh_world_set_body_solver(hh_world* world, int body, int solver, double cg_tolerance, int cg_max_iterations) {
+    return guard([&] {
+        hh::Body& b = body_at(world, body);
+        require(b.kind == hh::BodyKind::Soft,
+                "only soft bodies take a solver here (the hand's is in its model parameters)");
+        require(solver == HH_SOLVER_CHOLESKY || solver == HH_SOLVER_REUSED_CHOLESKY,
+                "a soft body's solver is HH_SOLVER_CHOLESKY or HH_SOLVER_REUSED_CHOLESKY (got " + std::to_string(solver) +
+                    "): conjugate gradient would solve every contact response on its own");
+        require(std::isfinite(cg_tolerance) && cg_tolerance > 0 && cg_tolerance < 1,
+                "cg_tolerance must be in (0, 1): the relative residual the reused factor's CG stops at, e.g. 1e-6");
+        require(cg_max_iterations > 0, "cg_max_iterations must be positive");
+        require_idle(world);
+        b.tool->configure(solver == HH_SOLVER_REUSED_CHOLESKY ? hh::DeformableSolver::ReusedCholesky
+                                                              : hh::DeformableSolver::Cholesky,
+                          cg_tolerance, cg_max_iterations);
+        b.carried_impulse.resize(0);
+        return HH_OK;
+    });
+}
+
 int hh_world_set_pose(hh_world* world, int body, const double position[3], const double quaternion[4],
                       const double velocity[3], const double angular_velocity[3]) {
     return guard([&] {

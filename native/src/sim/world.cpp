@@ -266,10 +266,24 @@ void World::solve_free(Body& b) {
                     add_node_block(*b.flesh, i, Mat3::Identity(), values);
                     b.soft_rhs.segment<3>(3 * i).setZero();
                 }
+            // On the reused factor, as the hand's (above): the last step's contact impulses f in
+            // the free solve, and P f taken out again, so that only their change sees the lag
+            VecX carried;
+            carried.swap(b.carried_impulse);
+            if (b.tool->solver() != DeformableSolver::ReusedCholesky) carried.resize(0);
             b.tool->r = b.soft_rhs;
+            if (carried.size()) {
+                b.tool->set_reference_norm(0, b.soft_rhs.norm());
+                b.tool->r += carried;
+            }
             b.tool->select_slot(0);
             b.tool->solve();
             b.v_free = b.tool->s;
+            if (carried.size()) {
+                VecX response;
+                b.tool->solve_response_single(carried, response);
+                b.v_free -= response;
+            }
             break;
         }
         case BodyKind::Rigid: {
@@ -377,17 +391,20 @@ void World::step() {
     struct ClearBeside {
         std::vector<std::unique_ptr<Body>>& bodies;
         ~ClearBeside() {
-            for (auto& b : bodies)
+            for (auto& b : bodies) {
                 if (b->kind == BodyKind::Hand) b->hand->hand.beside = nullptr;
+                b->beside = nullptr;
+            }
         }
     } clear_beside{bodies};
-    for (auto& bp : bodies)
-        if (bp->kind == BodyKind::Hand) {
-            const double priority = kFreeSolve + bp->dofs();
-            bp->hand->hand.beside = [&graph, priority](const std::function<void()>& mine, const std::function<void()>& other) {
-                graph.run_beside(mine, other, priority);
-            };
-        }
+    for (auto& bp : bodies) {
+        const double priority = kFreeSolve + bp->dofs();
+        Beside beside = [&graph, priority](const std::function<void()>& mine, const std::function<void()>& other) {
+            graph.run_beside(mine, other, priority);
+        };
+        if (bp->kind == BodyKind::Hand) bp->hand->hand.beside = beside;
+        if (bp->kind == BodyKind::Soft && bp->tool->solver() == DeformableSolver::ReusedCholesky) bp->beside = beside;
+    }
     std::vector<std::vector<double>> build_part_seconds(n);
     std::vector<std::vector<double>> group_seconds;
     double prepare_seconds = 0;

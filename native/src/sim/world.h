@@ -11,6 +11,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "common/beside.h"
 #include "common/worker.h"
 #include "contact/detection.h"
 #include "contact/pgs.h"
@@ -50,6 +51,9 @@ struct Body {
     std::vector<int> fixed_entries;  // offsets in At's values zeroed for fixed nodes
     double alpha = 0, beta = 0;
     VecX soft_rhs;
+    // a soft body on the reused factor, during World::step: its fresh response columns in two
+    // shares that may run side by side (DeformableSystem::response_units); empty otherwise
+    Beside beside;
     // rigid, kinematic, static mesh: vertices in the body frame (origin at the centre of mass)
     std::vector<Vec3> local;
     RigidState rigid;
@@ -64,10 +68,9 @@ struct Body {
     // last step
     VecX v_free, v_new;     // velocities of the body's unknowns (dofs())
     Vec3 contact_force = Vec3::Zero();  // N, total over the last step
-    // A hand whose contact responses come from a lagged operator (ReusedCholesky; a soft
-    // body's come from CG): the last step's contact impulses on its unknowns (J^T lambda,
-    // N s), which its next free solve takes as a known load (World::solve_free); empty when
-    // it had no contact.
+    // A hand or soft body whose contact responses come from a lagged operator (ReusedCholesky):
+    // the last step's contact impulses on its unknowns (J^T lambda, N s), which its next free
+    // solve takes as a known load (World::solve_free); empty when it had no contact.
     VecX carried_impulse;
 
     bool dynamic() const { return kind == BodyKind::Hand || kind == BodyKind::Soft || kind == BodyKind::Rigid; }

@@ -296,9 +296,11 @@ void World::begin_contact_body(int bi) {
 void World::ready_contact_body(int bi) {
     Body& b = *bodies[bi];
     ContactBody& cb = contact_bodies.at(bi);
-    // the hand's unit columns from its kept response columns, when its solver keeps them
-    const bool units = b.kind == BodyKind::Hand && !cb.row_basis &&
-                       b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
+    // the unit columns from the kept response columns, when the body's solver keeps them
+    // (the hand's with Eq. 12 on top)
+    bool units = false;
+    if (!cb.row_basis && b.kind == BodyKind::Hand) units = b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
+    if (!cb.row_basis && b.kind == BodyKind::Soft) units = b.tool->response_units(cb.touched, cb.K, b.beside);
     if (b.kind == BodyKind::Hand) {
         if (!cb.row_basis && !units) b.hand->hand.prepare_unit_columns(cb.touched);
         if (!handle_terms_apart(bi)) form_handle_terms(bi);
@@ -387,7 +389,10 @@ void World::solve_contact_body(int bi, int part, int parts) {
                 b.hand->hand.apply_inverse_many(rhs, x, &cb.touched);
                 cb.K.middleCols(first, w) = x;
                 continue;
-            case BodyKind::Soft: b.tool->solve_many(rhs, x, 1, &build.touched_nodes); break;
+            case BodyKind::Soft:  // (on the reused factor its response operator, as the impulses' velocities)
+                if (b.tool->solver() == DeformableSolver::ReusedCholesky) b.tool->solve_response(rhs, x, &build.touched_nodes);
+                else b.tool->solve_many(rhs, x, 1, &build.touched_nodes);
+                break;
             default: x = Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
         }
         for (size_t k = 0; k < cb.touched.size(); ++k) cb.K.block(k, first, 1, w) = x.block(cb.touched[k], 0, 1, w);
@@ -524,6 +529,15 @@ void World::apply_contact_body(int bi) {
             if (b.hand->tool.solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
             break;
         case BodyKind::Soft:
+            if (b.tool->solver() == DeformableSolver::ReusedCholesky) {
+                // the operator the sweeps saw (so the constraints hold), and the impulses carried
+                // into the next free solve (World::solve_free)
+                MatX x;
+                b.tool->solve_response(rhs, x);
+                b.v_new += x.col(0);
+                b.carried_impulse = rhs;
+                break;
+            }
             b.tool->r = rhs;
             b.tool->select_slot(1);
             b.tool->solve();

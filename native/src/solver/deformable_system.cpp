@@ -353,6 +353,41 @@ void DeformableSystem::solve_response_column(const VecX& b, VecX& x, bool single
     if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 
+bool DeformableSystem::response_units(const std::vector<int>& unknowns, MatX& out, const Beside& beside) {
+    // the unknowns' nodes, each once, and per node its unknowns (index in `unknowns`, direction)
+    std::vector<int> nodes;
+    for (int u : unknowns) nodes.push_back(u / 3);
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    const double* data = nullptr;
+    long ld = 0;
+    const std::vector<int>* row_slot = nullptr;
+    const std::vector<int>* column_slot = nullptr;
+    const std::vector<Mat3>* warp = nullptr;
+    if (!response_blocks(nodes, nodes, data, ld, row_slot, column_slot, warp, beside)) return false;
+    std::vector<std::vector<std::pair<int, int>>> of_node(nodes.size());
+    for (size_t j = 0; j < unknowns.size(); ++j) {
+        const size_t a = static_cast<size_t>(std::lower_bound(nodes.begin(), nodes.end(), unknowns[j] / 3) - nodes.begin());
+        of_node[a].emplace_back(static_cast<int>(j), unknowns[j] % 3);
+    }
+    auto rot = [&](int node) -> Mat3 { return warp ? (*warp)[node] : Mat3::Identity(); };
+    const Eigen::Index k = static_cast<Eigen::Index>(unknowns.size());
+    out.resize(k, k);
+    // per pair of nodes the operator's 3x3 block W_i (Af^-1)_ik W_k^T, then its entries
+    for (size_t b = 0; b < nodes.size(); ++b) {
+        const Mat3 wk = rot(nodes[b]);
+        const double* column = data + 3 * static_cast<long>((*column_slot)[nodes[b]]) * ld;
+        for (size_t a = 0; a < nodes.size(); ++a) {
+            const Eigen::Map<const Mat3, 0, Eigen::OuterStride<>> block(column + 3 * static_cast<long>((*row_slot)[nodes[a]]), 3, 3,
+                                                                        Eigen::OuterStride<>(ld));
+            const Mat3 response = rot(nodes[a]) * block * wk.transpose();
+            for (const auto& r : of_node[a])
+                for (const auto& c : of_node[b]) out(r.first, c.first) = response(r.second, c.second);
+        }
+    }
+    return true;
+}
+
 bool DeformableSystem::response_blocks(const std::vector<int>& columns, const std::vector<int>& rows, const double*& data,
                                        long& ld, const std::vector<int>*& row_slot, const std::vector<int>*& column_slot,
                                        const std::vector<Mat3>*& warp, const Beside& beside) {

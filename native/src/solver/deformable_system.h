@@ -125,6 +125,12 @@ public:
     bool response_blocks(const std::vector<int>& columns, const std::vector<int>& rows, const double*& data, long& ld,
                          const std::vector<int>*& row_slot, const std::vector<int>*& column_slot,
                          const std::vector<Mat3>*& warp, const Beside& beside = nullptr);
+    // ReusedCholesky only (false otherwise, out untouched): out(r, j) = the response operator's
+    // entry at (unknowns[r], unknowns[j]) (scalar unknowns), from the kept blocks above: a soft
+    // body's contact responses on the unknowns its contacts touch (World::ready_contact_body),
+    // which then cost unit solves only for nodes not seen since the last factorization, where
+    // on the per-step factor every one of them is solved every step. beside: as above.
+    bool response_units(const std::vector<int>& unknowns, MatX& out, const Beside& beside = nullptr);
     // Element rotations of the step (the co-rotation), for ReusedCholesky's warp: each node's
     // rotation (the rotation of the sum of its elements' rotations) relative to its rotation
     // when the factor was made. Ignored by the other solvers.
