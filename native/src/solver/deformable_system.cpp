@@ -373,16 +373,17 @@ bool DeformableSystem::response_units(const std::vector<int>& unknowns, MatX& ou
     auto rot = [&](int node) -> Mat3 { return warp ? (*warp)[node] : Mat3::Identity(); };
     const Eigen::Index k = static_cast<Eigen::Index>(unknowns.size());
     out.resize(k, k);
-    // per pair of nodes the operator's 3x3 block W_i (Af^-1)_ik W_k^T, then its entries
+    // per pair of nodes the operator's 3x3 block W_i (Af^-1)_ik W_k^T, then its entries; the
+    // operator is symmetric, so each pair once, its transpose for (k, i)
     for (size_t b = 0; b < nodes.size(); ++b) {
         const Mat3 wk = rot(nodes[b]);
         const double* column = data + 3 * static_cast<long>((*column_slot)[nodes[b]]) * ld;
-        for (size_t a = 0; a < nodes.size(); ++a) {
+        for (size_t a = b; a < nodes.size(); ++a) {
             const Eigen::Map<const Mat3, 0, Eigen::OuterStride<>> block(column + 3 * static_cast<long>((*row_slot)[nodes[a]]), 3, 3,
                                                                         Eigen::OuterStride<>(ld));
             const Mat3 response = rot(nodes[a]) * block * wk.transpose();
             for (const auto& r : of_node[a])
-                for (const auto& c : of_node[b]) out(r.first, c.first) = response(r.second, c.second);
+                for (const auto& c : of_node[b]) out(r.first, c.first) = out(c.first, r.first) = response(r.second, c.second);
         }
     }
     return true;
