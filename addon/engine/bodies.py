@@ -99,6 +99,10 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
         tol = solver["cg_tolerance"]
         if not isinstance(tol, (int, float)) or not np.isfinite(tol) or not 0 < tol < 1:
             raise BodyError(f"body '{spec['name']}': solver.cg_tolerance = {tol!r} must be in (0, 1), e.g. 1e-6")
+        iterations = solver["cg_max_iterations"]
+        if not isinstance(iterations, int) or isinstance(iterations, bool) or iterations < 1:
+            raise BodyError(f"body '{spec['name']}': solver.cg_max_iterations = {iterations!r} must be a positive "
+                            "integer, e.g. 5000")
         if solver != DEFAULTS["solver"] and spec["type"] != "soft":
             raise BodyError(f"body '{spec['name']}': only soft bodies take a solver (this one is {spec['type']})")
         spec["_base_dir"] = str(base_dir)

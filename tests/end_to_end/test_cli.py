@@ -144,7 +144,9 @@ def test_a_bad_body_is_named(scene_dir):
 
 
 @pytest.mark.parametrize("solver, words", [({"name": "lu"}, "cholesky or reused_cholesky"),
-                                           ({"name": "reused_cholesky", "cg_tolerance": 2.0}, "cg_tolerance")])
+                                           ({"name": "reused_cholesky", "cg_tolerance": 2.0}, "cg_tolerance"),
+                                           ({"name": "reused_cholesky", "cg_max_iterations": "many"},
+                                            "cg_max_iterations")])
 def test_a_bad_body_solver_is_named(scene_dir, solver, words):
     scene = json.loads((scene_dir / "scene.json").read_text())
     scene["bodies"] = [{"name": "cube", "type": "soft", "mesh": "box", "solver": solver}]
@@ -152,3 +154,12 @@ def test_a_bad_body_solver_is_named(scene_dir, solver, words):
     path.write_text(json.dumps(scene))
     proc = run_cli("simulate", str(path), "--out", str(scene_dir / "z.npz"))
     assert proc.returncode == 2 and "cube" in proc.stderr and words in proc.stderr
+
+
+def test_a_solver_on_a_body_that_is_not_soft_is_named(scene_dir):
+    scene = json.loads((scene_dir / "scene.json").read_text())
+    scene["bodies"] = [{"name": "ground", "type": "plane", "solver": {"name": "reused_cholesky"}}]
+    path = scene_dir / "plane_solver.json"
+    path.write_text(json.dumps(scene))
+    proc = run_cli("simulate", str(path), "--out", str(scene_dir / "w.npz"))
+    assert proc.returncode == 2 and "ground" in proc.stderr and "only soft bodies" in proc.stderr
