@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine import bodies as bodies_module
 from ..engine import mesh as meshing
 from ..engine import native, native_world
 from ..engine import scene as scenes
@@ -244,7 +245,7 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
                                   "density": o.density, "rayleigh_alpha": 0.0, "rayleigh_beta": o.rayleigh_beta},
                         fixed="bottom" if o.fix_bottom else None)
             if o.reuse_factor:
-                spec["solver"] = {"name": "reused_cholesky", "cg_tolerance": 1e-6, "cg_max_iterations": 5000}
+                spec["solver"] = {**bodies_module.DEFAULTS["solver"], "name": "reused_cholesky"}
         elif role == "RIGID":
             spec.update(type="rigid", density=o.density)
         elif role == "STATIC":

@@ -94,8 +94,8 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
         if not isinstance(friction, (int, float)) or not np.isfinite(friction) or friction < 0:
             raise BodyError(f"body '{spec['name']}': friction = {friction!r} must be zero or positive")
         solver = spec["solver"]
-        if solver["name"] not in ("cholesky", "reused_cholesky"):
-            raise BodyError(f"body '{spec['name']}': solver.name = {solver['name']!r}: use cholesky or reused_cholesky")
+        if solver["name"] not in W.SOFT_SOLVERS:
+            raise BodyError(f"body '{spec['name']}': solver.name = {solver['name']!r}: use {' or '.join(W.SOFT_SOLVERS)}")
         tol = solver["cg_tolerance"]
         if not isinstance(tol, (int, float)) or not np.isfinite(tol) or not 0 < tol < 1:
             raise BodyError(f"body '{spec['name']}': solver.cg_tolerance = {tol!r} must be in (0, 1), e.g. 1e-6")

@@ -10,6 +10,8 @@ import numpy as np
 from .native import SOLVERS, HandModel, InvalidInput, Material, StepStats, WorldParams, WorldStats, _check, _f64, _ptr, library
 
 HAND, SOFT, RIGID, KINEMATIC, STATIC, PLANE = range(6)
+# the solvers a soft body takes (conjugate gradient would solve every contact response on its own)
+SOFT_SOLVERS = ("cholesky", "reused_cholesky")
 KIND_NAMES = {HAND: "hand", SOFT: "soft", RIGID: "rigid", KINEMATIC: "kinematic", STATIC: "static", PLANE: "plane"}
 
 
@@ -115,8 +117,8 @@ class World:
         """A soft body's solver: "cholesky" (factored every step, the default) or
         "reused_cholesky" (an earlier step's factor preconditions CG and is the contact response
         operator, its columns kept between factorizations: for large soft bodies)."""
-        if solver not in ("cholesky", "reused_cholesky"):
-            raise InvalidInput(f"a soft body's solver '{solver}' is unknown: use cholesky or reused_cholesky")
+        if solver not in SOFT_SOLVERS:
+            raise InvalidInput(f"a soft body's solver '{solver}' is unknown: use {' or '.join(SOFT_SOLVERS)}")
         _check(library().hh_world_set_body_solver(self._handle, body, SOLVERS[solver], float(cg_tolerance),
                                                   int(cg_max_iterations)))
 

@@ -389,10 +389,7 @@ void World::solve_contact_body(int bi, int part, int parts) {
                 b.hand->hand.apply_inverse_many(rhs, x, &cb.touched);
                 cb.K.middleCols(first, w) = x;
                 continue;
-            case BodyKind::Soft:  // (on the reused factor its response operator, as the impulses' velocities)
-                if (b.tool->solver() == DeformableSolver::ReusedCholesky) b.tool->solve_response(rhs, x, &build.touched_nodes);
-                else b.tool->solve_many(rhs, x, 1, &build.touched_nodes);
-                break;
+            case BodyKind::Soft: b.tool->solve_response(rhs, x, &build.touched_nodes); break;
             default: x = Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
         }
         for (size_t k = 0; k < cb.touched.size(); ++k) cb.K.block(k, first, 1, w) = x.block(cb.touched[k], 0, 1, w);
@@ -528,21 +525,16 @@ void World::apply_contact_body(int bi) {
             // (carried into the next free solve, World::solve_free)
             if (b.hand->tool.solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
             break;
-        case BodyKind::Soft:
-            if (b.tool->solver() == DeformableSolver::ReusedCholesky) {
-                // the operator the sweeps saw (so the constraints hold), and the impulses carried
-                // into the next free solve (World::solve_free)
-                MatX x;
-                b.tool->solve_response(rhs, x);
-                b.v_new += x.col(0);
-                b.carried_impulse = rhs;
-                break;
-            }
-            b.tool->r = rhs;
-            b.tool->select_slot(1);
-            b.tool->solve();
-            b.v_new += b.tool->s;
+        case BodyKind::Soft: {
+            // the operator the sweeps saw, so the constraints hold (on the per-step factor the
+            // exact solve; on the reused one its lagged operator, and the impulses carried into
+            // the next free solve, World::solve_free)
+            MatX x;
+            b.tool->solve_response(rhs, x);
+            b.v_new += x.col(0);
+            if (b.tool->solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
             break;
+        }
         default: b.v_new += Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
     }
 }
