@@ -579,6 +579,48 @@ TEST(supernodal_factor_in_two_parts_is_the_same_side_by_side_or_not) {
     CHECK_LT((MatX(a2 * x2) - b).norm() / b.norm(), 1e-12);
 }
 
+TEST(the_factors_single_and_half_copies_made_in_two_shares_side_by_side_are_the_same) {
+    // BlockLDLT::make_single: the copies of the panels in single and half precision, in two
+    // shares of the supernodes when factorize() is given `beside`. Two factors of the same
+    // matrix, one made without `beside` and one with both shares on two threads: their passes
+    // through each copy give the same bits (a share that missed a supernode would leave zeros
+    // there), and the single copy's pass is the double one's to float round-off.
+    const SpMat a = system_matrix(12, 8, 6, 47);
+    BlockLDLT plain, shared;
+    for (BlockLDLT* f : {&plain, &shared}) {
+        f->set_supernodal(true);
+        f->set_keep_single(true);
+        f->set_keep_half(true);
+        f->analyze(a);
+    }
+    plain.factorize(a);
+    shared.factorize(a, side_by_side);
+    CHECK(plain.has_single() && shared.has_single());
+    CHECK(plain.has_half() == shared.has_half());
+    std::mt19937 rng(48);
+    std::normal_distribution<double> g(0, 1);
+    MatX b(a.rows(), 1);
+    for (int i = 0; i < b.size(); ++i) b.data()[i] = g(rng);
+    std::vector<double> exact = node_major(b, 1);
+    plain.solve_node_major(exact.data(), 1, nullptr, Panels::Double);
+    std::vector<Panels> copies = {Panels::Single};
+    if (plain.has_half()) copies.push_back(Panels::Half);
+    for (Panels panels : copies) {
+        std::vector<double> x = node_major(b, 1), y = x;
+        plain.solve_node_major(x.data(), 1, nullptr, panels);
+        shared.solve_node_major(y.data(), 1, nullptr, panels);
+        CHECK(x == y);
+        if (panels != Panels::Single) continue;
+        double diff = 0, size = 0;
+        for (size_t e = 0; e < x.size(); ++e) {
+            diff = std::max(diff, std::abs(x[e] - exact[e]));
+            size = std::max(size, std::abs(exact[e]));
+        }
+        CHECK(size > 0);
+        CHECK_LT(diff / size, 1e-4);
+    }
+}
+
 TEST(a_solve_over_the_two_parts_side_by_side_is_the_plain_solve_to_round_off) {
     // solve_node_major_split: the parts' passes as two jobs, on two threads or one after the
     // other. The same bits either way, and the plain pass's result to round-off (only the rest's

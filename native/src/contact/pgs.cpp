@@ -501,7 +501,13 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             if (large) op.focus(live, lambda);
         }
         // every decision below (stop, subspace step, keep a step) on the residual of every contact
-        const bool deciding = pending || result.residual <= tolerance || it + 1 >= max_iterations || it + 1 >= next_step;
+        // With more active contacts than the subspace step takes (`large`), a step that falls
+        // due in a partial sweep waits for the next full sweep, whose residual is every
+        // contact's anyway: measuring it in the partial sweep before (a catch-up of the focused
+        // contacts' columns and a velocity per contact, then a full sweep next) cost ~5% of the
+        // 10x bunny's sweeps, for a step that cannot run there unless the active set shrank.
+        const bool step_due = it + 1 >= next_step && (full || !large);
+        const bool deciding = pending || result.residual <= tolerance || it + 1 >= max_iterations || step_due;
         if (!full && deciding) {
             op.refresh(lambda);
             result.residual = residual(all);
@@ -518,7 +524,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
                 result.residual = residual(all);
             }
         }
-        if (result.residual > tolerance && it + 1 < max_iterations && it + 1 >= next_step) {
+        if (result.residual > tolerance && it + 1 < max_iterations && step_due) {
             saved = lambda;
             saved_residual = result.residual;
             if (subspace_step(op, c, bias, coefficient, u, blocks_cache, last_state, lambda)) {

@@ -39,7 +39,8 @@ public:
     int supernodes() const { return static_cast<int>(sn_start_.size()) - 1; }
     // beside (supernodal form with parts): the rest's large supernodes receive their
     // descendants' updates in two shares of their columns, as two jobs for it (the same factor,
-    // bit for bit, whether they run side by side or not, and with or without `beside`).
+    // bit for bit, whether they run side by side or not, and with or without `beside`); the
+    // single- and half-precision copies are made in two shares of the supernodes too.
     void factorize(const SpMat& a, const Beside& beside = nullptr);
     // Supernodal form: the factorization in parts that may run side by side. The analysis splits
     // the supernodes into two sets of whole subtrees of the elimination tree (balanced by their
@@ -179,7 +180,7 @@ private:
     const unsigned char* wanted_mask(const std::vector<int>& nodes) const;
     bool keep_single_ = false, single_valid_ = false, factored_ = false;
     bool keep_half_ = false, half_valid_ = false;
-    void make_single();
+    void make_single(const Beside& beside = nullptr);
     double factor_flops_ = 0;
     // workspaces of factorize()
     std::vector<Mat3> y_;
