@@ -598,11 +598,15 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
     // With a lagged factor the contact responses come from the warped factor itself, not CG:
     // apply_inverse (the impulses' velocities) and apply_inverse_many (the Delassus operator)
     // must apply the same operator, so that the impulses solved with one are those the
-    // velocities receive; with the factor of this very step they are the exact inverse.
+    // velocities receive; with the factor of this very step they are the exact inverse. With the
+    // handle free (Aht not zero: the unit columns need the flesh at the coupled nodes) and
+    // prescribed (Aht zero: they do not, and are not asked for).
     const Model m = reused_box_model();
     const hh_params& p = m.params;
+    for (bool prescribed : {false, true}) {
     Data d(m);
     d.device.enabled = true;
+    d.device.prescribed = prescribed;
     int stale = 0;
     double cond = 0;  // of At (the single-precision pass's bound, below)
     for (int s = 0; s < 12; ++s) {
@@ -678,7 +682,11 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
                 largest = std::max(largest, std::abs(via_solve(flesh[r], j)));
             }
         CHECK_LT(worst, 1e-12 * largest);
+        bool aht_zero = true;  // (the step zeroes Aht for a prescribed handle)
+        for (const Mat63& block : d.hand.Aht) aht_zero = aht_zero && block.isZero(0);
+        CHECK(aht_zero == prescribed);
         integrate(m, d, d.hand.s);
     }
     CHECK(stale >= 4);
+    }
 }
