@@ -352,6 +352,14 @@ TEST(node_major_product_matches_the_sparse_product_at_every_simd_level) {
             multiply_node_major(a, nx.data(), ny.data(), width);
             const MatX y = a * x;
             CHECK_LT(max_abs_diff(ny, y, width) / y.cwiseAbs().maxCoeff(), 1e-14);
+            // in two ranges of nodes (the CG's product in two halves): the same bits, and each
+            // range writes its own rows only
+            const int n = static_cast<int>(a.rows() / 3), cut = n / 3;
+            std::vector<double> halves(nx.size(), std::nan(""));
+            multiply_node_major(a, nx.data(), halves.data(), width, 0, cut);
+            for (size_t e = static_cast<size_t>(3) * width * cut; e < halves.size(); ++e) CHECK(std::isnan(halves[e]));
+            multiply_node_major(a, nx.data(), halves.data(), width, cut, n);
+            CHECK(halves == ny);
         }
     }
     simd_level_override() = -1;

@@ -1013,9 +1013,16 @@ void supernodal_solve_dispatch(const SupernodalFactor& f, double* x, int w, doub
 }  // namespace
 
 void multiply_node_major(const SpMat& a, const double* x, double* y, int w) {
+    multiply_node_major(a, x, y, w, 0, static_cast<int>(a.cols() / 3));
+}
+
+void multiply_node_major(const SpMat& a, const double* x, double* y, int w, int first_node, int end_node) {
     if (w != 1 && w != 4 && w != 8) throw std::logic_error("multiply_node_major: width must be 1, 4 or 8");
-    const int n = static_cast<int>(a.cols() / 3);
-    const int* o = a.outerIndexPtr();
+    if (first_node < 0 || end_node > a.cols() / 3 || first_node > end_node) throw std::logic_error("multiply_node_major: no such nodes");
+    // (each node's rows from its own column, A symmetric: a range of nodes is its rows alone)
+    const int n = end_node - first_node;
+    y += static_cast<size_t>(3) * w * first_node;
+    const int* o = a.outerIndexPtr() + 3 * static_cast<size_t>(first_node);
     const int* i = a.innerIndexPtr();
     const double* v = a.valuePtr();
 #ifdef HH_HAVE_SIMD_KERNELS

@@ -191,6 +191,9 @@ private:
 // 3n x 3n, both triangles stored, whose three columns of a node share one row pattern made
 // of whole 3x3 blocks (has_node_block_pattern). AVX2 / AVX-512 kernels chosen at run time.
 void multiply_node_major(const SpMat& a, const double* x, double* y, int w);
+// The same for the rows of nodes [first_node, end_node) only (y's other rows untouched): two
+// ranges give the same values as the whole product, each node's rows from its own column.
+void multiply_node_major(const SpMat& a, const double* x, double* y, int w, int first_node, int end_node);
 bool has_node_block_pattern(const SpMat& a);
 
 }  // namespace hh

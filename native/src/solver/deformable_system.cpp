@@ -250,9 +250,11 @@ struct DeformableSystem::Impl {
              const std::function<void()>* after_second = nullptr);
     // may_renew: a lane at reuse_iteration_limit renews the factor on the spot and the block
     // restarts; else (a group solved beside another, which reads the factor) the block stops
-    // and reports the factor stale
+    // and reports the factor stale. pass_beside: the one-lane passes through the factor's two
+    // parts, and the products with At in two halves of its rows, as two jobs for it
+    // (BlockLDLT::solve_node_major_split; see pcg)
     void pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count, PcgWork& ws,
-                   PcgTally& tally, const std::vector<Mat3>* w, bool may_renew);
+                   PcgTally& tally, const std::vector<Mat3>* w, bool may_renew, const Beside* pass_beside = nullptr);
 };
 
 DeformableSystem::DeformableSystem() : impl_(new Impl) {}
@@ -635,10 +637,20 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
     PcgTally tally[2];
     if (split > 0 && split < k) {
         const std::vector<Mat3>* w = current_warp();  // (once: the groups only read it)
+        // The first group's one-lane iterations (b_t's, the hand's free solve) give `beside` two
+        // jobs each for the pass through the factor (its two parts) and for the product with At
+        // (two halves of the rows): a thread that is free (the second group done, or never
+        // taken by the other thread) takes the second job, else this thread runs both, the same
+        // arithmetic either way. The second group's 8-lane passes keep the other
+        // thread busy in the machine's fast states and the two groups end together; in slow
+        // ones b_t's passes slowed ~2.5x against the block's ~1.6x (a memory-latency-bound
+        // pass; 10x bunny, 17006-tet hand: b_t 26-28 ms against the columns' 11) and the
+        // other thread idled ~13 ms a frame.
         auto group = [&](int g) {
             const int begin = g == 0 ? 0 : split, end = g == 0 ? split : k;
             for (int first = begin; first < end; first += 8)
-                pcg_block(sys, b, x, first_slot, first, std::min(8, end - first), pcg_work[g], tally[g], w, false);
+                pcg_block(sys, b, x, first_slot, first, std::min(8, end - first), pcg_work[g], tally[g], w, false,
+                          g == 0 ? beside : nullptr);
         };
         auto second = [&] {
             group(1);
@@ -672,7 +684,8 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
 }
 
 void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count,
-                                       PcgWork& ws, PcgTally& tally, const std::vector<Mat3>* w, bool may_renew) {
+                                       PcgWork& ws, PcgTally& tally, const std::vector<Mat3>* w, bool may_renew,
+                                       const Beside* pass_beside) {
     std::vector<double>&nb = ws.nb, &nx = ws.nx, &nr = ws.nr, &nz = ws.nz, &np = ws.np, &nq = ws.nq;
     const int n3 = static_cast<int>(sys.A.rows());
     auto tol_of = [&](int col) {
@@ -816,7 +829,8 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         if (!any) break;
         const size_t total = static_cast<size_t>(n3) * wd;
         std::copy(nr.begin(), nr.begin() + total, nz.begin());  // z = M^-1 r
-        cholesky.solve_node_major(nz.data(), wd, w, pass_panels(wd));
+        if (wd == 1 && pass_beside && *pass_beside) cholesky.solve_node_major_split(nz.data(), 1, w, pass_panels(1), *pass_beside);
+        else cholesky.solve_node_major(nz.data(), wd, w, pass_panels(wd));
         tally.units += pass_units(wd);
         lane_dot(nr, nz, rz_new);
         double beta[8] = {};
@@ -832,7 +846,13 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         }
         p_update(wd, np.data(), nz.data(), beta, static_cast<size_t>(n3));
         fresh = false;
-        multiply_any(sys.A, block_pattern, np.data(), nq.data(), wd);
+        if (wd == 1 && block_pattern && pass_beside && *pass_beside) {  // (the nodes' rows in two halves)
+            const int n = n3 / 3;
+            (*pass_beside)([&] { multiply_node_major(sys.A, np.data(), nq.data(), 1, 0, n / 2); },
+                           [&] { multiply_node_major(sys.A, np.data(), nq.data(), 1, n / 2, n); });
+        } else {
+            multiply_any(sys.A, block_pattern, np.data(), nq.data(), wd);
+        }
         lane_dot(np, nq, pq);
         lane_dot(nq, nz, qz);
         double alpha[8] = {};
