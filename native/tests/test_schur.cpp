@@ -604,89 +604,89 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
     const Model m = reused_box_model();
     const hh_params& p = m.params;
     for (bool prescribed : {false, true}) {
-    Data d(m);
-    d.device.enabled = true;
-    d.device.prescribed = prescribed;
-    int stale = 0;
-    double cond = 0;  // of At (the single-precision pass's bound, below)
-    for (int s = 0; s < 12; ++s) {
-        const double t = s * p.dt;
-        d.device.position = m.handle.rest_com + 0.03 * Vec3(std::sin(4 * t), 0.3 * t, 0);
-        d.device.quaternion = quat_from_rotation_vector(Vec3(0, 0.5 * std::sin(3 * t), t));
-        formulate(m, d);
-        d.tool.reset_counters();
-        d.hand.solve();
-        const bool lagged = d.tool.iterations > 0;
-        stale += lagged;
-        const Eigen::Index n = d.hand.r.size();
-        const MatX rhs = MatX::Random(n, 5);
-        MatX many;
-        d.hand.apply_inverse_many(rhs, many);
-        const std::vector<int> rows = {0, 4, 9, static_cast<int>(n) - 2};
-        MatX some;
-        d.hand.apply_inverse_many(rhs, some, &rows);
-        // the single-precision pass (the carried impulses, World::solve_free) applies the
-        // inverse of a matrix within float round-off of the factor's: relative error about
-        // cond(At) 2^-24 (cond of the first step's At, close to every step's here: a dense
-        // eigensolve per step took minutes under the sanitizers)
-        if (cond == 0) {
-            const Eigen::SelfAdjointEigenSolver<MatX> eig{MatX(d.tool.A)};
-            cond = eig.eigenvalues().maxCoeff() / eig.eigenvalues().minCoeff();
-        }
-        for (int j = 0; j < 5; ++j) {
-            const VecX one = d.hand.apply_inverse(rhs.col(j));
-            CHECK_LT((one - many.col(j)).cwiseAbs().maxCoeff(), 1e-12 * one.cwiseAbs().maxCoeff());
-            const VecX single = d.hand.apply_inverse(rhs.col(j), true);
-            CHECK_LT((single - one).norm(), 10 * cond * std::ldexp(1.0, -24) * one.norm());
-            if (lagged) CHECK((single - one).norm() > 0);  // (it did take the single-precision copy)
-            for (size_t i = 0; i < rows.size(); ++i) CHECK_LT(std::abs(some(i, j) - one[rows[i]]), 1e-12 * one.cwiseAbs().maxCoeff());
-            if (lagged) continue;  // (an earlier matrix, warped: no exact bound to check)
-            const VecX exact = solve_monolithic(d.hand, rhs.col(j));
-            CHECK_LT((one - exact).cwiseAbs().maxCoeff(), 1e-8 * exact.cwiseAbs().maxCoeff());  // this step's factor
-        }
-        // unit columns from the kept response columns (the contact build's path): the same
-        // operator again, on the first call of a step and on a second one served from the
-        // columns kept (also across steps while the factor is not renewed)
-        const std::vector<int> unknowns = {2, 6 + 3 * 5 + 1, 6 + 3 * 5 + 2, static_cast<int>(n) - 1, 6 + 3 * 11};
-        MatX e = MatX::Zero(n, static_cast<Eigen::Index>(unknowns.size()));
-        for (size_t j = 0; j < unknowns.size(); ++j) e(unknowns[j], j) = 1.0;
-        MatX via_many, via_units;
-        d.hand.apply_inverse_many(e, via_many, &rows);
-        for (int call = 0; call < 2; ++call) {
-            CHECK(d.hand.apply_inverse_units(unknowns, rows, via_units));
-            CHECK_LT((via_units - via_many).cwiseAbs().maxCoeff(), 1e-12 * via_many.cwiseAbs().maxCoeff());
-        }
-        // as the contact build asks (the touched unknowns at the touched rows), with nodes
-        // joining from step to step: their columns are solved, their rows at the columns kept
-        // from earlier steps come from symmetry
-        std::vector<int> touched = {6 + 3 * 5 + 1, 6 + 3 * 5 + 2, 6 + 3 * 11};
-        for (int q = 0; q <= s % 4; ++q) touched.push_back(6 + 3 * (13 + 2 * s + q) + q % 3);
-        MatX et = MatX::Zero(n, static_cast<Eigen::Index>(touched.size()));
-        for (size_t j = 0; j < touched.size(); ++j) et(touched[j], j) = 1.0;
-        d.hand.apply_inverse_many(et, via_many, &touched);
-        CHECK(d.hand.apply_inverse_units(touched, touched, via_units));
-        CHECK_LT((via_units - via_many).cwiseAbs().maxCoeff(), 1e-12 * via_many.cwiseAbs().maxCoeff());
-        // a soft body's path (World::ready_contact_body): the tool's own operator at the same
-        // flesh unknowns, from the same kept blocks, is its solve_response of unit columns
-        std::vector<int> flesh;
-        for (int u : touched) flesh.push_back(u - 6);
-        MatX ef = MatX::Zero(n - 6, static_cast<Eigen::Index>(flesh.size()));
-        for (size_t j = 0; j < flesh.size(); ++j) ef(flesh[j], static_cast<Eigen::Index>(j)) = 1.0;
-        MatX via_solve, via_tool_units;
-        d.tool.solve_response(ef, via_solve);
-        CHECK(d.tool.response_units(flesh, via_tool_units));
-        double worst = 0, largest = 0;
-        for (size_t r = 0; r < flesh.size(); ++r)
-            for (size_t j = 0; j < flesh.size(); ++j) {
-                worst = std::max(worst, std::abs(via_tool_units(r, j) - via_solve(flesh[r], j)));
-                largest = std::max(largest, std::abs(via_solve(flesh[r], j)));
+        Data d(m);
+        d.device.enabled = true;
+        d.device.prescribed = prescribed;
+        int stale = 0;
+        double cond = 0;  // of At (the single-precision pass's bound, below)
+        for (int s = 0; s < 12; ++s) {
+            const double t = s * p.dt;
+            d.device.position = m.handle.rest_com + 0.03 * Vec3(std::sin(4 * t), 0.3 * t, 0);
+            d.device.quaternion = quat_from_rotation_vector(Vec3(0, 0.5 * std::sin(3 * t), t));
+            formulate(m, d);
+            d.tool.reset_counters();
+            d.hand.solve();
+            const bool lagged = d.tool.iterations > 0;
+            stale += lagged;
+            const Eigen::Index n = d.hand.r.size();
+            const MatX rhs = MatX::Random(n, 5);
+            MatX many;
+            d.hand.apply_inverse_many(rhs, many);
+            const std::vector<int> rows = {0, 4, 9, static_cast<int>(n) - 2};
+            MatX some;
+            d.hand.apply_inverse_many(rhs, some, &rows);
+            // the single-precision pass (the carried impulses, World::solve_free) applies the
+            // inverse of a matrix within float round-off of the factor's: relative error about
+            // cond(At) 2^-24 (cond of the first step's At, close to every step's here: a dense
+            // eigensolve per step took minutes under the sanitizers)
+            if (cond == 0) {
+                const Eigen::SelfAdjointEigenSolver<MatX> eig{MatX(d.tool.A)};
+                cond = eig.eigenvalues().maxCoeff() / eig.eigenvalues().minCoeff();
             }
-        CHECK_LT(worst, 1e-12 * largest);
-        bool aht_zero = true;  // (the step zeroes Aht for a prescribed handle)
-        for (const Mat63& block : d.hand.Aht) aht_zero = aht_zero && block.isZero(0);
-        CHECK(aht_zero == prescribed);
-        integrate(m, d, d.hand.s);
-    }
-    CHECK(stale >= 4);
+            for (int j = 0; j < 5; ++j) {
+                const VecX one = d.hand.apply_inverse(rhs.col(j));
+                CHECK_LT((one - many.col(j)).cwiseAbs().maxCoeff(), 1e-12 * one.cwiseAbs().maxCoeff());
+                const VecX single = d.hand.apply_inverse(rhs.col(j), true);
+                CHECK_LT((single - one).norm(), 10 * cond * std::ldexp(1.0, -24) * one.norm());
+                if (lagged) CHECK((single - one).norm() > 0);  // (it did take the single-precision copy)
+                for (size_t i = 0; i < rows.size(); ++i) CHECK_LT(std::abs(some(i, j) - one[rows[i]]), 1e-12 * one.cwiseAbs().maxCoeff());
+                if (lagged) continue;  // (an earlier matrix, warped: no exact bound to check)
+                const VecX exact = solve_monolithic(d.hand, rhs.col(j));
+                CHECK_LT((one - exact).cwiseAbs().maxCoeff(), 1e-8 * exact.cwiseAbs().maxCoeff());  // this step's factor
+            }
+            // unit columns from the kept response columns (the contact build's path): the same
+            // operator again, on the first call of a step and on a second one served from the
+            // columns kept (also across steps while the factor is not renewed)
+            const std::vector<int> unknowns = {2, 6 + 3 * 5 + 1, 6 + 3 * 5 + 2, static_cast<int>(n) - 1, 6 + 3 * 11};
+            MatX e = MatX::Zero(n, static_cast<Eigen::Index>(unknowns.size()));
+            for (size_t j = 0; j < unknowns.size(); ++j) e(unknowns[j], j) = 1.0;
+            MatX via_many, via_units;
+            d.hand.apply_inverse_many(e, via_many, &rows);
+            for (int call = 0; call < 2; ++call) {
+                CHECK(d.hand.apply_inverse_units(unknowns, rows, via_units));
+                CHECK_LT((via_units - via_many).cwiseAbs().maxCoeff(), 1e-12 * via_many.cwiseAbs().maxCoeff());
+            }
+            // as the contact build asks (the touched unknowns at the touched rows), with nodes
+            // joining from step to step: their columns are solved, their rows at the columns kept
+            // from earlier steps come from symmetry
+            std::vector<int> touched = {6 + 3 * 5 + 1, 6 + 3 * 5 + 2, 6 + 3 * 11};
+            for (int q = 0; q <= s % 4; ++q) touched.push_back(6 + 3 * (13 + 2 * s + q) + q % 3);
+            MatX et = MatX::Zero(n, static_cast<Eigen::Index>(touched.size()));
+            for (size_t j = 0; j < touched.size(); ++j) et(touched[j], j) = 1.0;
+            d.hand.apply_inverse_many(et, via_many, &touched);
+            CHECK(d.hand.apply_inverse_units(touched, touched, via_units));
+            CHECK_LT((via_units - via_many).cwiseAbs().maxCoeff(), 1e-12 * via_many.cwiseAbs().maxCoeff());
+            // a soft body's path (World::ready_contact_body): the tool's own operator at the same
+            // flesh unknowns, from the same kept blocks, is its solve_response of unit columns
+            std::vector<int> flesh;
+            for (int u : touched) flesh.push_back(u - 6);
+            MatX ef = MatX::Zero(n - 6, static_cast<Eigen::Index>(flesh.size()));
+            for (size_t j = 0; j < flesh.size(); ++j) ef(flesh[j], static_cast<Eigen::Index>(j)) = 1.0;
+            MatX via_solve, via_tool_units;
+            d.tool.solve_response(ef, via_solve);
+            CHECK(d.tool.response_units(flesh, via_tool_units));
+            double worst = 0, largest = 0;
+            for (size_t r = 0; r < flesh.size(); ++r)
+                for (size_t j = 0; j < flesh.size(); ++j) {
+                    worst = std::max(worst, std::abs(via_tool_units(r, j) - via_solve(flesh[r], j)));
+                    largest = std::max(largest, std::abs(via_solve(flesh[r], j)));
+                }
+            CHECK_LT(worst, 1e-12 * largest);
+            bool aht_zero = true;  // (the step zeroes Aht for a prescribed handle)
+            for (const Mat63& block : d.hand.Aht) aht_zero = aht_zero && block.isZero(0);
+            CHECK(aht_zero == prescribed);
+            integrate(m, d, d.hand.s);
+        }
+        CHECK(stale >= 4);
     }
 }
