@@ -94,6 +94,9 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
         if not isinstance(friction, (int, float)) or not np.isfinite(friction) or friction < 0:
             raise BodyError(f"body '{spec['name']}': friction = {friction!r} must be zero or positive")
         solver = spec["solver"]
+        if not isinstance(solver, dict):
+            raise BodyError(f"body '{spec['name']}': solver = {solver!r} must be an object, e.g. "
+                            '{"name": "reused_cholesky", "cg_tolerance": 1e-6}')
         if solver["name"] not in W.SOFT_SOLVERS:
             raise BodyError(f"body '{spec['name']}': solver.name = {solver['name']!r}: use {' or '.join(W.SOFT_SOLVERS)}")
         tol = solver["cg_tolerance"]

@@ -146,7 +146,8 @@ def test_a_bad_body_is_named(scene_dir):
 @pytest.mark.parametrize("solver, words", [({"name": "lu"}, "cholesky or reused_cholesky"),
                                            ({"name": "reused_cholesky", "cg_tolerance": 2.0}, "cg_tolerance"),
                                            ({"name": "reused_cholesky", "cg_max_iterations": "many"},
-                                            "cg_max_iterations")])
+                                            "cg_max_iterations"),
+                                           ("reused_cholesky", "must be an object")])
 def test_a_bad_body_solver_is_named(scene_dir, solver, words):
     scene = json.loads((scene_dir / "scene.json").read_text())
     scene["bodies"] = [{"name": "cube", "type": "soft", "mesh": "box", "solver": solver}]
