@@ -207,6 +207,18 @@ void World::assemble_hand(Body& b) {
     b.assembly_seconds = seconds_since(t0);
 }
 
+namespace {
+// The last step's contact impulses a body carries into its free solve (World::solve_free), taken
+// from it: empty unless its deformable system is on the reused factor (whose lagged responses
+// they correct) and it touched something.
+VecX take_carried_impulse(Body& b, const DeformableSystem& tool) {
+    VecX carried;
+    carried.swap(b.carried_impulse);
+    if (tool.solver() != DeformableSolver::ReusedCholesky) carried.resize(0);
+    return carried;
+}
+}  // namespace
+
 void World::solve_free(Body& b) {
     const double dt = settings.dt;
     switch (b.kind) {
@@ -230,9 +242,7 @@ void World::solve_free(Body& b) {
             // lag. Before, sustained contact put (P - A_t^-1) J^T lambda into every step's
             // velocities (P is 10-20% off A_t on a settled hand's impulses), and on one of
             // pytetwild's hand meshes in ten the pressed hand oscillated with period 2.
-            VecX carried;
-            carried.swap(b.carried_impulse);
-            if (b.hand->tool.solver() != DeformableSolver::ReusedCholesky) carried.resize(0);
+            const VecX carried = take_carried_impulse(b, b.hand->tool);
             if (carried.size()) {
                 // measured against b_t alone, the free solve is as accurate as without the
                 // carried impulses (DeformableSystem::set_reference_norm)
@@ -268,9 +278,7 @@ void World::solve_free(Body& b) {
                 }
             // On the reused factor, as the hand's (above): the last step's contact impulses f in
             // the free solve, and P f taken out again, so that only their change sees the lag
-            VecX carried;
-            carried.swap(b.carried_impulse);
-            if (b.tool->solver() != DeformableSolver::ReusedCholesky) carried.resize(0);
+            const VecX carried = take_carried_impulse(b, *b.tool);
             b.tool->r = b.soft_rhs;
             if (carried.size()) {
                 b.tool->set_reference_norm(0, b.soft_rhs.norm());
