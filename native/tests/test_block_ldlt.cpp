@@ -184,6 +184,10 @@ double max_abs_diff(const std::vector<double>& nm, const MatX& x, int w) {
     return d;
 }
 // max |x - reference| over max |reference| (infinite for a zero reference: no test passes on it)
+// A pass in float arithmetic against its exact operator, relative: 2^-24 a rounding, and a
+// row's value goes through a few dozen roundings (its supernode's columns, its updates)
+constexpr double kFloatPassBound = 32 * 5.96e-8;
+
 double max_relative_difference(const std::vector<double>& x, const std::vector<double>& reference) {
     double diff = 0, size = 0;
     for (size_t e = 0; e < x.size(); ++e) {
@@ -244,12 +248,13 @@ TEST(supernodal_factor_solves_like_a_dense_solver_at_every_simd_level) {
 }
 
 TEST(half_precision_passes_apply_the_inverse_of_the_rounded_factor) {
-    // A half pass applies W P^T (L_h L_h^T)^-1 P W^T in double arithmetic, with L_h each scalar
-    // column of L below the diagonal rounded to binary16 over the column's largest magnitude c_k
-    // (solver/half.h) and multiplied back, the diagonal L's own. Rebuilt here from a dense
-    // Cholesky of the permuted matrix (the same L to round-off, so the same halves but with
-    // probability ~1e-13 per entry), that operator must match the pass to double round-off,
-    // while the pass departs from A^-1 by the halves' rounding.
+    // A half pass applies W P^T (L_h L_h^T)^-1 P W^T, with L_h each scalar column of L below the
+    // diagonal rounded to binary16 over the column's largest magnitude c_k (solver/half.h) and
+    // multiplied back, the diagonal L's own: the 4- and 8-lane passes in double arithmetic, the
+    // one-lane pass in float (BlockLDLT::float_passes). Rebuilt here from a dense Cholesky of
+    // the permuted matrix (the same L to round-off, so the same halves but with probability
+    // ~1e-13 per entry), that operator must match the pass to the arithmetic's round-off, while
+    // the pass departs from A^-1 by the halves' rounding.
     if (!has_f16c()) return;
     const SpMat a = system_matrix(7, 5, 4, 11);
     const int n = static_cast<int>(a.rows() / 3);
@@ -300,7 +305,8 @@ TEST(half_precision_passes_apply_the_inverse_of_the_rounded_factor) {
                     if (warped) expected = wd * expected;
                     VecX x(a.rows());
                     for (Eigen::Index e = 0; e < x.size(); ++e) x[e] = nm[width * e + j];
-                    CHECK_LT((x - expected).norm() / expected.norm(), 1e-9);
+                    // float: 2^-24 ~ 6e-8 a rounding, a few dozen of them along a row's passes
+                    CHECK_LT((x - expected).norm() / expected.norm(), width == 1 ? kFloatPassBound : 1e-9);
                     if (!warped)  // (the halves' rounding: far above double round-off)
                         CHECK((x - plain.solve(VecX(b.col(j)))).norm() / expected.norm() > 1e-6);
                 }
@@ -663,7 +669,8 @@ TEST(a_solve_over_the_two_parts_side_by_side_is_the_plain_solve_to_round_off) {
                     f.solve_node_major_split(seq.data(), width, warped ? &w : nullptr, panels, one_after_the_other);
                     f.solve_node_major_split(thr.data(), width, warped ? &w : nullptr, panels, side_by_side);
                     CHECK(seq == thr);
-                    CHECK_LT(max_relative_difference(seq, plain), 1e-13);
+                    const bool in_float = panels == Panels::Half && width == 1;  // (float_passes)
+                    CHECK_LT(max_relative_difference(seq, plain), in_float ? kFloatPassBound : 1e-13);
                 }
     const SpMat small = system_matrix(4, 3, 3, 45);
     const BlockLDLT s = factored(small, true);

@@ -957,6 +957,150 @@ __attribute__((target("avx512f,avx512vl,avx2,fma,f16c"), flatten)) void supernod
                                                                                             const double* d, double* x, double* y) {
     supernodal_solve<W, VL, Half>(f, f.val_half, d, x, y);
 }
+// One lane on the half panels in float arithmetic (x and y in float; the same passes as
+// supernodal_solve<1, VL, Half>): the panels' rounding (2^-11 of each column's largest entry)
+// dwarfs float's (2^-24), and much of the double kernel's time went to widening each half to a
+// double (a conversion to float, one to double and a lane shuffle per 8 entries, against one
+// conversion per 16 here). On the 17006-tet hand's factor a pass took 0.92-1.01 ms against
+// 1.19-1.32 (microbenchmark, caches flushed or not: the same).
+template <int VL> struct FloatLanes;
+template <> struct FloatLanes<8> { typedef HalfFloat8 V; };
+template <> struct FloatLanes<16> { typedef HalfFloat16 V; };
+template <int VL>
+__attribute__((always_inline)) inline typename FloatLanes<VL>::V load_half_floats(const Half* p) {
+    if constexpr (VL == 16) return load_half16_floats(p);
+    else return load_half8_floats(p);
+}
+template <int VL>
+__attribute__((always_inline)) inline typename FloatLanes<VL>::V load_floats(const float* p) {
+    typename FloatLanes<VL>::V v;
+    __builtin_memcpy(&v, p, sizeof v);
+    return v;
+}
+template <int VL>
+__attribute__((always_inline)) inline void store_floats(float* p, typename FloatLanes<VL>::V v) {
+    __builtin_memcpy(p, &v, sizeof v);
+}
+template <int VL>
+__attribute__((always_inline)) inline void supernodal_solve_half_float(const SupernodalFactor& f, float* x, float* y) {
+    typedef typename FloatLanes<VL>::V VF;
+    constexpr int G = 4;
+    const Half* val = f.val_half;
+    for (int j = 0; j < (f.forward ? f.ns : 0); ++j) {  // L z = b
+        if (f.skips(j)) continue;
+        const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
+        const int* rows = f.rows + f.rows_ptr[j];
+        const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
+        const Half* p = val + f.val_ptr[j];
+        const double* dinv = f.diag_inverse_single + f.diag_ptr[j];
+        const float* scale = f.scale + f.diag_ptr[j];
+        float* xj = x + static_cast<size_t>(3) * c0;
+        {
+            int e = 0;
+            while (e < m && xj[e] == 0) ++e;
+            if (e == m) continue;
+        }
+        std::copy(xj, xj + m, y);
+        std::fill(y + m, y + ld, 0.0f);
+        for (int c = 0; c < m; c += G) {
+            const int g = std::min(G, m - c);
+            const Half* col[G];
+            float s[G];
+            for (int k = 0; k < G; ++k) {
+                col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
+                s[k] = scale[c + std::min(k, g - 1)];
+            }
+            for (int k = 0; k < g; ++k) {  // the group's triangle
+                y[c + k] *= static_cast<float>(dinv[c + k]);
+                for (int k2 = k + 1; k2 < g; ++k2) y[c + k2] -= half_float(col[k][c + k2]) * s[k] * y[c + k];
+            }
+            float a[G];
+            for (int k = 0; k < G; ++k) a[k] = k < g ? y[c + k] * s[k] : 0.0f;
+            int r = c + g;
+            for (; r + VL <= ld; r += VL) {
+                const VF t = load_half_floats<VL>(col[0] + r) * a[0] + load_half_floats<VL>(col[1] + r) * a[1] +
+                             load_half_floats<VL>(col[2] + r) * a[2] + load_half_floats<VL>(col[3] + r) * a[3];
+                store_floats<VL>(y + r, load_floats<VL>(y + r) - t);
+            }
+            for (; r < ld; ++r)
+                y[r] -= half_float(col[0][r]) * a[0] + half_float(col[1][r]) * a[1] + half_float(col[2][r]) * a[2] +
+                        half_float(col[3][r]) * a[3];
+        }
+        std::copy(y, y + m, xj);
+        for (int t = m / 3; t < nr; ++t) {
+            float* to = x + static_cast<size_t>(3) * rows[t];
+            const float* from = y + static_cast<size_t>(3) * t;
+            for (int e = 0; e < 3; ++e) to[e] += from[e];
+        }
+    }
+    for (int j = f.backward ? f.ns - 1 : -1; j >= 0; --j) {  // L^T x = z
+        if ((f.wanted && !f.wanted[j]) || f.skips(j)) continue;
+        const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
+        const int* rows = f.rows + f.rows_ptr[j];
+        const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
+        const Half* p = val + f.val_ptr[j];
+        const double* dinv = f.diag_inverse_single + f.diag_ptr[j];
+        const float* scale = f.scale + f.diag_ptr[j];
+        float* xj = x + static_cast<size_t>(3) * c0;
+        std::copy(xj, xj + m, y);
+        for (int t = m / 3; t < nr; ++t) {
+            const float* from = x + static_cast<size_t>(3) * rows[t];
+            float* to = y + static_cast<size_t>(3) * t;
+            for (int e = 0; e < 3; ++e) to[e] = from[e];
+        }
+        for (int c = ((m - 1) / G) * G; c >= 0; c -= G) {
+            const int g = std::min(G, m - c);
+            const Half* col[G];
+            float s[G];
+            for (int k = 0; k < G; ++k) {
+                col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
+                s[k] = scale[c + std::min(k, g - 1)];
+            }
+            VF s0 = VF{} * 0.0f, s1 = s0, s2 = s0, s3 = s0;
+            int r = c + g;
+            for (; r + VL <= ld; r += VL) {
+                const VF yr = load_floats<VL>(y + r);
+                s0 += load_half_floats<VL>(col[0] + r) * yr;
+                s1 += load_half_floats<VL>(col[1] + r) * yr;
+                s2 += load_half_floats<VL>(col[2] + r) * yr;
+                s3 += load_half_floats<VL>(col[3] + r) * yr;
+            }
+            float acc[G] = {0, 0, 0, 0};
+            for (int e = 0; e < VL; ++e) {
+                acc[0] += s0[e];
+                acc[1] += s1[e];
+                acc[2] += s2[e];
+                acc[3] += s3[e];
+            }
+            for (; r < ld; ++r)
+                for (int k = 0; k < G; ++k) acc[k] += half_float(col[k][r]) * y[r];
+            for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
+                float v = y[c + k] - acc[k] * s[k];
+                for (int k2 = k + 1; k2 < g; ++k2) v -= half_float(col[k][c + k2]) * s[k] * y[c + k2];
+                y[c + k] = v * static_cast<float>(dinv[c + k]);
+            }
+        }
+        std::copy(y, y + m, xj);
+    }
+}
+template <int VL>
+__attribute__((target("avx2,fma,f16c"), flatten)) void supernodal_avx2_half_float(const SupernodalFactor& f, float* x, float* y) {
+    supernodal_solve_half_float<VL>(f, x, y);
+}
+template <int VL>
+__attribute__((target("avx512f,avx512vl,avx2,fma,f16c"), flatten)) void supernodal_avx512_half_float(const SupernodalFactor& f,
+                                                                                                  float* x, float* y) {
+    supernodal_solve_half_float<VL>(f, x, y);
+}
+// false when the kernels cannot run here (no AVX2)
+bool supernodal_half_float(const SupernodalFactor& f, float* x, float* y) {
+    const int level = simd_level();
+    if (level == 2) supernodal_avx512_half_float<16>(f, x, y);
+    else if (level == 1) supernodal_avx2_half_float<8>(f, x, y);
+    else return false;
+    return true;
+}
+
 // false when the half kernels cannot run here (the caller then uses the single-precision panels)
 bool supernodal_half(const SupernodalFactor& f, const double* d, double* x, int w, double* y) {
     const int level = simd_level();
@@ -1097,6 +1241,7 @@ namespace {
 struct SolveScratch {
     std::vector<double> work, packed, gather;
     std::vector<double> saved, copy;  // solve_node_major_split: the rest's right-hand rows; part 1's copy
+    std::vector<float> work_f, gather_f, saved_f, copy_f;  // the same for the float passes (float_passes)
     std::vector<unsigned char> wanted_node, wanted_sn;
     std::vector<int> dirty;
 };
@@ -1148,13 +1293,63 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
                                  const unsigned char* wanted) const {
     if (!(w == 1 || w == 4 || w == 8 || (supernodal_ && (w == 16 || w == 32))))
         throw std::logic_error("BlockLDLT::solve_node_major: width must be 1, 4 or 8 (16 or 32: supernodal form only)");
-    std::vector<double>& work = scratch().work;
-    work.resize(static_cast<size_t>(3) * n_ * w);
-    double* x = work.data();
+    SolveScratch& s = scratch();
+    s.work.resize(static_cast<size_t>(3) * n_ * w);
+    double* x = s.work.data();
     warp_permute_any(w, true, n_, order_.data(), warp, b, x);
-    solve_in_order(x, w, panels, wanted);
+    if (float_passes(w, panels)) {
+        s.work_f.assign(x, x + 3 * static_cast<size_t>(n_));
+        solve_supernodal(s.work_f.data(), w, panels, wanted);
+        std::copy(s.work_f.begin(), s.work_f.end(), x);
+    } else {
+        solve_in_order(x, w, panels, wanted);
+    }
     warp_permute_any(w, false, n_, order_.data(), warp, x, b);
 }
+
+bool BlockLDLT::float_passes(int w, Panels panels) const {
+#ifdef HH_HAVE_F16C_KERNELS
+    return w == 1 && panels == Panels::Half && supernodal_ && half_valid_ && simd_level() > 0;
+#else
+    (void)w;
+    (void)panels;
+    return false;
+#endif
+}
+
+namespace {
+// The passes of solve_node_major_split on x (node-major, `row` values a node, in the factor's
+// order): the forward passes of parts 0 and 1 as two jobs, part 1's on a copy; the rest's rows
+// then sum what the right-hand side had, part 0's and part 1's contributions; the rest's passes;
+// the backward passes of parts 0 and 1 as two jobs. pass(x, part, forward, backward).
+template <typename T, class Pass>
+void split_passes(T* x, size_t row, int ns, const int* sn_start, const unsigned char* sn_part, std::vector<T>& saved,
+                  std::vector<T>& copy, const Beside& beside, const Pass& pass) {
+    // the rest's rows start at zero in both copies (part 1's forward pass runs on its own)
+    saved.clear();
+    for (int j = 0; j < ns; ++j)
+        if (sn_part[j] == 2) {
+            T* from = x + row * sn_start[j];
+            T* to = x + row * sn_start[j + 1];
+            saved.insert(saved.end(), from, to);
+            std::fill(from, to, T(0));
+        }
+    copy.assign(x, x + row * sn_start[ns]);
+    T* x1 = copy.data();
+    beside([&] { pass(x, 0, true, false); }, [&] { pass(x1, 1, true, false); });
+    size_t k = 0;
+    for (int j = 0; j < ns; ++j) {
+        const size_t from = row * sn_start[j], to = row * sn_start[j + 1];
+        if (sn_part[j] == 1) {
+            std::copy(x1 + from, x1 + to, x + from);
+        } else if (sn_part[j] == 2) {  // what the right-hand side had, then part 0's, then part 1's
+            for (size_t e = from; e < to; ++e) x[e] = (saved[k++] + x[e]) + x1[e];
+        }
+    }
+    pass(x, 2, true, true);
+    beside([&] { pass(x, 0, false, true); }, [&] { pass(x, 1, false, true); });
+}
+}  // namespace
 
 void BlockLDLT::solve_node_major_split(double* b, int w, const std::vector<Mat3>* warp, Panels panels, const Beside& beside) const {
     if (!supernodal_ || factor_parts_ != 2 || !beside) return solve_node_major(b, w, warp, panels);
@@ -1166,32 +1361,19 @@ void BlockLDLT::solve_node_major_split(double* b, int w, const std::vector<Mat3>
     s.work.resize(row * n_);
     double* x = s.work.data();
     warp_permute_any(w, true, n_, order_.data(), warp, b, x);
-    // the rest's rows start at zero in both copies (part 1's forward pass runs on its own)
-    const int ns = supernodes();
-    s.saved.clear();
-    for (int j = 0; j < ns; ++j)
-        if (sn_part_[j] == 2) {
-            double* from = x + row * sn_start_[j];
-            double* to = x + row * sn_start_[j + 1];
-            s.saved.insert(s.saved.end(), from, to);
-            std::fill(from, to, 0.0);
-        }
-    s.copy.assign(x, x + row * n_);
-    double* x1 = s.copy.data();
-    beside([&] { solve_supernodal(x, w, panels, nullptr, 0, true, false); },
-           [&] { solve_supernodal(x1, w, panels, nullptr, 1, true, false); });
-    size_t k = 0;
-    for (int j = 0; j < ns; ++j) {
-        const size_t from = row * sn_start_[j], to = row * sn_start_[j + 1];
-        if (sn_part_[j] == 1) {
-            std::copy(x1 + from, x1 + to, x + from);
-        } else if (sn_part_[j] == 2) {  // what the right-hand side had, then part 0's, then part 1's
-            for (size_t e = from; e < to; ++e) x[e] = (s.saved[k++] + x[e]) + x1[e];
-        }
+    if (float_passes(w, panels)) {
+        s.work_f.assign(x, x + row * n_);
+        split_passes(s.work_f.data(), row, supernodes(), sn_start_.data(), sn_part_.data(), s.saved_f, s.copy_f, beside,
+                     [&](float* y, int part, bool forward, bool backward) {
+                         solve_supernodal(y, w, panels, nullptr, part, forward, backward);
+                     });
+        std::copy(s.work_f.begin(), s.work_f.end(), x);
+    } else {
+        split_passes(x, row, supernodes(), sn_start_.data(), sn_part_.data(), s.saved, s.copy, beside,
+                     [&](double* y, int part, bool forward, bool backward) {
+                         solve_supernodal(y, w, panels, nullptr, part, forward, backward);
+                     });
     }
-    solve_supernodal(x, w, panels, nullptr, 2, true, true);
-    beside([&] { solve_supernodal(x, w, panels, nullptr, 0, false, true); },
-           [&] { solve_supernodal(x, w, panels, nullptr, 1, false, true); });
     warp_permute_any(w, false, n_, order_.data(), warp, x, b);
 }
 
@@ -1308,14 +1490,13 @@ void BlockLDLT::solve_packed(MatX& b, const std::vector<Mat3>* warp, const std::
     }
 }
 
-void BlockLDLT::solve_supernodal(double* x, int w, Panels panels, const unsigned char* wanted, int part, bool forward,
+template <typename T>
+void BlockLDLT::solve_supernodal(T* x, int w, Panels panels, const unsigned char* wanted, int part, bool forward,
                                  bool backward) const {
     const bool single = panels != Panels::Double, half = panels == Panels::Half;
     const int ns = supernodes();
     size_t most = 0;
     for (int j = 0; j < ns; ++j) most = std::max<size_t>(most, sn_rows_ptr_[j + 1] - sn_rows_ptr_[j]);
-    std::vector<double>& gather = scratch().gather;
-    gather.resize(3 * most * w + 64);
     const SupernodalFactor f{ns,
                              sn_start_.data(),
                              sn_rows_ptr_.data(),
@@ -1333,7 +1514,18 @@ void BlockLDLT::solve_supernodal(double* x, int w, Panels panels, const unsigned
                              part,
                              forward,
                              backward};
-    supernodal_solve_dispatch(f, x, w, gather.data());
+    if constexpr (std::is_same_v<T, float>) {  // (float_passes)
+        std::vector<float>& gather = scratch().gather_f;
+        gather.resize(3 * most + 64);
+#ifdef HH_HAVE_F16C_KERNELS
+        if (supernodal_half_float(f, x, gather.data())) return;
+#endif
+        throw std::logic_error("BlockLDLT::solve_supernodal: no float passes on this CPU");
+    } else {
+        std::vector<double>& gather = scratch().gather;
+        gather.resize(3 * most * w + 64);
+        supernodal_solve_dispatch(f, x, w, gather.data());
+    }
 }
 
 }  // namespace hh

@@ -172,8 +172,13 @@ private:
     // (forward, backward); -1: every supernode, both passes
     // the solves on MatX: columns packed node-major, kWidestSolve a pass; beside: split passes
     void solve_packed(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes, const Beside* beside) const;
-    void solve_supernodal(double* x, int w, Panels panels, const unsigned char* wanted, int part = -1, bool forward = true,
+    // (T: double, or float for the one-lane half passes: float_passes)
+    template <typename T>
+    void solve_supernodal(T* x, int w, Panels panels, const unsigned char* wanted, int part = -1, bool forward = true,
                           bool backward = true) const;
+    // whether a pass of w lanes on these panels runs in float arithmetic (one lane on the half
+    // panels, where the CPU converts halves: see supernodal_solve_half_float)
+    bool float_passes(int w, Panels panels) const;
     void check_panels(int w, Panels panels) const;
     void solve_in_order(double* x, int w, Panels panels, const unsigned char* wanted) const;
     void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, Panels panels, const unsigned char* wanted) const;

@@ -1,6 +1,7 @@
 // Half-precision (IEEE binary16) panel values for the supernodal factor's preconditioner
 // passes (BlockLDLT::set_keep_half). The passes are memory bound, and a half is a quarter of a
-// double's traffic; the arithmetic stays double, so a pass applies the exact inverse of
+// double's traffic; the arithmetic of the 4- and 8-lane passes stays double (the one-lane
+// passes' is float, to round-off of float: BlockLDLT::float_passes), so a pass applies the inverse of
 // L_h L_h^T, L_h the factor with its entries below the diagonal rounded (the kernels divide by
 // the diagonal's own double values). Each scalar column of a panel is stored divided by its largest
 // magnitude (kept as a float scale), so every column uses the format's full relative precision
@@ -46,6 +47,16 @@ __attribute__((target("avx512f,avx512vl,avx2,fma,f16c"))) inline HalfLoad8 load_
     return __builtin_convertvector(f, HalfLoad8);
 }
 __attribute__((target("f16c"))) inline double half_value(Half h) { return _cvtsh_ss(h.bits); }
+// the same as floats (the one-lane passes, whose arithmetic is float)
+typedef float HalfFloat16 __attribute__((vector_size(64)));
+__attribute__((target("avx2,fma,f16c"))) inline HalfFloat8 load_half8_floats(const Half* p) {
+    return _mm256_cvtph_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)));
+}
+__attribute__((target("avx512f,avx512vl,avx2,fma,f16c"))) inline HalfFloat16 load_half16_floats(const Half* p) {
+    // (the zero-masked form: GCC 12's plain one warns of its undefined pass-through operand)
+    return _mm512_maskz_cvtph_ps(0xFFFF, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(p)));
+}
+__attribute__((target("f16c"))) inline float half_float(Half h) { return _cvtsh_ss(h.bits); }
 #endif
 
 }  // namespace hh
