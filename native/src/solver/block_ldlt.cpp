@@ -743,15 +743,24 @@ __attribute__((always_inline)) inline double panel_value(const PT* p) {
 #endif
         return static_cast<double>(*p);
 }
-template <int VL>
-__attribute__((always_inline)) inline typename Lanes<VL>::V load_y(const double* p) {
-    typename Lanes<VL>::V v;
+// a SIMD value V from / to memory of its element type, unaligned
+template <typename V>
+__attribute__((always_inline)) inline V load_vector(const void* p) {
+    V v;
     __builtin_memcpy(&v, p, sizeof v);
     return v;
 }
+template <typename V>
+__attribute__((always_inline)) inline void store_vector(void* p, V v) {
+    __builtin_memcpy(p, &v, sizeof v);
+}
+template <int VL>
+__attribute__((always_inline)) inline typename Lanes<VL>::V load_y(const double* p) {
+    return load_vector<typename Lanes<VL>::V>(p);
+}
 template <int VL>
 __attribute__((always_inline)) inline void store_y(double* p, typename Lanes<VL>::V v) {
-    __builtin_memcpy(p, &v, sizeof v);
+    store_vector(p, v);
 }
 
 // W lanes per row (1, 4 or 8); VL: the SIMD width used along rows when W = 1.
@@ -961,8 +970,8 @@ __attribute__((target("avx512f,avx512vl,avx2,fma,f16c"), flatten)) void supernod
 // supernodal_solve<1, VL, Half>): the panels' rounding (2^-11 of each column's largest entry)
 // dwarfs float's (2^-24), and much of the double kernel's time went to widening each half to a
 // double (a conversion to float, one to double and a lane shuffle per 8 entries, against one
-// conversion per 16 here). On the 17006-tet hand's factor a pass took 0.92-1.01 ms against
-// 1.19-1.32 (microbenchmark, caches flushed or not: the same).
+// conversion per 16 here). On the 17006-tet hand's factor a pass took 0.89-0.91 ms against
+// 1.15-1.22 (microbenchmark, both builds in turn, caches flushed or not: the same).
 template <int VL> struct FloatLanes;
 template <> struct FloatLanes<8> { typedef HalfFloat8 V; };
 template <> struct FloatLanes<16> { typedef HalfFloat16 V; };
@@ -972,29 +981,37 @@ __attribute__((always_inline)) inline typename FloatLanes<VL>::V load_half_float
     else return load_half8_floats(p);
 }
 template <int VL>
-__attribute__((always_inline)) inline typename FloatLanes<VL>::V load_floats(const float* p) {
-    typename FloatLanes<VL>::V v;
-    __builtin_memcpy(&v, p, sizeof v);
-    return v;
-}
-template <int VL>
-__attribute__((always_inline)) inline void store_floats(float* p, typename FloatLanes<VL>::V v) {
-    __builtin_memcpy(p, &v, sizeof v);
-}
-template <int VL>
 __attribute__((always_inline)) inline void supernodal_solve_half_float(const SupernodalFactor& f, float* x, float* y) {
     typedef typename FloatLanes<VL>::V VF;
     constexpr int G = 4;
-    const Half* val = f.val_half;
+    // supernode j: its m columns and nr rows (its own first), its panels, and x at its columns
+    struct Supernode {
+        int m, nr;
+        const int* rows;
+        const Half* p;
+        const double* dinv;
+        const float* scale;
+        float* xj;
+    };
+    auto supernode = [&](int j) {
+        const int c0 = f.start[j];
+        return Supernode{3 * (f.start[j + 1] - c0), f.rows_ptr[j + 1] - f.rows_ptr[j], f.rows + f.rows_ptr[j],
+                         f.val_half + f.val_ptr[j], f.diag_inverse_single + f.diag_ptr[j], f.scale + f.diag_ptr[j],
+                         x + static_cast<size_t>(3) * c0};
+    };
+    // the g (<= G) columns from c: their panels and scales (the last repeated up to G)
+    auto group = [&](const Supernode& n, int c, int g, const Half** col, float* s) {
+        for (int k = 0; k < G; ++k) {
+            col[k] = n.p + static_cast<size_t>(3 * n.nr) * (c + std::min(k, g - 1));
+            s[k] = n.scale[c + std::min(k, g - 1)];
+        }
+    };
     for (int j = 0; j < (f.forward ? f.ns : 0); ++j) {  // L z = b
         if (f.skips(j)) continue;
-        const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
-        const int* rows = f.rows + f.rows_ptr[j];
-        const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
-        const Half* p = val + f.val_ptr[j];
-        const double* dinv = f.diag_inverse_single + f.diag_ptr[j];
-        const float* scale = f.scale + f.diag_ptr[j];
-        float* xj = x + static_cast<size_t>(3) * c0;
+        const Supernode n = supernode(j);
+        const int m = n.m, nr = n.nr, ld = 3 * nr;
+        const int* rows = n.rows;
+        float* xj = n.xj;
         {
             int e = 0;
             while (e < m && xj[e] == 0) ++e;
@@ -1006,12 +1023,9 @@ __attribute__((always_inline)) inline void supernodal_solve_half_float(const Sup
             const int g = std::min(G, m - c);
             const Half* col[G];
             float s[G];
-            for (int k = 0; k < G; ++k) {
-                col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
-                s[k] = scale[c + std::min(k, g - 1)];
-            }
+            group(n, c, g, col, s);
             for (int k = 0; k < g; ++k) {  // the group's triangle
-                y[c + k] *= static_cast<float>(dinv[c + k]);
+                y[c + k] *= static_cast<float>(n.dinv[c + k]);
                 for (int k2 = k + 1; k2 < g; ++k2) y[c + k2] -= half_float(col[k][c + k2]) * s[k] * y[c + k];
             }
             float a[G];
@@ -1020,7 +1034,7 @@ __attribute__((always_inline)) inline void supernodal_solve_half_float(const Sup
             for (; r + VL <= ld; r += VL) {
                 const VF t = load_half_floats<VL>(col[0] + r) * a[0] + load_half_floats<VL>(col[1] + r) * a[1] +
                              load_half_floats<VL>(col[2] + r) * a[2] + load_half_floats<VL>(col[3] + r) * a[3];
-                store_floats<VL>(y + r, load_floats<VL>(y + r) - t);
+                store_vector(y + r, load_vector<VF>(y + r) - t);
             }
             for (; r < ld; ++r)
                 y[r] -= half_float(col[0][r]) * a[0] + half_float(col[1][r]) * a[1] + half_float(col[2][r]) * a[2] +
@@ -1035,13 +1049,10 @@ __attribute__((always_inline)) inline void supernodal_solve_half_float(const Sup
     }
     for (int j = f.backward ? f.ns - 1 : -1; j >= 0; --j) {  // L^T x = z
         if ((f.wanted && !f.wanted[j]) || f.skips(j)) continue;
-        const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
-        const int* rows = f.rows + f.rows_ptr[j];
-        const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
-        const Half* p = val + f.val_ptr[j];
-        const double* dinv = f.diag_inverse_single + f.diag_ptr[j];
-        const float* scale = f.scale + f.diag_ptr[j];
-        float* xj = x + static_cast<size_t>(3) * c0;
+        const Supernode n = supernode(j);
+        const int m = n.m, nr = n.nr, ld = 3 * nr;
+        const int* rows = n.rows;
+        float* xj = n.xj;
         std::copy(xj, xj + m, y);
         for (int t = m / 3; t < nr; ++t) {
             const float* from = x + static_cast<size_t>(3) * rows[t];
@@ -1052,14 +1063,11 @@ __attribute__((always_inline)) inline void supernodal_solve_half_float(const Sup
             const int g = std::min(G, m - c);
             const Half* col[G];
             float s[G];
-            for (int k = 0; k < G; ++k) {
-                col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
-                s[k] = scale[c + std::min(k, g - 1)];
-            }
+            group(n, c, g, col, s);
             VF s0 = VF{} * 0.0f, s1 = s0, s2 = s0, s3 = s0;
             int r = c + g;
             for (; r + VL <= ld; r += VL) {
-                const VF yr = load_floats<VL>(y + r);
+                const VF yr = load_vector<VF>(y + r);
                 s0 += load_half_floats<VL>(col[0] + r) * yr;
                 s1 += load_half_floats<VL>(col[1] + r) * yr;
                 s2 += load_half_floats<VL>(col[2] + r) * yr;
@@ -1077,7 +1085,7 @@ __attribute__((always_inline)) inline void supernodal_solve_half_float(const Sup
             for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
                 float v = y[c + k] - acc[k] * s[k];
                 for (int k2 = k + 1; k2 < g; ++k2) v -= half_float(col[k][c + k2]) * s[k] * y[c + k2];
-                y[c + k] = v * static_cast<float>(dinv[c + k]);
+                y[c + k] = v * static_cast<float>(n.dinv[c + k]);
             }
         }
         std::copy(y, y + m, xj);
