@@ -183,11 +183,10 @@ double max_abs_diff(const std::vector<double>& nm, const MatX& x, int w) {
         for (Eigen::Index j = 0; j < x.cols(); ++j) d = std::max(d, std::abs(nm[w * e + j] - x(e, j)));
     return d;
 }
-// max |x - reference| over max |reference| (infinite for a zero reference: no test passes on it)
 // A pass in float arithmetic against its exact operator, relative: 2^-24 a rounding, and a
 // row's value goes through a few dozen roundings (its supernode's columns, its updates)
 constexpr double kFloatPassBound = 32 * 5.96e-8;
-
+// max |x - reference| over max |reference| (infinite for a zero reference: no test passes on it)
 double max_relative_difference(const std::vector<double>& x, const std::vector<double>& reference) {
     double diff = 0, size = 0;
     for (size_t e = 0; e < x.size(); ++e) {

@@ -1,10 +1,10 @@
 // Half-precision (IEEE binary16) panel values for the supernodal factor's preconditioner
 // passes (BlockLDLT::set_keep_half). The passes are memory bound, and a half is a quarter of a
 // double's traffic; the arithmetic of the 4- and 8-lane passes stays double (the one-lane
-// passes' is float, to round-off of float: BlockLDLT::float_passes), so a pass applies the inverse of
-// L_h L_h^T, L_h the factor with its entries below the diagonal rounded (the kernels divide by
-// the diagonal's own double values). Each scalar column of a panel is stored divided by its largest
-// magnitude (kept as a float scale), so every column uses the format's full relative precision
+// passes' is float: BlockLDLT::float_passes), so a pass applies the inverse of L_h L_h^T to
+// the arithmetic's round-off, L_h the factor with its entries below the diagonal rounded (the
+// kernels divide by the diagonal's own double values). Each scalar column of a panel is stored
+// divided by its largest magnitude (kept as a float scale), so every column uses the format's full relative precision
 // (2^-11) whatever the matrix's units, and its small entries lose at most 2^-24 of the column's
 // largest in the subnormal range.
 //
