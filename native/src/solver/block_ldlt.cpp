@@ -966,13 +966,17 @@ __attribute__((target("avx512f,avx512vl,avx2,fma,f16c"), flatten)) void supernod
                                                                                             const double* d, double* x, double* y) {
     supernodal_solve<W, VL, Half>(f, f.val_half, d, x, y);
 }
-// One lane on the half panels in float arithmetic (x and y in float; the same passes as
-// supernodal_solve<1, VL, Half>): the panels' rounding (2^-11 of each column's largest entry)
-// dwarfs float's (2^-24), and much of the double kernel's time went to widening each half to a
-// double (a conversion to float, one to double and a lane shuffle per 8 entries, against one
-// conversion per 16 here). On the 17006-tet hand's factor a pass took 0.89-0.91 ms against
-// 1.15-1.22 (microbenchmark, both builds in turn, caches flushed or not: the same).
+// The preconditioner passes in float arithmetic (x and y in float; the same passes as
+// supernodal_solve): one lane on the half panels, 4 or 8 lanes on the float panels. The panels'
+// own rounding (2^-11 of each column's largest entry, or 2^-24) is at or above float's, and the
+// double kernels' time went to widening each value to a double:
+// - one lane: a conversion to float, one to double and a lane shuffle per 8 halves, against one
+//   conversion per 16 here. On the 17006-tet hand's factor a pass took 0.89-0.91 ms against
+//   1.15-1.22 (microbenchmark, both builds in turn, caches flushed or not: the same);
+// - 4 and 8 lanes: each panel value converted and broadcast to 8 doubles (a 512-bit FMA per
+//   value), against a broadcast load and a 256-bit FMA here.
 template <int VL> struct FloatLanes;
+template <> struct FloatLanes<4> { typedef float V __attribute__((vector_size(16))); };
 template <> struct FloatLanes<8> { typedef HalfFloat8 V; };
 template <> struct FloatLanes<16> { typedef HalfFloat16 V; };
 template <int VL>
@@ -980,133 +984,187 @@ __attribute__((always_inline)) inline typename FloatLanes<VL>::V load_half_float
     if constexpr (VL == 16) return load_half16_floats(p);
     else return load_half8_floats(p);
 }
-template <int VL>
-__attribute__((always_inline)) inline void supernodal_solve_half_float(const SupernodalFactor& f, float* x, float* y) {
-    typedef typename FloatLanes<VL>::V VF;
-    constexpr int G = 4;
+// one panel value as a float (a half still over its column's scale)
+template <typename PT>
+__attribute__((always_inline)) inline float panel_float(const PT* p) {
+    if constexpr (std::is_same_v<PT, Half>) return half_float(*p);
+    else return *p;
+}
+// W lanes per row (1, 4 or 8); VL: the SIMD width along the rows when W = 1 (half panels PT)
+template <int W, int VL, typename PT>
+__attribute__((always_inline)) inline void supernodal_solve_float(const SupernodalFactor& f, float* x, float* y) {
+    typedef typename FloatLanes<W == 1 ? VL : W>::V V;  // W = 1: VL rows; else one row's W lanes
+    constexpr int G = W == 1 ? 4 : 8;  // columns a group (see supernodal_solve)
+    constexpr bool kHalf = std::is_same_v<PT, Half>;
+    static_assert(kHalf == (W == 1), "one lane on the half panels, 4 or 8 on the float panels");
     // supernode j: its m columns and nr rows (its own first), its panels, and x at its columns
     struct Supernode {
         int m, nr;
         const int* rows;
-        const Half* p;
+        const PT* p;
         const double* dinv;
         const float* scale;
         float* xj;
     };
     auto supernode = [&](int j) {
         const int c0 = f.start[j];
-        return Supernode{3 * (f.start[j + 1] - c0), f.rows_ptr[j + 1] - f.rows_ptr[j], f.rows + f.rows_ptr[j],
-                         f.val_half + f.val_ptr[j], f.diag_inverse_single + f.diag_ptr[j], f.scale + f.diag_ptr[j],
-                         x + static_cast<size_t>(3) * c0};
+        const PT* panels;
+        if constexpr (kHalf) panels = f.val_half + f.val_ptr[j];
+        else panels = f.val_single + f.val_ptr[j];
+        return Supernode{3 * (f.start[j + 1] - c0), f.rows_ptr[j + 1] - f.rows_ptr[j], f.rows + f.rows_ptr[j], panels,
+                         f.diag_inverse_single + f.diag_ptr[j], kHalf ? f.scale + f.diag_ptr[j] : nullptr,
+                         x + static_cast<size_t>(3) * W * c0};
     };
-    // the g (<= G) columns from c: their panels and scales (the last repeated up to G)
-    auto group = [&](const Supernode& n, int c, int g, const Half** col, float* s) {
+    // the g (<= G) columns from c: their panels and scales (1: float panels; the last repeated up to G)
+    auto group = [&](const Supernode& n, int c, int g, const PT** col, float* s) {
         for (int k = 0; k < G; ++k) {
             col[k] = n.p + static_cast<size_t>(3 * n.nr) * (c + std::min(k, g - 1));
-            s[k] = n.scale[c + std::min(k, g - 1)];
+            s[k] = kHalf ? n.scale[c + std::min(k, g - 1)] : 1.0f;
         }
     };
     for (int j = 0; j < (f.forward ? f.ns : 0); ++j) {  // L z = b
         if (f.skips(j)) continue;
         const Supernode n = supernode(j);
         const int m = n.m, nr = n.nr, ld = 3 * nr;
-        const int* rows = n.rows;
         float* xj = n.xj;
-        {
+        {  // all of the supernode's values still zero: nothing to add below (see solve_permuted)
             int e = 0;
-            while (e < m && xj[e] == 0) ++e;
-            if (e == m) continue;
+            while (e < W * m && xj[e] == 0) ++e;
+            if (e == W * m) continue;
         }
-        std::copy(xj, xj + m, y);
-        std::fill(y + m, y + ld, 0.0f);
+        std::copy(xj, xj + W * m, y);
+        std::fill(y + W * m, y + W * ld, 0.0f);
         for (int c = 0; c < m; c += G) {
             const int g = std::min(G, m - c);
-            const Half* col[G];
+            const PT* col[G];
             float s[G];
             group(n, c, g, col, s);
             for (int k = 0; k < g; ++k) {  // the group's triangle
-                y[c + k] *= static_cast<float>(n.dinv[c + k]);
-                for (int k2 = k + 1; k2 < g; ++k2) y[c + k2] -= half_float(col[k][c + k2]) * s[k] * y[c + k];
+                float* yk = y + W * (c + k);
+                const float d = static_cast<float>(n.dinv[c + k]);
+                for (int e = 0; e < W; ++e) yk[e] *= d;
+                for (int k2 = k + 1; k2 < g; ++k2) {
+                    const float l = panel_float(col[k] + c + k2) * s[k];
+                    float* y2 = y + W * (c + k2);
+                    for (int e = 0; e < W; ++e) y2[e] -= l * yk[e];
+                }
             }
-            float a[G];
-            for (int k = 0; k < G; ++k) a[k] = k < g ? y[c + k] * s[k] : 0.0f;
-            int r = c + g;
-            for (; r + VL <= ld; r += VL) {
-                const VF t = load_half_floats<VL>(col[0] + r) * a[0] + load_half_floats<VL>(col[1] + r) * a[1] +
-                             load_half_floats<VL>(col[2] + r) * a[2] + load_half_floats<VL>(col[3] + r) * a[3];
-                store_vector(y + r, load_vector<VF>(y + r) - t);
+            if constexpr (W == 1) {
+                float a[G];
+                for (int k = 0; k < G; ++k) a[k] = k < g ? y[c + k] * s[k] : 0.0f;
+                int r = c + g;
+                for (; r + VL <= ld; r += VL) {
+                    const V t = load_half_floats<VL>(col[0] + r) * a[0] + load_half_floats<VL>(col[1] + r) * a[1] +
+                                load_half_floats<VL>(col[2] + r) * a[2] + load_half_floats<VL>(col[3] + r) * a[3];
+                    store_vector(y + r, load_vector<V>(y + r) - t);
+                }
+                for (; r < ld; ++r)
+                    y[r] -= panel_float(col[0] + r) * a[0] + panel_float(col[1] + r) * a[1] + panel_float(col[2] + r) * a[2] +
+                            panel_float(col[3] + r) * a[3];
+            } else {
+                V a[G];
+                for (int k = 0; k < G; ++k) a[k] = k < g ? load_vector<V>(y + W * (c + k)) : V{} * 0.0f;
+                for (int r = c + g; r < ld; ++r) {
+                    V t = col[0][r] * a[0];
+                    for (int k = 1; k < G; ++k) t += col[k][r] * a[k];
+                    store_vector(y + W * r, load_vector<V>(y + W * r) - t);
+                }
             }
-            for (; r < ld; ++r)
-                y[r] -= half_float(col[0][r]) * a[0] + half_float(col[1][r]) * a[1] + half_float(col[2][r]) * a[2] +
-                        half_float(col[3][r]) * a[3];
         }
-        std::copy(y, y + m, xj);
+        std::copy(y, y + W * m, xj);
         for (int t = m / 3; t < nr; ++t) {
-            float* to = x + static_cast<size_t>(3) * rows[t];
-            const float* from = y + static_cast<size_t>(3) * t;
-            for (int e = 0; e < 3; ++e) to[e] += from[e];
+            float* to = x + static_cast<size_t>(3) * W * n.rows[t];
+            const float* from = y + static_cast<size_t>(3) * W * t;
+            for (int e = 0; e < 3 * W; ++e) to[e] += from[e];
         }
     }
     for (int j = f.backward ? f.ns - 1 : -1; j >= 0; --j) {  // L^T x = z
-        if ((f.wanted && !f.wanted[j]) || f.skips(j)) continue;
+        if ((f.wanted && !f.wanted[j]) || f.skips(j)) continue;  // (see solve_permuted)
         const Supernode n = supernode(j);
         const int m = n.m, nr = n.nr, ld = 3 * nr;
-        const int* rows = n.rows;
         float* xj = n.xj;
-        std::copy(xj, xj + m, y);
+        std::copy(xj, xj + W * m, y);
         for (int t = m / 3; t < nr; ++t) {
-            const float* from = x + static_cast<size_t>(3) * rows[t];
-            float* to = y + static_cast<size_t>(3) * t;
-            for (int e = 0; e < 3; ++e) to[e] = from[e];
+            const float* from = x + static_cast<size_t>(3) * W * n.rows[t];
+            float* to = y + static_cast<size_t>(3) * W * t;
+            for (int e = 0; e < 3 * W; ++e) to[e] = from[e];
         }
         for (int c = ((m - 1) / G) * G; c >= 0; c -= G) {
             const int g = std::min(G, m - c);
-            const Half* col[G];
+            const PT* col[G];
             float s[G];
             group(n, c, g, col, s);
-            VF s0 = VF{} * 0.0f, s1 = s0, s2 = s0, s3 = s0;
-            int r = c + g;
-            for (; r + VL <= ld; r += VL) {
-                const VF yr = load_vector<VF>(y + r);
-                s0 += load_half_floats<VL>(col[0] + r) * yr;
-                s1 += load_half_floats<VL>(col[1] + r) * yr;
-                s2 += load_half_floats<VL>(col[2] + r) * yr;
-                s3 += load_half_floats<VL>(col[3] + r) * yr;
+            float acc[G][W];
+            if constexpr (W == 1) {
+                V s0 = V{} * 0.0f, s1 = s0, s2 = s0, s3 = s0;
+                int r = c + g;
+                for (; r + VL <= ld; r += VL) {
+                    const V yr = load_vector<V>(y + r);
+                    s0 += load_half_floats<VL>(col[0] + r) * yr;
+                    s1 += load_half_floats<VL>(col[1] + r) * yr;
+                    s2 += load_half_floats<VL>(col[2] + r) * yr;
+                    s3 += load_half_floats<VL>(col[3] + r) * yr;
+                }
+                float t[G] = {0, 0, 0, 0};
+                for (int e = 0; e < VL; ++e) {
+                    t[0] += s0[e];
+                    t[1] += s1[e];
+                    t[2] += s2[e];
+                    t[3] += s3[e];
+                }
+                for (; r < ld; ++r)
+                    for (int k = 0; k < G; ++k) t[k] += panel_float(col[k] + r) * y[r];
+                for (int k = 0; k < G; ++k) acc[k][0] = t[k] * s[k];
+            } else {
+                V sk[G];
+                for (int k = 0; k < G; ++k) sk[k] = V{} * 0.0f;
+                for (int r = c + g; r < ld; ++r) {
+                    const V yr = load_vector<V>(y + W * r);
+                    for (int k = 0; k < G; ++k) sk[k] += col[k][r] * yr;
+                }
+                for (int k = 0; k < G; ++k) store_vector(acc[k], sk[k]);
             }
-            float acc[G] = {0, 0, 0, 0};
-            for (int e = 0; e < VL; ++e) {
-                acc[0] += s0[e];
-                acc[1] += s1[e];
-                acc[2] += s2[e];
-                acc[3] += s3[e];
-            }
-            for (; r < ld; ++r)
-                for (int k = 0; k < G; ++k) acc[k] += half_float(col[k][r]) * y[r];
             for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
-                float v = y[c + k] - acc[k] * s[k];
-                for (int k2 = k + 1; k2 < g; ++k2) v -= half_float(col[k][c + k2]) * s[k] * y[c + k2];
-                y[c + k] = v * static_cast<float>(n.dinv[c + k]);
+                float* yk = y + W * (c + k);
+                float v[W];
+                for (int e = 0; e < W; ++e) v[e] = yk[e] - acc[k][e];
+                for (int k2 = k + 1; k2 < g; ++k2) {
+                    const float l = panel_float(col[k] + c + k2) * s[k];
+                    const float* y2 = y + W * (c + k2);
+                    for (int e = 0; e < W; ++e) v[e] -= l * y2[e];
+                }
+                const float d = static_cast<float>(n.dinv[c + k]);
+                for (int e = 0; e < W; ++e) yk[e] = v[e] * d;
             }
         }
-        std::copy(y, y + m, xj);
+        std::copy(y, y + W * m, xj);
     }
 }
-template <int VL>
-__attribute__((target("avx2,fma,f16c"), flatten)) void supernodal_avx2_half_float(const SupernodalFactor& f, float* x, float* y) {
-    supernodal_solve_half_float<VL>(f, x, y);
+template <int W, int VL, typename PT>
+__attribute__((target("avx2,fma,f16c"), flatten)) void supernodal_avx2_float(const SupernodalFactor& f, float* x, float* y) {
+    supernodal_solve_float<W, VL, PT>(f, x, y);
 }
-template <int VL>
-__attribute__((target("avx512f,avx512vl,avx2,fma,f16c"), flatten)) void supernodal_avx512_half_float(const SupernodalFactor& f,
-                                                                                                  float* x, float* y) {
-    supernodal_solve_half_float<VL>(f, x, y);
+template <int W, int VL, typename PT>
+__attribute__((target("avx512f,avx512vl,avx2,fma,f16c"), flatten)) void supernodal_avx512_float(const SupernodalFactor& f,
+                                                                                             float* x, float* y) {
+    supernodal_solve_float<W, VL, PT>(f, x, y);
 }
 // false when the kernels cannot run here (no AVX2)
-bool supernodal_half_float(const SupernodalFactor& f, float* x, float* y) {
+bool supernodal_float(const SupernodalFactor& f, float* x, int w, float* y) {
     const int level = simd_level();
-    if (level == 2) supernodal_avx512_half_float<16>(f, x, y);
-    else if (level == 1) supernodal_avx2_half_float<8>(f, x, y);
-    else return false;
-    return true;
+    if (level == 2) {
+        if (w == 1) supernodal_avx512_float<1, 16, Half>(f, x, y);
+        else if (w == 4) supernodal_avx512_float<4, 16, float>(f, x, y);
+        else supernodal_avx512_float<8, 16, float>(f, x, y);
+        return true;
+    }
+    if (level == 1) {
+        if (w == 1) supernodal_avx2_float<1, 8, Half>(f, x, y);
+        else if (w == 4) supernodal_avx2_float<4, 8, float>(f, x, y);
+        else supernodal_avx2_float<8, 8, float>(f, x, y);
+        return true;
+    }
+    return false;
 }
 
 // false when the half kernels cannot run here (the caller then uses the single-precision panels)
@@ -1306,7 +1364,7 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
     double* x = s.work.data();
     warp_permute_any(w, true, n_, order_.data(), warp, b, x);
     if (float_passes(w, panels)) {
-        s.work_f.assign(x, x + 3 * static_cast<size_t>(n_));
+        s.work_f.assign(x, x + static_cast<size_t>(3) * n_ * w);
         solve_supernodal(s.work_f.data(), w, panels, wanted);
         std::copy(s.work_f.begin(), s.work_f.end(), x);
     } else {
@@ -1317,7 +1375,8 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
 
 bool BlockLDLT::float_passes(int w, Panels panels) const {
 #ifdef HH_HAVE_F16C_KERNELS
-    return w == 1 && panels == Panels::Half && supernodal_ && half_valid_ && simd_level() > 0;
+    if (!supernodal_ || simd_level() == 0) return false;
+    return (w == 1 && panels == Panels::Half && half_valid_) || ((w == 4 || w == 8) && panels == Panels::Single && single_valid_);
 #else
     (void)w;
     (void)panels;
@@ -1524,9 +1583,9 @@ void BlockLDLT::solve_supernodal(T* x, int w, Panels panels, const unsigned char
                              backward};
     if constexpr (std::is_same_v<T, float>) {  // (float_passes)
         std::vector<float>& gather = scratch().gather_f;
-        gather.resize(3 * most + 64);
+        gather.resize(3 * most * w + 64);
 #ifdef HH_HAVE_F16C_KERNELS
-        if (supernodal_half_float(f, x, gather.data())) return;
+        if (supernodal_float(f, x, w, gather.data())) return;
 #endif
         throw std::logic_error("BlockLDLT::solve_supernodal: no float passes on this CPU");
     } else {

@@ -712,9 +712,14 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
     // float: their half kernels convert every entry on its own and were slower (2.8-3.6 ms
     // against 2.3-2.6 in cache). Its rounding (2^-11 of each column's largest entry) limits
     // CG's contraction to ~5e-4 an iteration on an exact factor, far below what the staleness
-    // of a reused one allows (0.2-0.3 an iteration on that hand). Their arithmetic is float
-    // (BlockLDLT::float_passes): in the 10x bunny's frames (both ways alternating in one run)
-    // a one-lane pass took 0.78-1.11 ms against 1.05-1.57 in double, iterations unchanged.
+    // of a reused one allows (0.2-0.3 an iteration on that hand).
+    // Every pass's arithmetic is float where the CPU has AVX2 (BlockLDLT::float_passes; the
+    // residuals and products with At stay double, and CG's flexible beta takes the float
+    // round-off like any change of preconditioner). In the 10x bunny's frames (both ways
+    // alternating in one run) a one-lane pass took 0.78-1.11 ms against 1.05-1.57 in double;
+    // with the 4- and 8-lane passes too, the hand's solve took 15.1-16.7 ms a frame against
+    // 17.6-21.1 (three pairs of 60-frame runs, slow state), iterations no more (11.5 a frame
+    // for both groups against 11.9).
     // lanes[l] = column of b held in lane l (-1: an idle lane, all zeros)
     std::vector<int> lanes;
     std::vector<double> bnorm(count, 0.0);
