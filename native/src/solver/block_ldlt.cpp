@@ -1428,18 +1428,15 @@ void BlockLDLT::solve_node_major_split(double* b, int w, const std::vector<Mat3>
     s.work.resize(row * n_);
     double* x = s.work.data();
     warp_permute_any(w, true, n_, order_.data(), warp, b, x);
+    auto pass = [&](auto* y, int part, bool forward, bool backward) {
+        solve_supernodal(y, w, panels, nullptr, part, forward, backward);
+    };
     if (float_passes(w, panels)) {
         s.work_f.assign(x, x + row * n_);
-        split_passes(s.work_f.data(), row, supernodes(), sn_start_.data(), sn_part_.data(), s.saved_f, s.copy_f, beside,
-                     [&](float* y, int part, bool forward, bool backward) {
-                         solve_supernodal(y, w, panels, nullptr, part, forward, backward);
-                     });
+        split_passes(s.work_f.data(), row, supernodes(), sn_start_.data(), sn_part_.data(), s.saved_f, s.copy_f, beside, pass);
         std::copy(s.work_f.begin(), s.work_f.end(), x);
     } else {
-        split_passes(x, row, supernodes(), sn_start_.data(), sn_part_.data(), s.saved, s.copy, beside,
-                     [&](double* y, int part, bool forward, bool backward) {
-                         solve_supernodal(y, w, panels, nullptr, part, forward, backward);
-                     });
+        split_passes(x, row, supernodes(), sn_start_.data(), sn_part_.data(), s.saved, s.copy, beside, pass);
     }
     warp_permute_any(w, false, n_, order_.data(), warp, x, b);
 }
