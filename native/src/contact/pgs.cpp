@@ -2,8 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdint>
-#include <unordered_map>
 
 namespace hh {
 
@@ -216,9 +214,72 @@ bool basic_solve(MatX& m, VecX rhs, VecX scale, VecX& z) {
     return z.allFinite();
 }
 
+// W's 3x3 blocks between contacts that have been active in a subspace step, kept through one
+// solve: the active sets of successive steps mostly overlap. A contact gets a slot the first
+// time it is active; block (i, j) sits at (slot i, slot j) of a dense table, formed on first
+// use. (A hash map keyed by the pair had taken a quarter of the steps' time on the paper's bunny,
+// ~3600 lookups a solve.)
+struct ActiveBlocks {
+    explicit ActiveBlocks(int contacts) : slot(contacts, -1) {}
+    std::vector<int> slot;  // per contact, its slot or -1
+    int slots = 0, capacity = 0;
+    std::vector<Mat3> table;             // capacity x capacity
+    std::vector<unsigned char> known;    // per table entry: formed
+    // W's block (i, j), i <= j contacts with slots s, t: op's cross block once, its transpose
+    // stored for (j, i)
+    template <class Op>
+    const Mat3& get(const Op& op, int i, int j, int s, int t) {
+        const size_t k = static_cast<size_t>(s) * capacity + t;
+        if (!known[k]) {
+            const Mat3 w = op.cross_block(i, j);
+            const size_t kt = static_cast<size_t>(t) * capacity + s;
+            table[k] = w;
+            table[kt] = w.transpose();
+            known[k] = known[kt] = 1;
+            if (i == j) table[k] = w;  // (as formed; the transpose would overwrite it)
+        }
+        return table[k];
+    }
+    // the slots of the contacts act (at most kMaxSlots of them)
+    void slots_of(const std::vector<int>& act, std::vector<int>& out) {
+        int fresh = 0;
+        for (const int i : act) fresh += slot[i] < 0;
+        if (slots + fresh > kMaxSlots) {  // many contacts came and went: start over (bounded memory)
+            for (int& s : slot) s = -1;
+            slots = 0;
+            std::fill(known.begin(), known.end(), 0);
+        }
+        out.resize(act.size());
+        for (size_t p = 0; p < act.size(); ++p) {
+            int& s = slot[act[p]];
+            if (s < 0) {
+                if (slots == capacity) grow();
+                s = slots++;
+            }
+            out[p] = s;
+        }
+    }
+    static constexpr int kMaxSlots = 256;
+
+private:
+    void grow() {
+        const int wider = std::min(kMaxSlots, std::max(32, 2 * capacity));
+        std::vector<Mat3> t(static_cast<size_t>(wider) * wider);
+        std::vector<unsigned char> k(t.size(), 0);
+        for (int s = 0; s < slots; ++s)
+            for (int r = 0; r < slots; ++r) {
+                t[static_cast<size_t>(s) * wider + r] = table[static_cast<size_t>(s) * capacity + r];
+                k[static_cast<size_t>(s) * wider + r] = known[static_cast<size_t>(s) * capacity + r];
+            }
+        table.swap(t);
+        known.swap(k);
+        capacity = wider;
+    }
+};
+
 template <class Op>
 bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficient, const std::vector<Vec3>& u,
-                   std::unordered_map<std::uint64_t, Mat3>& cache, std::vector<int>& last_state, VecX& lambda) {
+                   ActiveBlocks& cache, std::vector<int>& last_state, VecX& lambda) {
     std::vector<int> act;
     for (int i = 0; i < c; ++i)
         if (lambda[3 * i] > 0 && op.block(i)(0, 0) > 0) act.push_back(i);
@@ -227,13 +288,14 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
     // W's blocks between active contacts: constant through the solve, so kept from the
     // previous steps (the active sets of successive steps mostly overlap)
     std::vector<Mat3> blocks(static_cast<size_t>(a) * a);
+    static_assert(kSubspaceMaxActive <= ActiveBlocks::kMaxSlots, "an active set must fit the table");
+    std::vector<int> slots;
+    cache.slots_of(act, slots);
     for (int p = 0; p < a; ++p)
         for (int q = p; q < a; ++q) {
-            const std::uint64_t key = static_cast<std::uint64_t>(act[p]) * static_cast<std::uint64_t>(c) + act[q];
-            auto it = cache.find(key);
-            if (it == cache.end()) it = cache.emplace(key, op.cross_block(act[p], act[q])).first;
-            blocks[p * a + q] = it->second;
-            blocks[q * a + p] = it->second.transpose();  // W symmetric (the sweeps' symmetric part)
+            const Mat3& w = cache.get(op, act[p], act[q], slots[p], slots[q]);
+            blocks[p * a + q] = w;
+            blocks[q * a + p] = w.transpose();  // W symmetric (the sweeps' symmetric part)
         }
     // per active contact: 0 out of the set, 1 sliding (normal unknown, lambda_t = lambda_n
     // slope), 3 sticking; `natural` as its impulse says
@@ -266,19 +328,32 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
         m.resize(na, na);
         rhs.resize(na);
         scale.resize(na);
-        for (int p = 0; p < a; ++p) {
-            if (!state[p]) continue;
-            for (int q = 0; q < a; ++q) {
-                if (!state[q]) continue;
+        // m entry by entry (Eigen's dynamic-size block copies, one per pair of active contacts and
+        // round, had cost two thirds as much as the solve itself on the paper's bunny)
+        double* const md = m.data();
+        for (int q = 0; q < a; ++q) {
+            if (!state[q]) continue;
+            double* const col = md + static_cast<size_t>(first[q]) * na;
+            for (int p = 0; p < a; ++p) {
+                if (!state[p]) continue;
                 const Mat3& w = blocks[p * a + q];
-                if (state[q] == 3)
-                    m.block(first[p], first[q], state[p], 3) = w.topRows(state[p]);
-                else  // the column of lambda_n with its friction lambda_n slope
-                    m.block(first[p], first[q], state[p], 1) = w.block(0, 0, state[p], 1) + w.block(0, 1, state[p], 2) * slope[q];
+                double* const out = col + first[p];
+                for (int r = 0; r < state[p]; ++r) {
+                    if (state[q] == 3) {
+                        out[r] = w(r, 0);
+                        out[r + na] = w(r, 1);
+                        out[r + 2 * na] = w(r, 2);
+                    } else {  // the column of lambda_n with its friction lambda_n slope
+                        out[r] = w(r, 0) + (w(r, 1) * slope[q][0] + w(r, 2) * slope[q][1]);
+                    }
+                }
             }
-            rhs.segment(first[p], state[p]) = -v0[p].head(state[p]);
-            scale.segment(first[p], state[p]) = blocks[p * a + p].diagonal().head(state[p]);
         }
+        for (int p = 0; p < a; ++p)
+            for (int r = 0; r < state[p]; ++r) {
+                rhs[first[p] + r] = -v0[p][r];
+                scale[first[p] + r] = blocks[p * a + p](r, r);
+            }
         if (!basic_solve(m, rhs, scale, z)) return false;
         z_state = state;
         z_first = first;
@@ -401,7 +476,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         disks[i] = Disk(0.5 * (w.block<2, 2>(1, 1) + w.block<2, 2>(1, 1).transpose()));
     }
     VecX saved;
-    std::unordered_map<std::uint64_t, Mat3> blocks_cache;
+    ActiveBlocks blocks_cache(c);
     std::vector<int> last_state(c, -1);  // per contact, its state at the end of the last subspace step
     double saved_residual = 0;
     bool pending = false;
