@@ -2,6 +2,7 @@
 
 #include <Eigen/IterativeLinearSolvers>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -464,31 +465,35 @@ bool DeformableSystem::response_blocks(const std::vector<int>& columns, const st
         if (!units.empty()) {
             std::vector<int> wanted = m.row_nodes;
             std::sort(wanted.begin(), wanted.end());
-            // In two shares of whole batches, side by side when `beside` lets them, the same
+            // In two jobs of whole batches, side by side when `beside` lets them, the same
             // batches either way: as few batches as kWidestSolve allows (at least two from two
-            // nodes on), of about equal width, the first half of them to one share. A batch's
+            // nodes on), of about equal width. A batch's
             // pass costs about a pass over the factor's part above the wanted rows (the handle's
             // coupled nodes among them: ~1.1 ms on the ~17000-tet hand for one node's three
             // units) plus its width; the hand touches a few new nodes a step, 6-15 units that
             // took one batch on one thread beside an idle one (measured alternating in one run,
             // those calls 15-25% shorter; ~0.1 ms a 10x bunny frame).
+            // The two jobs take the batches in turn from a shared counter rather than half each:
+            // the other thread often joins late (busy with the flesh's free solve), and with fixed
+            // halves the job's own thread, done with its half, ran the second half itself while
+            // the other idled (a renewal frame of the 10x bunny: 13.7 ms of the hand's responses
+            // on one thread, the other idle for 8 of them). A batch's columns are the same
+            // whichever thread solves it.
             const int k = static_cast<int>(units.size());
             const int batches = k < 6 ? 1 : std::max(2, (k + kWidestSolve - 1) / kWidestSolve);
             const int width = (k + batches - 1) / batches;
-            auto share = [&](int part) {
-                const int from = part == 0 ? 0 : (batches + 1) / 2, to = part == 0 ? (batches + 1) / 2 : batches;
-                for (int batch = from; batch < to && batch * width < k; ++batch) {
+            std::atomic<int> next{0};
+            auto take_batches = [&] {
+                for (int batch = next++; batch < batches && batch * width < k; batch = next++) {
                     const int first = batch * width;
                     m.cholesky.solve_units(units.data() + first, std::min(width, k - first), unknowns_at, wanted,
                                            b.data() + (3 * kept_columns + first) * b.rows(), b.rows());
                 }
             };
-            if (beside && batches > 1) {
-                beside([&] { share(0); }, [&] { share(1); });
-            } else {
-                share(0);
-                share(1);
-            }
+            if (beside && batches > 1)
+                beside(take_batches, take_batches);
+            else
+                take_batches();
             if (!b.block(0, 3 * kept_columns, 3 * total_rows, 3 * (total_columns - kept_columns)).allFinite())
                 throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
         }
