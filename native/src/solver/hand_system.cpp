@@ -242,11 +242,18 @@ void HandSystem::handle_columns(const std::vector<int>& unknowns, const std::vec
 
 void HandSystem::eq12_on_rows(const std::vector<int>& rows, const MatX& flesh_rows,
                               const Eigen::Matrix<double, 6, Eigen::Dynamic>& vh, Eigen::Ref<MatX> out) const {
-    for (size_t i = 0; i < rows.size(); ++i) {
-        const int row = rows[i];
-        if (row < 6) out.row(i) = vh.row(row);
-        else out.row(i) = flesh_rows.row(i) - response_.row(row - 6) * vh;
+    // the rows of A_t^-1 Ath gathered (zero at handle rows), then one product for every row
+    // (a product per row had been ~2% of a paper bunny frame and up to 0.25 ms of a 10x bunny one)
+    const Eigen::Index nr = static_cast<Eigen::Index>(rows.size());
+    Eigen::Matrix<double, Eigen::Dynamic, 6> at_rows(nr, 6);
+    for (Eigen::Index i = 0; i < nr; ++i) {
+        if (rows[i] < 6) at_rows.row(i).setZero();
+        else at_rows.row(i) = response_.row(rows[i] - 6);
     }
+    out = flesh_rows;
+    out.noalias() -= at_rows * vh;
+    for (Eigen::Index i = 0; i < nr; ++i)
+        if (rows[i] < 6) out.row(i) = vh.row(rows[i]);
     if (!out.allFinite()) throw NumericalError("the contact response of the hand is not finite: reduce the time step");
 }
 
