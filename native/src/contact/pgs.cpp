@@ -481,7 +481,11 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
     double saved_residual = 0;
     bool pending = false;
     // Sweeps until the next subspace step: kSubspaceEvery while the steps are kept, doubled
-    // (up to kSubspaceMaxInterval) after each rejected one. A rejected step costs its dense
+    // (up to kSubspaceMaxInterval) after each rejected one. Steps come in pairs: step_due is
+    // taken before a pending step is decided, so the sweep that decides one takes the next at
+    // once (after a rejection from the restored impulses, the contacts the rejected step took
+    // out starting out). Skipping that second step left a larger residual on the paper bunny
+    // (docs/contact.md). A rejected step costs its dense
     // solves and the sweep after it; on the benchmark's bunny frames most were rejected and
     // the steps took a third of the solve's time.
     int interval = kSubspaceEvery, next_step = kSubspaceEvery;
