@@ -474,11 +474,10 @@ bool DeformableSystem::response_blocks(const std::vector<int>& columns, const st
             // took one batch on one thread beside an idle one (measured alternating in one run,
             // those calls 15-25% shorter; ~0.1 ms a 10x bunny frame).
             // The two jobs take the batches in turn from a shared counter rather than half each:
-            // the other thread often joins late (busy with the flesh's free solve), and with fixed
-            // halves the job's own thread, done with its half, ran the second half itself while
-            // the other idled (a renewal frame of the 10x bunny: 13.7 ms of the hand's responses
-            // on one thread, the other idle for 8 of them). A batch's columns are the same
-            // whichever thread solves it.
+            // batches differ in cost and the other thread may join late, and with fixed halves a
+            // renewal frame of the 10x bunny had one thread on the hand's responses for 13.7 ms,
+            // the other for 5.8 ms and then idle. A batch's columns are the same whichever thread
+            // solves it.
             const int k = static_cast<int>(units.size());
             const int batches = k < 6 ? 1 : std::max(2, (k + kWidestSolve - 1) / kWidestSolve);
             const int width = (k + batches - 1) / batches;
