@@ -547,6 +547,73 @@ TEST(unit_solves_at_asked_rows_give_those_entries_of_the_inverse_in_both_forms) 
     }
 }
 
+TEST(unit_solves_leave_nothing_behind_for_the_next_call_on_any_factor) {
+    // solve_units keeps its right-hand sides zero between calls (each pass clears what it left
+    // nonzero) instead of clearing 3n x w values per call. Calls on two factors of different
+    // sizes, with few wanted nodes, widths that change, and a call refused for a unit outside
+    // the wanted nodes in between: every entry must still be A^-1's (a value left behind by an
+    // earlier call would add to a later call's right-hand side).
+    const SpMat a = system_matrix(7, 5, 4, 25), b = system_matrix(4, 4, 6, 7);
+    struct Case {
+        const SpMat* m;
+        MatX inverse;
+        double scale;
+    };
+    std::vector<Case> cases;
+    for (const SpMat* m : {&a, &b}) {
+        const int n3 = static_cast<int>(m->rows());
+        MatX inverse = MatX(*m).ldlt().solve(MatX::Identity(n3, n3));
+        const double scale = inverse.cwiseAbs().maxCoeff();
+        cases.push_back({m, inverse, scale});
+    }
+    for (bool supernodal : {false, true}) {
+        const BlockLDLT fa = factored(a, supernodal), fb = factored(b, supernodal);
+        const BlockLDLT* factors[2] = {&fa, &fb};
+        for (int call = 0; call < 24; ++call) {
+            const int which = (call * 7 / 3) % 2;
+            const Case& c = cases[which];
+            const int n3 = static_cast<int>(c.m->rows());
+            // a few nodes, different each call: their units and rows
+            std::vector<int> nodes, units, rows;
+            for (int q = 0; q < 2 + call % 4; ++q) nodes.push_back((11 * call + 17 * q + 3) % (n3 / 3));
+            std::sort(nodes.begin(), nodes.end());
+            nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+            for (int node : nodes)
+                for (int d = 0; d < 3; ++d) {
+                    units.push_back(3 * node + d);
+                    rows.push_back(3 * node + (d + call) % 3);
+                }
+            const int k = std::min(static_cast<int>(units.size()), 1 + (5 * call) % 12);
+            const long ld = static_cast<long>(rows.size());
+            if (call % 5 == 2) {
+                // a unit outside the wanted nodes and their elimination-tree ancestors: refused
+                // mid-call (its last unit). Nodes that are such ancestors are solved for anyway
+                // (their values are cleared after the pass): those calls must be right.
+                bool thrown = false;
+                for (int node = 0; node < n3 / 3 && !thrown; ++node) {
+                    if (std::binary_search(nodes.begin(), nodes.end(), node)) continue;
+                    std::vector<int> stray(units.begin(), units.begin() + k);
+                    stray[k - 1] = 3 * node + 1;
+                    std::vector<double> out(ld * k, 7.0);
+                    try {
+                        factors[which]->solve_units(stray.data(), k, rows, nodes, out.data(), ld);
+                        for (size_t r = 0; r < rows.size(); ++r)
+                            CHECK_LT(std::abs(out[r + (k - 1) * ld] - c.inverse(rows[r], stray[k - 1])) / c.scale, 1e-12);
+                    } catch (const std::logic_error&) {
+                        thrown = true;
+                    }
+                }
+                CHECK(thrown);
+            }
+            std::vector<double> out(ld * k, 7.0);
+            factors[which]->solve_units(units.data(), k, rows, nodes, out.data(), ld);
+            for (int j = 0; j < k; ++j)
+                for (size_t r = 0; r < rows.size(); ++r)
+                    CHECK_LT(std::abs(out[r + j * ld] - c.inverse(rows[r], units[j])) / c.scale, 1e-12);
+        }
+    }
+}
+
 TEST(panel_kernels_match_dense_products_and_cholesky_at_every_simd_level) {
     // the supernodal factorization's dense kernels on panels of every shape the blocking splits
     // differently (row and column remainders of the 24 x 8 register blocks, several column

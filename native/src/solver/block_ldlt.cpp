@@ -1306,6 +1306,10 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
 namespace {
 struct SolveScratch {
     std::vector<double> work, packed, gather;
+    // solve_units' right-hand sides, all zero between its calls (each call zeroes what it
+    // wrote), so a call lays out its columns without clearing 3n x w values first
+    std::vector<double> units;
+    bool units_clear = true;
     std::vector<double> saved, copy;  // solve_node_major_split: the rest's right-hand rows; part 1's copy
     std::vector<float> work_f, gather_f, saved_f, copy_f;  // the same for the float passes (float_passes)
     std::vector<unsigned char> wanted_node, wanted_sn;
@@ -1447,7 +1451,7 @@ void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& row
     const unsigned char* wanted = wanted_mask(wanted_nodes);
     // The nodes a pass may leave nonzero: the wanted ones and their ancestors (the backward
     // pass), which hold the units' ancestors (the forward pass); with supernodes, whole
-    // supernodes. Between passes of one width only they are zeroed again, not all 3n x w.
+    // supernodes. After each pass only they are zeroed again, not all 3n x w.
     std::vector<int>& dirty = scratch().dirty;
     dirty.clear();
     if (!supernodal_) {
@@ -1459,31 +1463,41 @@ void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& row
                 for (int i = sn_start_[j]; i < sn_start_[j + 1]; ++i) dirty.push_back(i);
     }
     const int most = supernodal_ ? kWidestSolve : 8;
-    std::vector<double>& work = scratch().work;
-    int zeroed = 0;  // the width work was last laid out and cleared for
+    // The right-hand sides stay zero between calls: each batch clears the dirty nodes it leaves
+    // nonzero. Clearing all 3n x w values per call instead (the calls mostly take one batch)
+    // had been ~1% of the 10x bunny's thread time: 3.2 MB per batch on the ~17000-tet hand, 26
+    // batches when a renewal re-solves its responses. A call that throws leaves the buffer to
+    // be cleared whole by the next one.
+    SolveScratch& s = scratch();
+    const size_t size = static_cast<size_t>(3) * n_ * padded_width(std::min(most, k));
+    if (!s.units_clear || s.units.size() < size) s.units.assign(std::max(size, s.units.size()), 0.0);
+    s.units_clear = false;
     for (int first = first_batch * most; first < k; first += batch_step * most) {
         const int c = std::min(most, k - first);
         const int w = padded_width(c);
         // straight in the factor's node order (node i's 3 x w values at 3 w i): no full-length
         // right-hand side to build, permute and copy back
-        if (w != zeroed) {
-            work.assign(static_cast<size_t>(3) * n_ * w, 0.0);
-            zeroed = w;
-        } else {
-            for (int i : dirty) std::fill_n(work.data() + static_cast<size_t>(3) * w * i, 3 * w, 0.0);
-        }
-        double* x = work.data();
+        double* x = s.units.data();
         auto at = [&](int unknown) {
             if (unknown < 0 || unknown >= 3 * n_) throw std::logic_error("BlockLDLT::solve_units: an unknown out of range");
             return static_cast<size_t>(w) * (3 * static_cast<size_t>(inverse_[unknown / 3]) + unknown % 3);
         };
-        for (int j = 0; j < c; ++j) x[at(units[first + j]) + j] = 1.0;
+        for (int j = 0; j < c; ++j) {
+            const size_t e = at(units[first + j]);
+            // a unit outside the wanted nodes would be left behind by the clearing below
+            if (!s.wanted_node[inverse_[units[first + j] / 3]])
+                throw std::logic_error("BlockLDLT::solve_units: a unit's node is not among the wanted nodes");
+            x[e + j] = 1.0;
+        }
         solve_in_order(x, w, Panels::Double, wanted);
         for (int j = 0; j < c; ++j) {
             double* o = out + static_cast<size_t>(first + j) * ld;
             for (size_t r = 0; r < rows.size(); ++r) o[r] = x[at(rows[r]) + j];
         }
+        // (the units' nodes are among the dirty ones: they are wanted)
+        for (int i : dirty) std::fill_n(x + static_cast<size_t>(3) * w * i, 3 * w, 0.0);
     }
+    s.units_clear = true;
 }
 
 VecX BlockLDLT::solve(const VecX& b) const {
