@@ -73,7 +73,8 @@ public:
     // Columns of A^-1 for unit right-hand sides: out[r + j ld] = (A^-1)(rows[r], units[j]) for
     // j < k (scalar unknowns, original numbering), without the full-length columns. The nodes of
     // `rows` and of `units` must be among wanted_nodes (the backward pass visits them and their
-    // ancestors only; the other rows are never computed). The contact responses' solves.
+    // ancestors only; the other rows are never computed; a unit elsewhere is refused with
+    // std::logic_error). The contact responses' solves.
     // The units go in batches of kWidestSolve; first_batch and batch_step: only the batches
     // first_batch, first_batch + batch_step, ... (calls for different batches may run on two
     // threads at once: each batch's columns are its own, and come out the same either way).
