@@ -185,9 +185,12 @@ TEST(nearly_dependent_contacts_are_solved_by_the_subspace_step) {
     // Two frictionless contacts whose normal rows are 0.05 rad apart on a unit response
     // (W_nn = [[1, c], [c, 1]], c = cos 0.05): Gauss-Seidel reduces the residual by c^2 per
     // sweep, ~7000 sweeps to 1e-9. A third contact exactly dependent on them (the mean of their
-    // rows, and a consistent free velocity) makes the system singular. The subspace step
-    // solves the active set at sweep 10; the impulses are then the exact solution
-    // lambda = -W^-1 u_free of the two independent rows, the dependent contact takes none.
+    // rows, and a consistent free velocity) makes the system singular. The subspace steps
+    // solve the active set: the one at sweep 10, damped by 1e-4 of the diagonal, removes
+    // 1 - 1e-4 / (1 - c + 1e-4) = 93% of the error along the rows' weak combination (stiffness
+    // 1 - c = 1.25e-3), the one at sweep 20, damped by 1e-5, 99% of the rest; the impulses are
+    // then the solution lambda = -W^-1 u_free of the two independent rows, with the dependent
+    // contact's impulse shared between them.
     const double theta = 0.05, c = std::cos(theta);
     ReducedContactProblem p;
     p.dt = 0.01;
@@ -215,13 +218,16 @@ TEST(nearly_dependent_contacts_are_solved_by_the_subspace_step) {
     VecX lambda;
     const PgsResult res = solve_pgs(p, lambda, 300, 1e-9);
     CHECK(res.residual <= 1e-9);
-    CHECK(res.iterations <= 20);
+    CHECK(res.iterations <= 30);
     // exact: [[1, c], [c, 1]] l = (0.1, 0.1001), with the dependent contact's share folded in
     // (its row is the mean of the two: lambda_1 + lambda_3 / 2 and lambda_2 + lambda_3 / 2)
     const double l1 = (0.1 - c * 0.1001) / (1 - c * c), l2 = (0.1001 - c * 0.1) / (1 - c * c);
     CHECK(l1 > 0 && l2 > 0);
-    CHECK_LT(std::abs(lambda[0] + 0.5 * lambda[6] - l1), 1e-6 * l1);
-    CHECK_LT(std::abs(lambda[3] + 0.5 * lambda[6] - l2), 1e-6 * l2);
+    // the residual (at most 1e-9 per contact) bounds the error of the folded impulses through
+    // the smallest eigenvalue of [[1, c], [c, 1]], 1 - c: 1.1e-6, 1e-4 of l1 and l2 (~1e-2)
+    const double bound = std::sqrt(2.0) * 1e-9 / (1 - c);
+    CHECK_LT(std::abs(lambda[0] + 0.5 * lambda[6] - l1), bound);
+    CHECK_LT(std::abs(lambda[3] + 0.5 * lambda[6] - l2), bound);
     CHECK_LT(dense_residual(p, lambda), 1e-8);
 }
 

@@ -128,8 +128,9 @@ namespace {
 // outside the disk whenever the solve lowered lambda_n, and cutting it back to the rim
 // afterwards undid the solve (velocities of cm/s on the bunny's hand contacts, so every step
 // was rejected). With sliding contacts the system is not symmetric; it is eliminated with
-// diagonal pivoting (basic_solve). Nearly dependent rows (a contact whose row is implied by the
-// others to 1e-6 of its diagonal: redundant contacts on one element) take no impulse. The
+// diagonal pivoting (basic_solve), damped (below). Rows still implied by the others to 1e-6 of
+// their diagonal after the damping (only sliding contacts' nonsymmetric columns can do that)
+// take no impulse. The
 // contacts the solve would pull (lambda_n < 0) leave the set, all at once, a
 // sticking one the solve would take outside its friction disk becomes sliding, and once neither
 // happens, a contact out of the set that the solve would push through comes back (the worst
@@ -138,6 +139,23 @@ namespace {
 // per contact each time). The caller keeps the result only when the sweep after it leaves a
 // smaller residual.
 // Returns false when nothing was solved.
+//
+// The damping (Levenberg-Marquardt): each solve is for the change z - z0 from the sweeps'
+// impulses z0, on W's active block plus `damping` times its diagonal. A combination of rows
+// whose own stiffness is well above the damping (relative to the rows' diagonals) is solved
+// nearly exactly; one far below it (nearly dependent rows) keeps nearly the sweeps' impulses.
+// The caller adapts the damping as Marquardt did: ten times larger after a step it rejected,
+// ten times smaller after one it kept, within [kDampingMin, kDampingMax]. Undamped, rows
+// implied by the others to 1e-6 - 1e-4 of their diagonal, whose targets differed by the
+// sweeps' residual, took impulses tens of times the sweeps' (one contact's normal impulse 90x)
+// that pushed sticking contacts out of their friction disks, and the step was rejected: half
+// of the steps on the paper bunny with the 1695-tet hand were. Measured on the benchmark's
+// meshes (bench/README.md, twenty-third round): that bunny 107.8 -> 49.3 sweeps a frame,
+// 18% -> 4% of the frames at the cap; with the 401-tet hand 161.8 -> 108.0. A fixed damping
+// of 1e-4 - 1e-3 did as well on the scenes, but made each step on two clean nearly dependent
+// rows (test_contact_reduced) gain only a factor 5-10; the damping of the whole solve
+// towards zero instead of towards the sweeps' impulses helped too (3e-6: 64.7 sweeps) but
+// biased every step, so that larger damping (3e-5 and more) made things worse.
 //
 // A contact on its disk's rim that the sweeps leave slipping slower than ten times the
 // tolerance starts the step sticking, as the kinetic-friction test takes such a contact for a
@@ -167,6 +185,9 @@ constexpr int kSubspaceMaxInterval = 80;  // ... and at most, after steps that d
 constexpr int kSubspaceRounds = 10;    // solves per step (set changes)
 constexpr double kDependent = 1e-6;    // pivot / diagonal below which a row counts as implied
 constexpr double kSlowSlip = 10;       // slip (x tolerance) below which a rim contact starts sticking
+// Damping of the step's solves (relative to W's diagonal): the first step of a solve, and the
+// bounds of its adaptation (see subspace_step)
+constexpr double kDampingStart = 1e-4, kDampingMin = 1e-6, kDampingMax = 1e-3;
 // Largest active set the step takes on: its cost grows as a^2 blocks of W and (3a)^3 / 3 per
 // dense solve, while a sweep costs ~ contacts x touched unknowns. On the paper's bunny ~20
 // contacts are active; in the 10x bunny scene several hundred, where the dense step made a
@@ -293,7 +314,7 @@ private:
 
 template <class Op>
 bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficient, const std::vector<Vec3>& u,
-                   double tolerance, ActiveBlocks& cache, std::vector<int>& last_state, VecX& lambda) {
+                   double tolerance, double damping, ActiveBlocks& cache, std::vector<int>& last_state, VecX& lambda) {
     std::vector<int> act;
     for (int i = 0; i < c; ++i)
         if (lambda[3 * i] > 0 && op.block(i)(0, 0) > 0) act.push_back(i);
@@ -331,7 +352,7 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
         v0[p][0] += bias[i];
         for (int q = 0; q < a; ++q) v0[p] -= blocks[p * a + q] * lambda.segment<3>(3 * act[q]);
     }
-    VecX z, rhs, scale;
+    VecX z, z0, rhs, scale;
     MatX m;
     std::vector<int> z_state, z_first;  // the states z was solved with
     for (int round = 0; round < kSubspaceRounds; ++round) {
@@ -365,12 +386,19 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
                 }
             }
         }
+        // the change from the sweeps' impulses z0 (a sliding contact's friction on its rim is
+        // slope x lambda_n, as its column has it), on the damped block
+        z0.setZero(na);
         for (int p = 0; p < a; ++p)
             for (int r = 0; r < state[p]; ++r) {
                 rhs[first[p] + r] = -v0[p][r];
                 scale[first[p] + r] = blocks[p * a + p](r, r);
+                z0[first[p] + r] = lambda[3 * act[p] + r];
             }
+        rhs.noalias() -= m * z0;
+        for (int k = 0; k < na; ++k) m(k, k) += damping * scale[k];
         if (!basic_solve(m, rhs, scale, z)) return false;
+        z += z0;
         z_state = state;
         z_first = first;
         bool pulled = false;
@@ -495,6 +523,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
     ActiveBlocks blocks_cache(c);
     std::vector<int> last_state(c, -1);  // per contact, its state at the end of the last subspace step
     double saved_residual = 0;
+    double damping = kDampingStart;  // of the subspace steps' solves, adapted (see subspace_step)
     bool pending = false;
     // Sweeps until the next subspace step: kSubspaceEvery while the steps are kept, doubled
     // (up to kSubspaceMaxInterval) after each rejected one. Steps come in pairs: step_due is
@@ -612,6 +641,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             // a subspace step, then this sweep: kept only if the residual fell
             pending = false;
             interval = result.residual > saved_residual ? std::min(kSubspaceMaxInterval, 2 * interval) : kSubspaceEvery;
+            damping = result.residual > saved_residual ? std::min(kDampingMax, 10 * damping) : std::max(kDampingMin, damping / 10);
             next_step = it + 1 + interval;
             if (result.residual > saved_residual) {
                 lambda = saved;
@@ -622,7 +652,7 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         if (result.residual > tolerance && it + 1 < max_iterations && step_due) {
             saved = lambda;
             saved_residual = result.residual;
-            if (subspace_step(op, c, bias, coefficient, u, tolerance, blocks_cache, last_state, lambda)) {
+            if (subspace_step(op, c, bias, coefficient, u, tolerance, damping, blocks_cache, last_state, lambda)) {
                 op.reset(lambda);
                 pending = true;
                 next_full = it + 1;  // the step may close left-out contacts: the sweep after it visits all
