@@ -129,8 +129,8 @@ namespace {
 // afterwards undid the solve (velocities of cm/s on the bunny's hand contacts, so every step
 // was rejected). With sliding contacts the system is not symmetric; it is eliminated with
 // diagonal pivoting (basic_solve), damped (below). Rows still implied by the others to 1e-6 of
-// their diagonal after the damping (only sliding contacts' nonsymmetric columns can do that)
-// take no impulse. The
+// their diagonal after the damping (sliding contacts' nonsymmetric columns, or round-off at the
+// smallest damping) take no impulse. The
 // contacts the solve would pull (lambda_n < 0) leave the set, all at once, a
 // sticking one the solve would take outside its friction disk becomes sliding, and once neither
 // happens, a contact out of the set that the solve would push through comes back (the worst

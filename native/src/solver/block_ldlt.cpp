@@ -1468,8 +1468,8 @@ void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& row
     // Up to 16 unit columns a pass on the up-looking factor (8 for its other solves): the
     // paper-size hands' factors stay in cache, so a pass is bound by its arithmetic, and two
     // vectors of lanes per row give each 3x3 block's loads twice the work. Measured on the paper
-    // bunny with the 1695-tet hand (three alternating pairs, against the sweeps in the same
-    // run): the responses 6% cheaper than with 8 (bench/README.md, twenty-third round).
+    // bunny with the 1695-tet hand (four alternating pairs, against the sweeps in the same run):
+    // the contact build 6-7% cheaper than with 8 (bench/README.md, twenty-third round).
     const int most = supernodal_ ? kWidestSolve : 16;
     // The right-hand sides stay zero between calls: each batch clears the dirty nodes it leaves
     // nonzero. Clearing all 3n x w values per call instead (the calls mostly take one batch)
