@@ -640,10 +640,11 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         if (pending) {
             // a subspace step, then this sweep: kept only if the residual fell
             pending = false;
-            interval = result.residual > saved_residual ? std::min(kSubspaceMaxInterval, 2 * interval) : kSubspaceEvery;
-            damping = result.residual > saved_residual ? std::min(kDampingMax, 10 * damping) : std::max(kDampingMin, damping / 10);
+            const bool rejected = result.residual > saved_residual;
+            interval = rejected ? std::min(kSubspaceMaxInterval, 2 * interval) : kSubspaceEvery;
+            damping = rejected ? std::min(kDampingMax, 10 * damping) : std::max(kDampingMin, damping / 10);
             next_step = it + 1 + interval;
-            if (result.residual > saved_residual) {
+            if (rejected) {
                 lambda = saved;
                 op.reset(lambda);
                 result.residual = residual(all);
