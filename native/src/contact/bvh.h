@@ -5,7 +5,12 @@
 // median-split tree (the order in which the first, one-item-per-leaf version of this tree was
 // queried). Detection breaks ties between equally close triangles by rank, so contacts do
 // not depend on how the tree is traversed. Subtrees of up to kLeafSize items are collapsed
-// into one leaf holding a contiguous range of ranks, which keeps the tree small.
+// into one leaf holding a contiguous range of ranks, which keeps the tree small. 8 rather than
+// 4: the hand's self-collision descends along every pair of neighbouring patches down to the
+// leaves (~16500 node pairs a frame with 4 on the 1695-tet hand, for ~2900 vertex-triangle
+// tests), and fewer levels cost less than larger leaves; detection 1.12x as fast on that
+// hand's paper bunny, 1.05x on the 10x bunny, the same contacts bit for bit
+// (bench_detection.py; bench/README.md, twenty-fourth round).
 //
 // Boxes are stored tight (the items' own boxes) with one margin for all of them: an inflated
 // box is computed as (lo - margin, hi + margin) when it is needed. Rounding is monotonic, so
@@ -20,7 +25,7 @@ namespace hh {
 
 class Bvh {
 public:
-    static constexpr int kLeafSize = 4;
+    static constexpr int kLeafSize = 8;
     struct Node {
         Vec3 lo, hi;          // tight: the union of its items' boxes, without the margin
         int left = -1, right = -1;
