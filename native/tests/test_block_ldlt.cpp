@@ -249,8 +249,8 @@ TEST(supernodal_factor_solves_like_a_dense_solver_at_every_simd_level) {
 TEST(half_precision_passes_apply_the_inverse_of_the_rounded_factor) {
     // A half pass applies W P^T (L_h L_h^T)^-1 P W^T, with L_h each scalar column of L below the
     // diagonal rounded to binary16 over the column's largest magnitude c_k (solver/half.h) and
-    // multiplied back, the diagonal L's own: the 4- and 8-lane passes in double arithmetic, the
-    // one-lane pass in float (BlockLDLT::float_passes). Rebuilt here from a dense Cholesky of
+    // multiplied back, the diagonal L's own: every width (1, 4, 8) in float arithmetic at the
+    // SIMD levels that have it (BlockLDLT::float_passes). Rebuilt here from a dense Cholesky of
     // the permuted matrix (the same L to round-off, so the same halves but with probability
     // ~1e-13 per entry), that operator must match the pass to the arithmetic's round-off, while
     // the pass departs from A^-1 by the halves' rounding.
@@ -305,7 +305,7 @@ TEST(half_precision_passes_apply_the_inverse_of_the_rounded_factor) {
                     VecX x(a.rows());
                     for (Eigen::Index e = 0; e < x.size(); ++e) x[e] = nm[width * e + j];
                     // float: 2^-24 ~ 6e-8 a rounding, a few dozen of them along a row's passes
-                    CHECK_LT((x - expected).norm() / expected.norm(), width == 1 ? kFloatPassBound : 1e-9);
+                    CHECK_LT((x - expected).norm() / expected.norm(), kFloatPassBound);
                     if (!warped)  // (the halves' rounding: far above double round-off)
                         CHECK((x - plain.solve(VecX(b.col(j)))).norm() / expected.norm() > 1e-6);
                 }
@@ -767,7 +767,7 @@ TEST(a_solve_over_the_two_parts_side_by_side_is_the_plain_solve_to_round_off) {
                     f.solve_node_major_split(thr.data(), width, warped ? &w : nullptr, panels, side_by_side);
                     CHECK(seq == thr);
                     // the passes in float arithmetic (BlockLDLT::float_passes, where the CPU has AVX2)
-                    const bool in_float = detected_simd_level() > 0 && ((panels == Panels::Half && width == 1) ||
+                    const bool in_float = detected_simd_level() > 0 && (panels == Panels::Half ||
                                                                          (panels == Panels::Single && width > 1));
                     CHECK_LT(max_relative_difference(seq, plain), in_float ? kFloatPassBound : 1e-13);
                 }

@@ -721,12 +721,6 @@ template <> struct PanelVec<float> {
 template <int VL, typename PT>
 __attribute__((always_inline)) inline typename Lanes<VL>::V load_panel(const PT* p) {
     typedef typename Lanes<VL>::V V;
-#ifdef HH_HAVE_F16C_KERNELS
-    if constexpr (std::is_same_v<PT, Half>) {  // (only in the kernels built with f16c)
-        if constexpr (VL == 4) return load_half4(p);
-        else return load_half8(p);
-    } else
-#endif
     if constexpr (VL == 4) {
         typename PanelVec<PT>::F4 v;
         __builtin_memcpy(&v, p, sizeof v);
@@ -737,14 +731,10 @@ __attribute__((always_inline)) inline typename Lanes<VL>::V load_panel(const PT*
         return __builtin_convertvector(v, V);
     }
 }
-// one panel value as a double (a half still over its column's scale)
+// one panel value as a double
 template <typename PT>
 __attribute__((always_inline)) inline double panel_value(const PT* p) {
-#ifdef HH_HAVE_F16C_KERNELS
-    if constexpr (std::is_same_v<PT, Half>) return half_value(*p);
-    else
-#endif
-        return static_cast<double>(*p);
+    return static_cast<double>(*p);
 }
 // a SIMD value V from / to memory of its element type, unaligned
 template <typename V>
@@ -777,10 +767,6 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
     typedef typename Lanes<LV>::V V;
     // columns per group: the group's values of every lane stay in registers (G x N vectors)
     constexpr int G = W == 1 ? 4 : (W <= 8 ? 8 : 4);
-    // half panels: each column's values over its scale; every use of a column's values is
-    // multiplied by its scale (the group's right-hand values in the forward pass, its sums in
-    // the backward one, each triangle entry), in double
-    constexpr bool kHalf = std::is_same_v<PT, Half>;
     for (int j = 0; j < (f.forward ? f.ns : 0); ++j) {  // L z = b
         if (f.skips(j)) continue;
         const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
@@ -788,7 +774,6 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
         const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
         const PT* p = val + f.val_ptr[j];
         const double* dinv = dinv_all + f.diag_ptr[j];
-        const float* scale = kHalf ? f.scale + f.diag_ptr[j] : nullptr;
         double* xj = x + static_cast<size_t>(W) * 3 * c0;
         {  // all of the supernode's values still zero: nothing to add below (see solve_permuted)
             const size_t total = static_cast<size_t>(W) * m;
@@ -802,28 +787,18 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
             const int g = std::min(G, m - c);
             const PT* col[G];
             for (int k = 0; k < G; ++k) col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
-            double s[G];
-            if constexpr (kHalf)
-                for (int k = 0; k < G; ++k) s[k] = scale[c + std::min(k, g - 1)];
             for (int k = 0; k < g; ++k) {  // the group's triangle
                 double* yk = y + static_cast<size_t>(W) * (c + k);
                 for (int e = 0; e < W; ++e) yk[e] *= dinv[c + k];
                 for (int k2 = k + 1; k2 < g; ++k2) {
-                    double l = panel_value(col[k] + c + k2);
-                    if constexpr (kHalf) l *= s[k];
+                    const double l = panel_value(col[k] + c + k2);
                     double* y2 = y + static_cast<size_t>(W) * (c + k2);
                     for (int e = 0; e < W; ++e) y2[e] -= l * yk[e];
                 }
             }
             const int r0 = c + g;
             if constexpr (W == 1) {
-                double a0 = y[c], a1 = g > 1 ? y[c + 1] : 0.0, a2 = g > 2 ? y[c + 2] : 0.0, a3 = g > 3 ? y[c + 3] : 0.0;
-                if constexpr (kHalf) {
-                    a0 *= s[0];
-                    a1 *= s[1];
-                    a2 *= s[2];
-                    a3 *= s[3];
-                }
+                const double a0 = y[c], a1 = g > 1 ? y[c + 1] : 0.0, a2 = g > 2 ? y[c + 2] : 0.0, a3 = g > 3 ? y[c + 3] : 0.0;
                 int r = r0;
                 for (; r + VL <= ld; r += VL)
                     store_y<VL>(y + r, load_y<VL>(y + r) - (load_panel<VL>(col[0] + r) * a0 + load_panel<VL>(col[1] + r) * a1 +
@@ -834,10 +809,7 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
             } else {
                 V a[G][N];
                 for (int k = 0; k < G; ++k)
-                    for (int q = 0; q < N; ++q) {
-                        a[k][q] = k < g ? load_y<LV>(y + W * (c + k) + LV * q) : V{} * 0.0;
-                        if constexpr (kHalf) a[k][q] *= s[k];
-                    }
+                    for (int q = 0; q < N; ++q) a[k][q] = k < g ? load_y<LV>(y + W * (c + k) + LV * q) : V{} * 0.0;
                 for (int r = r0; r < ld; ++r) {
                     double* yr = y + static_cast<size_t>(W) * r;
                     for (int q = 0; q < N; ++q) {
@@ -862,7 +834,6 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
         const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
         const PT* p = val + f.val_ptr[j];
         const double* dinv = dinv_all + f.diag_ptr[j];
-        const float* scale = kHalf ? f.scale + f.diag_ptr[j] : nullptr;
         double* xj = x + static_cast<size_t>(W) * 3 * c0;
         std::copy(xj, xj + static_cast<size_t>(W) * m, y);
         for (int t = m / 3; t < nr; ++t) {
@@ -874,9 +845,6 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
             const int g = std::min(G, m - c);
             const PT* col[G];
             for (int k = 0; k < G; ++k) col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
-            double s[G];
-            if constexpr (kHalf)
-                for (int k = 0; k < G; ++k) s[k] = scale[c + std::min(k, g - 1)];
             const int r0 = c + g;
             double acc[G][W];
             if constexpr (W == 1) {
@@ -902,12 +870,6 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
                     t2 += panel_value(col[2] + r) * y[r];
                     t3 += panel_value(col[3] + r) * y[r];
                 }
-                if constexpr (kHalf) {
-                    t0 *= s[0];
-                    t1 *= s[1];
-                    t2 *= s[2];
-                    t3 *= s[3];
-                }
                 acc[0][0] = t0;
                 acc[1][0] = t1;
                 acc[2][0] = t2;
@@ -922,18 +884,14 @@ __attribute__((always_inline)) inline void supernodal_solve(const SupernodalFact
                         for (int k = 0; k < G; ++k) sk[k][q] += panel_value(col[k] + r) * yr;
                     }
                 for (int k = 0; k < G; ++k)
-                    for (int q = 0; q < N; ++q) {
-                        if constexpr (kHalf) sk[k][q] *= s[k];
-                        store_y<LV>(acc[k] + LV * q, sk[k][q]);
-                    }
+                    for (int q = 0; q < N; ++q) store_y<LV>(acc[k] + LV * q, sk[k][q]);
             }
             for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
                 double* yk = y + static_cast<size_t>(W) * (c + k);
                 double v[W];  // lanes innermost, so the loops vectorize (same order of operations per lane)
                 for (int e = 0; e < W; ++e) v[e] = yk[e] - acc[k][e];
                 for (int k2 = k + 1; k2 < g; ++k2) {
-                    double l = panel_value(col[k] + c + k2);
-                    if constexpr (kHalf) l *= s[k];
+                    const double l = panel_value(col[k] + c + k2);
                     const double* y2 = y + static_cast<size_t>(W) * (c + k2);
                     for (int e = 0; e < W; ++e) v[e] -= l * y2[e];
                 }
@@ -957,27 +915,23 @@ __attribute__((target("avx512f,avx512vl,avx2,fma"))) void supernodal_avx512(cons
 #endif
 
 #ifdef HH_HAVE_F16C_KERNELS
-// the half-precision panels' kernels: with f16c, and `flatten` so that the conversions
-// (solver/half.h, compiled for f16c) are inlined into them
-template <int W, int VL>
-__attribute__((target("avx2,fma,f16c"), flatten)) void supernodal_avx2_half(const SupernodalFactor& f, const double* d, double* x,
-                                                                          double* y) {
-    supernodal_solve<W, VL, Half>(f, f.val_half, d, x, y);
-}
-template <int W, int VL>
-__attribute__((target("avx512f,avx512vl,avx2,fma,f16c"), flatten)) void supernodal_avx512_half(const SupernodalFactor& f,
-                                                                                            const double* d, double* x, double* y) {
-    supernodal_solve<W, VL, Half>(f, f.val_half, d, x, y);
-}
 // The preconditioner passes in float arithmetic (x and y in float; the same passes as
-// supernodal_solve): one lane on the half panels, 4 or 8 lanes on the float panels. The panels'
+// supernodal_solve): 1, 4 or 8 lanes on the half panels, 4 or 8 on the float panels. The panels'
 // own rounding (2^-11 of each column's largest entry, or 2^-24) is at or above float's, and the
 // double kernels' time went to widening each value to a double:
 // - one lane: a conversion to float, one to double and a lane shuffle per 8 halves, against one
 //   conversion per 16 here. On the 17006-tet hand's factor a pass took 0.89-0.91 ms against
 //   1.15-1.22 (microbenchmark, both builds in turn, caches flushed or not: the same);
 // - 4 and 8 lanes: each panel value converted and broadcast to 8 doubles (a 512-bit FMA per
-//   value), against a broadcast load and a 256-bit FMA here.
+//   value), against a broadcast load and a 256-bit FMA here. On the half panels each column's
+//   rows are converted 16 (AVX2: 8) at a time into a small float buffer, a chunk ahead of their
+//   use, and each value is then a broadcast load as on the float panels: the conversions cost
+//   one instruction per 16 values instead of one per value (the former double-arithmetic half
+//   kernels', which made the 8-lane half pass slower than the float one). On the 16826-tet
+//   hand's factor in a loop of its own an 8-lane pass takes 1.02-1.05x the float panels' time;
+//   in the 10x bunny's frames, where b_t's one-lane passes stream the half copy beside it, the
+//   Schur columns' pass took 4.44-4.75 ms against 5.35-5.38 (bench/README.md, twenty-fifth
+//   round).
 template <int VL> struct FloatLanes;
 template <> struct FloatLanes<4> { typedef float V __attribute__((vector_size(16))); };
 template <> struct FloatLanes<8> { typedef HalfFloat8 V; };
@@ -999,7 +953,8 @@ __attribute__((always_inline)) inline void supernodal_solve_float(const Supernod
     typedef typename FloatLanes<W == 1 ? VL : W>::V V;  // W = 1: VL rows; else one row's W lanes
     constexpr int G = W == 1 ? 4 : 8;  // columns a group (see supernodal_solve)
     constexpr bool kHalf = std::is_same_v<PT, Half>;
-    static_assert(kHalf == (W == 1), "one lane on the half panels, 4 or 8 on the float panels");
+    static_assert(kHalf || W > 1, "one lane on the half panels only");
+    constexpr int CH = VL;  // W > 1 on half panels: rows converted a chunk at a time
     // supernode j: its m columns and nr rows (its own first), its panels, and x at its columns
     struct Supernode {
         int m, nr;
@@ -1066,10 +1021,29 @@ __attribute__((always_inline)) inline void supernodal_solve_float(const Supernod
                             panel_float(col[3] + r) * a[3];
             } else {
                 V a[G];
-                for (int k = 0; k < G; ++k) a[k] = k < g ? load_vector<V>(y + W * (c + k)) : V{} * 0.0f;
-                for (int r = c + g; r < ld; ++r) {
-                    V t = col[0][r] * a[0];
-                    for (int k = 1; k < G; ++k) t += col[k][r] * a[k];
+                for (int k = 0; k < G; ++k) a[k] = k < g ? load_vector<V>(y + W * (c + k)) * s[k] : V{} * 0.0f;
+                int r = c + g;
+                if constexpr (kHalf) {
+                    // chunk i+1 converted before chunk i is used: its stores have retired by
+                    // the time its values are read (a scalar load from a wide store still in
+                    // flight cannot be forwarded and stalls)
+                    float buf[2][G][CH];
+                    int b = 0;
+                    if (r + CH <= ld)
+                        for (int k = 0; k < G; ++k) store_vector(buf[0][k], load_half_floats<CH>(col[k] + r));
+                    for (; r + CH <= ld; r += CH, b ^= 1) {
+                        if (r + 2 * CH <= ld)
+                            for (int k = 0; k < G; ++k) store_vector(buf[b ^ 1][k], load_half_floats<CH>(col[k] + r + CH));
+                        for (int q = 0; q < CH; ++q) {
+                            V t = buf[b][0][q] * a[0];
+                            for (int k = 1; k < G; ++k) t += buf[b][k][q] * a[k];
+                            store_vector(y + W * (r + q), load_vector<V>(y + W * (r + q)) - t);
+                        }
+                    }
+                }
+                for (; r < ld; ++r) {
+                    V t = panel_float(col[0] + r) * a[0];
+                    for (int k = 1; k < G; ++k) t += panel_float(col[k] + r) * a[k];
                     store_vector(y + W * r, load_vector<V>(y + W * r) - t);
                 }
             }
@@ -1121,11 +1095,26 @@ __attribute__((always_inline)) inline void supernodal_solve_float(const Supernod
             } else {
                 V sk[G];
                 for (int k = 0; k < G; ++k) sk[k] = V{} * 0.0f;
-                for (int r = c + g; r < ld; ++r) {
-                    const V yr = load_vector<V>(y + W * r);
-                    for (int k = 0; k < G; ++k) sk[k] += col[k][r] * yr;
+                int r = c + g;
+                if constexpr (kHalf) {  // (converted a chunk ahead, as in the forward pass)
+                    float buf[2][G][CH];
+                    int b = 0;
+                    if (r + CH <= ld)
+                        for (int k = 0; k < G; ++k) store_vector(buf[0][k], load_half_floats<CH>(col[k] + r));
+                    for (; r + CH <= ld; r += CH, b ^= 1) {
+                        if (r + 2 * CH <= ld)
+                            for (int k = 0; k < G; ++k) store_vector(buf[b ^ 1][k], load_half_floats<CH>(col[k] + r + CH));
+                        for (int q = 0; q < CH; ++q) {
+                            const V yr = load_vector<V>(y + W * (r + q));
+                            for (int k = 0; k < G; ++k) sk[k] += buf[b][k][q] * yr;
+                        }
+                    }
                 }
-                for (int k = 0; k < G; ++k) store_vector(acc[k], sk[k]);
+                for (; r < ld; ++r) {
+                    const V yr = load_vector<V>(y + W * r);
+                    for (int k = 0; k < G; ++k) sk[k] += panel_float(col[k] + r) * yr;
+                }
+                for (int k = 0; k < G; ++k) store_vector(acc[k], sk[k] * s[k]);
             }
             for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
                 float* yk = y + W * (c + k);
@@ -1155,34 +1144,17 @@ __attribute__((target("avx512f,avx512vl,avx2,fma,f16c"), flatten)) void supernod
 // false when the kernels cannot run here (no AVX2)
 bool supernodal_float(const SupernodalFactor& f, float* x, int w, float* y) {
     const int level = simd_level();
+    const bool half = f.val_half != nullptr;
     if (level == 2) {
         if (w == 1) supernodal_avx512_float<1, 16, Half>(f, x, y);
-        else if (w == 4) supernodal_avx512_float<4, 16, float>(f, x, y);
-        else supernodal_avx512_float<8, 16, float>(f, x, y);
+        else if (w == 4) half ? supernodal_avx512_float<4, 16, Half>(f, x, y) : supernodal_avx512_float<4, 16, float>(f, x, y);
+        else half ? supernodal_avx512_float<8, 16, Half>(f, x, y) : supernodal_avx512_float<8, 16, float>(f, x, y);
         return true;
     }
     if (level == 1) {
         if (w == 1) supernodal_avx2_float<1, 8, Half>(f, x, y);
-        else if (w == 4) supernodal_avx2_float<4, 8, float>(f, x, y);
-        else supernodal_avx2_float<8, 8, float>(f, x, y);
-        return true;
-    }
-    return false;
-}
-
-// false when the half kernels cannot run here (the caller then uses the single-precision panels)
-bool supernodal_half(const SupernodalFactor& f, const double* d, double* x, int w, double* y) {
-    const int level = simd_level();
-    if (level == 2) {
-        if (w == 1) supernodal_avx512_half<1, 8>(f, d, x, y);
-        else if (w == 4) supernodal_avx512_half<4, 4>(f, d, x, y);
-        else supernodal_avx512_half<8, 8>(f, d, x, y);
-        return true;
-    }
-    if (level == 1) {
-        if (w == 1) supernodal_avx2_half<1, 4>(f, d, x, y);
-        else if (w == 4) supernodal_avx2_half<4, 4>(f, d, x, y);
-        else supernodal_avx2_half<8, 4>(f, d, x, y);
+        else if (w == 4) half ? supernodal_avx2_float<4, 8, Half>(f, x, y) : supernodal_avx2_float<4, 8, float>(f, x, y);
+        else half ? supernodal_avx2_float<8, 8, Half>(f, x, y) : supernodal_avx2_float<8, 8, float>(f, x, y);
         return true;
     }
     return false;
@@ -1216,9 +1188,8 @@ void supernodal_dispatch_typed(const SupernodalFactor& f, const PT* v, const dou
 }
 
 void supernodal_solve_dispatch(const SupernodalFactor& f, double* x, int w, double* y) {
-#ifdef HH_HAVE_F16C_KERNELS
-    if (f.val_half && supernodal_half(f, f.diag_inverse_single, x, w, y)) return;
-#endif
+    // (half panels come here only where the float passes cannot run, BlockLDLT::float_passes:
+    // their single-precision copy serves then)
     if (f.val_single) supernodal_dispatch_typed<float>(f, f.val_single, f.diag_inverse_single, x, w, y);
     else supernodal_dispatch_typed<double>(f, f.val, f.diag_inverse, x, w, y);
 }
@@ -1383,7 +1354,8 @@ void BlockLDLT::solve_node_major(double* b, int w, const std::vector<Mat3>* warp
 bool BlockLDLT::float_passes(int w, Panels panels) const {
 #ifdef HH_HAVE_F16C_KERNELS
     if (!supernodal_ || simd_level() == 0) return false;
-    return (w == 1 && panels == Panels::Half && half_valid_) || ((w == 4 || w == 8) && panels == Panels::Single && single_valid_);
+    return (panels == Panels::Half && half_valid_ && (w == 1 || w == 4 || w == 8)) ||
+           ((w == 4 || w == 8) && panels == Panels::Single && single_valid_);
 #else
     (void)w;
     (void)panels;

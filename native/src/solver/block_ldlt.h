@@ -82,12 +82,12 @@ public:
                      double* out, long ld, int first_batch = 0, int batch_step = 1) const;
     // The same on node-major storage: x holds n nodes x 3 x w values (w = 1, 4 or 8; node i's
     // 3 x w block at x + 3 w i, row-major), in the matrix's own node order. Panels::Single:
-    // with the single-precision copy of the factor (half the memory traffic; the arithmetic
-    // stays double, so this applies the exact inverse of L_f D_f L_f^T, a matrix within float
-    // round-off of A: a preconditioner, not a solve). Panels::Half: the half-precision copy
-    // (a quarter of the traffic; within 2^-11 per entry: a preconditioner only; widths 1, 4
-    // and 8), or the single one on a CPU without half conversions (solver/half.h) or at SIMD
-    // level 0.
+    // with the single-precision copy of the factor (half the memory traffic; a matrix within
+    // float round-off of A: a preconditioner, not a solve). Panels::Half: the half-precision
+    // copy (a quarter of the traffic; within 2^-11 per entry: a preconditioner only), or the
+    // single one on a CPU without half conversions (solver/half.h) or at SIMD level 0. Where
+    // the CPU has AVX2 the passes on the half copy (1, 4 or 8 lanes) and on the single one (4
+    // or 8) run in float arithmetic (float_passes); else in double.
     void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, Panels panels = Panels::Double) const;
     // The same with the factor's two parts (factor_parts() == 2) as two jobs for `beside`: the
     // forward pass over each part's subtrees (each into its own copy of the rest's rows, added

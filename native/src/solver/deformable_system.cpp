@@ -121,10 +121,13 @@ struct DeformableSystem::Impl {
         return panels == "double" ? Panels::Double : panels == "single" ? Panels::Single : Panels::Half;
     }();
     bool supernodal = std::getenv("HH_REUSE_UPLOOKING") == nullptr;
-    // the panels a preconditioner pass of `width` lanes reads: the narrowest copy the factor
-    // keeps, half precision for one lane only (see pcg_block)
-    Panels pass_panels(int width) const {
-        if (preconditioner == Panels::Half && cholesky.has_half() && width == 1) return Panels::Half;
+    // The panels a preconditioner pass of `width` lanes reads: the narrowest copy the factor
+    // keeps (see pcg_block). The half copy's rounding bounds an iteration's contraction at ~5e-4
+    // even on an exact factor, so a wider block asked for a relative residual below 1e-8 (from
+    // warm starts 1e-4 to 1e-5 off, two iterations instead of one) reads the float copy: its
+    // iterations cost several one-lane passes each.
+    Panels pass_panels(int width, double tolerance) const {
+        if (preconditioner == Panels::Half && cholesky.has_half() && (width == 1 || tolerance >= 1e-8)) return Panels::Half;
         return preconditioner != Panels::Double && cholesky.has_single() ? Panels::Single : Panels::Double;
     }
     // Cost bookkeeping of the refactorization policy, in work units (one unit: a one-lane pass
@@ -709,14 +712,18 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
     // only ~12% faster in float). The preconditioner is the stale warped factor anyway: float
     // round-off of its panels cost the columns' 1e-9 tolerance ~10% more lane-iterations
     // (6.1 -> 6.8 a step).
-    // The one-lane passes read the half-precision copy where there is one: a quarter of the
-    // double traffic. On that hand, factor out of cache: 1.1-1.5 ms a pass against 1.9-2.3 in
-    // float (in cache, as fast); the frame rate on one thread +7% (6 alternating pairs), on
-    // two within the noise (8 pairs: median 0.97, mean 1.01). The 4- and 8-lane passes stay in
-    // float: their half kernels convert every entry on its own and were slower (2.8-3.6 ms
-    // against 2.3-2.6 in cache). Its rounding (2^-11 of each column's largest entry) limits
-    // CG's contraction to ~5e-4 an iteration on an exact factor, far below what the staleness
-    // of a reused one allows (0.2-0.3 an iteration on that hand).
+    // The passes read the half-precision copy where there is one: a quarter of the double
+    // traffic. On that hand, factor out of cache, a one-lane pass took 1.1-1.5 ms against
+    // 1.9-2.3 in float (in cache, as fast); the frame rate on one thread +7% (6 alternating
+    // pairs), on two within the noise (8 pairs: median 0.97, mean 1.01). The 4- and 8-lane
+    // passes stayed on the float copy while their half kernels converted every entry on its
+    // own (2.8-3.6 ms against 2.3-2.6 in cache); since they convert a chunk of rows at a time
+    // (BlockLDLT's float kernels) the Schur columns' 8-lane pass in the 10x bunny's frames took
+    // 4.44-4.75 ms against 5.35-5.38 on the float copy (three alternating pairs, the same
+    // lane-iterations: 345 against 346 in 53 frames), and b_t's and the columns' passes now
+    // stream one copy. Its rounding (2^-11 of each column's largest entry) limits CG's
+    // contraction to ~5e-4 an iteration on an exact factor, far below what the staleness of a
+    // reused one allows (0.2-0.3 an iteration on that hand).
     // Every pass's arithmetic is float where the CPU has AVX2 (BlockLDLT::float_passes; the
     // residuals and products with At stay double, and CG's flexible beta takes the float
     // round-off like any change of preconditioner). In the 10x bunny's frames (both ways
@@ -740,6 +747,9 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
     std::vector<double> rnorm(count, 0.0);
     for (int j = 0; j < count; ++j) rnorm[j] = residual_norm(first_slot + first + j, bnorm[j]);
     auto lane_norm_b = [&](int l) { return rnorm[lanes[l] - first]; };
+    double tightest = 1;  // the block's smallest tolerance (pass_panels)
+    for (int c : lanes)
+        if (c >= 0) tightest = std::min(tightest, tol_of(c));
     const size_t size = static_cast<size_t>(n3) * 8;
     for (std::vector<double>* v : {&nb, &nx, &nr, &nz, &np, &nq}) v->resize(size);
     // node-major loads, a whole row of lanes at a time (lane-by-lane strided writes touched a
@@ -841,8 +851,8 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         if (!any) break;
         const size_t total = static_cast<size_t>(n3) * wd;
         std::copy(nr.begin(), nr.begin() + total, nz.begin());  // z = M^-1 r
-        if (wd == 1 && pass_beside && *pass_beside) cholesky.solve_node_major_split(nz.data(), 1, w, pass_panels(1), *pass_beside);
-        else cholesky.solve_node_major(nz.data(), wd, w, pass_panels(wd));
+        if (wd == 1 && pass_beside && *pass_beside) cholesky.solve_node_major_split(nz.data(), 1, w, pass_panels(1, tightest), *pass_beside);
+        else cholesky.solve_node_major(nz.data(), wd, w, pass_panels(wd, tightest));
         tally.units += pass_units(wd);
         lane_dot(nr, nz, rz_new);
         double beta[8] = {};

@@ -1,9 +1,8 @@
 // Half-precision (IEEE binary16) panel values for the supernodal factor's preconditioner
 // passes (BlockLDLT::set_keep_half). The passes are memory bound, and a half is a quarter of a
-// double's traffic; the arithmetic of the 4- and 8-lane passes stays double (the one-lane
-// passes' is float: BlockLDLT::float_passes), so a pass applies the inverse of L_h L_h^T to
-// the arithmetic's round-off, L_h the factor with its entries below the diagonal rounded (the
-// kernels divide by the diagonal's own double values). Each scalar column of a panel is stored
+// double's traffic; their arithmetic is float (BlockLDLT::float_passes), so a pass applies the
+// inverse of L_h L_h^T to float round-off, L_h the factor with its entries below the diagonal
+// rounded (the kernels divide by the diagonal's own values). Each scalar column of a panel is stored
 // divided by its largest magnitude (kept as a float scale), so every column uses the format's full relative precision
 // (2^-11) whatever the matrix's units, and its small entries lose at most 2^-24 of the column's
 // largest in the subnormal range.
@@ -33,22 +32,9 @@ bool has_f16c();
 void to_half(const double* from, std::size_t n, double scale, Half* to);
 
 #ifdef HH_HAVE_F16C_KERNELS
-typedef double HalfLoad4 __attribute__((vector_size(32), aligned(8)));
-typedef double HalfLoad8 __attribute__((vector_size(64), aligned(8)));
-typedef float HalfFloat4 __attribute__((vector_size(16)));
 typedef float HalfFloat8 __attribute__((vector_size(32)));
-// four / eight consecutive halves as doubles
-__attribute__((target("avx2,fma,f16c"))) inline HalfLoad4 load_half4(const Half* p) {
-    const HalfFloat4 f = _mm_cvtph_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
-    return __builtin_convertvector(f, HalfLoad4);
-}
-__attribute__((target("avx512f,avx512vl,avx2,fma,f16c"))) inline HalfLoad8 load_half8(const Half* p) {
-    const HalfFloat8 f = _mm256_cvtph_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)));
-    return __builtin_convertvector(f, HalfLoad8);
-}
-__attribute__((target("f16c"))) inline double half_value(Half h) { return _cvtsh_ss(h.bits); }
-// the same as floats (the one-lane passes, whose arithmetic is float)
 typedef float HalfFloat16 __attribute__((vector_size(64)));
+// eight / sixteen consecutive halves as floats
 __attribute__((target("avx2,fma,f16c"))) inline HalfFloat8 load_half8_floats(const Half* p) {
     return _mm256_cvtph_ps(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)));
 }
