@@ -928,10 +928,10 @@ __attribute__((target("avx512f,avx512vl,avx2,fma"))) void supernodal_avx512(cons
 //   use, and each value is then a broadcast load as on the float panels: the conversions cost
 //   one instruction per 16 values instead of one per value (the former double-arithmetic half
 //   kernels', which made the 8-lane half pass slower than the float one). On the 16826-tet
-//   hand's factor in a loop of its own an 8-lane pass takes 1.02-1.05x the float panels' time;
-//   in the 10x bunny's frames, where b_t's one-lane passes stream the half copy beside it, the
-//   Schur columns' pass took 4.44-4.75 ms against 5.35-5.38 (bench/README.md, twenty-fifth
-//   round).
+//   hand's factor in a loop of its own an 8-lane pass takes 1.02-1.16x the float panels' time
+//   (two machine states); in the 10x bunny's frames, where b_t's one-lane passes stream the
+//   half copy beside it, the Schur columns' pass took 4.44-4.75 ms against 5.35-5.38
+//   (bench/README.md, twenty-fifth round).
 template <int VL> struct FloatLanes;
 template <> struct FloatLanes<4> { typedef float V __attribute__((vector_size(16))); };
 template <> struct FloatLanes<8> { typedef HalfFloat8 V; };
