@@ -965,7 +965,8 @@ __attribute__((always_inline)) inline float panel_float(const PT* p) {
     if constexpr (std::is_same_v<PT, Half>) return half_float(*p);
     else return *p;
 }
-// W lanes per row (1, 4 or 8); VL: the SIMD width along the rows when W = 1 (half panels PT)
+// W lanes per row (1, 4 or 8); VL: the SIMD width along the rows when W = 1, and the rows a
+// chunk of half panels (PT = Half) holds when W > 1 (half_chunks)
 template <int W, int VL, typename PT>
 __attribute__((always_inline)) inline void supernodal_solve_float(const SupernodalFactor& f, float* x, float* y) {
     typedef typename FloatLanes<W == 1 ? VL : W>::V V;  // W = 1: VL rows; else one row's W lanes
