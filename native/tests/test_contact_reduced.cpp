@@ -426,3 +426,63 @@ TEST(large_problems_leave_settled_contacts_out_and_still_meet_every_condition) {
         }
     }
 }
+
+TEST(columns_formed_as_the_sweeps_need_them_give_the_same_impulses) {
+    // The world forms up front only the columns of contacts its warm start gives an impulse; the
+    // sweeps form the others' when they first change them (ReducedColumns::ensure) and leave
+    // contacts without columns that stay open untouched. That must change nothing: the
+    // impulses, bit for bit, as with every contact's columns formed up front, on a problem
+    // small enough for the subspace step (two bodies) and on one too large for it (eight
+    // elements), in double and single-precision columns.
+    std::srand(5);
+    std::mt19937 rng(5);
+    std::vector<ReducedContactProblem> problems;
+    problems.push_back(random_problem(rng, 90, 40, 30));
+    {
+        ReducedContactProblem p;  // eight elements on a plane, as one problem
+        p.dt = 1.0 / 30;
+        p.begin.assign(1, 0);
+        for (int k = 0; k < 8; ++k) {
+            const ReducedContactProblem e = element_on_plane(rng, 60);
+            p.bodies.push_back(e.bodies[0]);
+            for (int i = 0; i < 60; ++i) {
+                for (int j = e.begin[i]; j < e.begin[i + 1]; ++j) p.entries.push_back({k, e.entries[j].index, e.entries[j].coefficient});
+                p.begin.push_back(static_cast<int>(p.entries.size()));
+            }
+            for (auto [from, to] : {std::pair<const VecX*, VecX*>{&e.u_free, &p.u_free}, {&e.gap, &p.gap}, {&e.friction, &p.friction},
+                                    {&e.kinetic, &p.kinetic}}) {
+                to->conservativeResize(to->size() + from->size());
+                to->tail(from->size()) = *from;
+            }
+        }
+        problems.push_back(p);
+    }
+    for (ReducedContactProblem& p : problems) {
+        const int c = static_cast<int>(p.gap.size());
+        for (int columns : {0, 1}) {
+            p.single_columns = columns;
+            // a warm start as the world's: some contacts pushing, the others without impulse
+            VecX warm;
+            solve_pgs(p, warm, 15, 1e-9);
+            for (int i = 0; i < c; i += 3) warm.segment<3>(3 * i).setZero();
+            int pushing = 0;
+            for (int i = 0; i < c; ++i) pushing += warm.segment<3>(3 * i) != Vec3::Zero();
+            CHECK(pushing > 0 && pushing < c);
+            ReducedColumns all(p);
+            all.form(0, 1);
+            VecX la = warm;
+            const PgsResult ra = solve_pgs(p, all, la, 400, 1e-7);
+            ReducedColumns needed(p, &warm);
+            needed.form(0, 2);  // (in two shares, as the world's)
+            needed.form(1, 2);
+            CHECK(needed.formed_count() == pushing);
+            VecX lb = warm;
+            const PgsResult rb = solve_pgs(p, needed, lb, 400, 1e-7);
+            CHECK(needed.formed_count() > pushing);  // some formed by the sweeps...
+            CHECK(needed.formed_count() < c);        // ... and some never needed
+            CHECK(ra.iterations == rb.iterations);
+            CHECK(ra.residual == rb.residual);
+            CHECK(la == lb);
+        }
+    }
+}

@@ -514,11 +514,10 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         }
         return worst;
     };
+    // per contact, the eigen-decomposition of its tangential block, made when first needed
+    // (with the reduced form, a contact's block is formed with its columns: see below)
     std::vector<Disk> disks(c);
-    for (int i = 0; i < c; ++i) {
-        const Mat3& w = op.block(i);
-        disks[i] = Disk(0.5 * (w.block<2, 2>(1, 1) + w.block<2, 2>(1, 1).transpose()));
-    }
+    std::vector<unsigned char> disk_made(c, 0);
     VecX saved;
     ActiveBlocks blocks_cache(c);
     std::vector<int> last_state(c, -1);  // per contact, its state at the end of the last subspace step
@@ -588,12 +587,22 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
         double estimate = 0;
         for (const int i : visit) {
             const int n = 3 * i;
+            Vec3 ui;
+            const bool bare = !op.formed(i);
+            if (bare) {
+                // A contact whose columns are not formed yet (ReducedColumns) has had no impulse.
+                // Open (u_n + gap/dt >= 0), the update below leaves it without impulse whatever
+                // its block of W (as long as it is positive; its residual is 0 then), so it is
+                // left as it is; otherwise its columns and block are formed now.
+                ui = op.velocity(i);
+                if (lambda[n] == 0 && lambda[n + 1] == 0 && lambda[n + 2] == 0 && ui[0] + bias[i] >= 0) continue;
+            }
             const Mat3& w = op.block(i);
             if (w(0, 0) <= 0) {  // both sides immovable: no impulse changes its residual
                 estimate = std::max(estimate, own[i]);
                 continue;
             }
-            Vec3 ui = op.velocity(i);
+            if (!bare) ui = op.velocity(i);
             if (!full) estimate = std::max(estimate, local_residual(i, ui));
             const double ln = std::max(0.0, lambda[n] - (ui[0] + bias[i]) / w(0, 0));
             Vec3 delta(ln - lambda[n], 0, 0);
@@ -607,6 +616,10 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             if (wtt.trace() > 0) {
                 const Eigen::Vector2d ut(ui[1], ui[2]);
                 const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
+                if (!disk_made[i]) {
+                    disks[i] = Disk(wtt);
+                    disk_made[i] = 1;
+                }
                 const Eigen::Vector2d target = disk_constrained_minimum(disks[i], wtt * lt - ut, coefficient[i] * lambda[n]);
                 delta[1] = target[0] - lt[0];
                 delta[2] = target[1] - lt[1];
@@ -694,6 +707,7 @@ struct DenseOp {
         for (int i = 0; i < c; ++i) blocks[i] = W.block<3, 3>(3 * i, 3 * i);
     }
     Vec3 velocity(int i) const { return u.segment<3>(3 * i); }
+    bool formed(int) const { return true; }
     const Mat3& block(int i) const { return blocks[i]; }
     Mat3 cross_block(int i, int j) const { return W.block<3, 3>(3 * i, 3 * j); }
     const VecX& u_free;
@@ -744,12 +758,13 @@ struct ReducedOp {
     std::vector<Gather> gather;
     std::vector<int> gather_begin;
     std::vector<std::vector<std::pair<int, int>>> focus_parts;
+    ReducedColumns& columns;  // (contacts' columns formed as the sweeps first need them)
     const std::vector<Mat3>& blocks;
     const std::vector<MatX>& h;                                  // (see ReducedColumns)
     const std::vector<Eigen::MatrixXf>& hs;
     const std::vector<std::vector<std::pair<int, int>>>& parts;
-    ReducedOp(const ReducedColumns& columns, const VecX& lambda)
-        : p(columns.p), blocks(columns.blocks), h(columns.h), hs(columns.hs), parts(columns.parts) {
+    ReducedOp(ReducedColumns& columns, const VecX& lambda)
+        : p(columns.p), columns(columns), blocks(columns.blocks), h(columns.h), hs(columns.hs), parts(columns.parts) {
         reset(lambda);
     }
     void reset(const VecX& lambda) {
@@ -788,6 +803,7 @@ struct ReducedOp {
         }
         std::vector<int> columns(nb, 0);
         for (const int i : live) {
+            this->columns.ensure(i);
             for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
                 const auto& a = p.entries[e];
                 if (s_index[a.body][a.index] < 0) {
@@ -835,12 +851,18 @@ struct ReducedOp {
         for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) out += p.entries[e].coefficient * y[p.entries[e].body][p.entries[e].index];
         return out;
     }
-    const Mat3& block(int i) const { return blocks[i]; }
+    // (a contact's block comes with its columns: formed now if they were not yet)
+    const Mat3& block(int i) const {
+        columns.ensure(i);
+        return blocks[i];
+    }
+    bool formed(int i) const { return columns.formed[i] != 0; }
     Mat3 cross_block(int i, int j) const {
         Mat3 out = Mat3::Zero();
         for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
             const auto& a = p.entries[e];
             if (hs.empty()) {
+                columns.ensure(j);
                 for (const auto& q : parts[j])
                     if (q.first == a.body) out += a.coefficient * h[a.body].row(a.index).segment<3>(q.second);
                 continue;
@@ -861,6 +883,7 @@ struct ReducedOp {
             }
             return;
         }
+        columns.ensure(i);
         for (const auto& q : parts[i]) {
             if (!hs.empty()) {
                 const Eigen::MatrixXf& hf = hs[q.first];
@@ -908,7 +931,7 @@ void reduced_velocities(const ReducedContactProblem& p, const VecX& lambda, std:
 
 }  // namespace
 
-ReducedColumns::ReducedColumns(const ReducedContactProblem& p) : p(p) {
+ReducedColumns::ReducedColumns(const ReducedContactProblem& p, const VecX* warm) : p(p) {
     const int c = static_cast<int>(p.gap.size());
     const int nb = static_cast<int>(p.bodies.size());
     std::vector<int> columns(nb, 0);
@@ -925,6 +948,11 @@ ReducedColumns::ReducedColumns(const ReducedContactProblem& p) : p(p) {
         }
     for (int b = 0; b < nb; ++b) bytes += sizeof(double) * static_cast<size_t>(p.bodies[b].C.rows()) * columns[b];
     blocks.assign(c, Mat3::Zero());
+    formed.assign(c, 0);
+    up_front.assign(c, 1);
+    if (warm && warm->size() == 3 * c)
+        for (int i = 0; i < c; ++i) up_front[i] = warm->segment<3>(3 * i) != Vec3::Zero();
+    for (int i = 0; i < c; ++i) formed[i] = parts[i].empty();  // (no dynamic body: no columns, W's block 0)
     // The columns in single precision when they outgrow the caches: a sweep then streams
     // them from memory, and half the bytes is most of the sweep's time (10x bunny: ~950
     // contacts on ~590 unknowns, 13 MB of columns; sweeps 37.5 -> 30.5 ms a frame). The
@@ -932,9 +960,8 @@ ReducedColumns::ReducedColumns(const ReducedContactProblem& p) : p(p) {
     // the single-precision round-off (~1e-7 relative) does not accumulate; the paper bunny's
     // ~2 MB stay double (the copy cost more than it saved there). No double copy is kept
     // then: each contact's columns are formed in double in a scratch and rounded (the copy
-    // was written and read once: 9 MB a 10x bunny frame); each contact's own 3x3 block of W is
-    // taken from its columns as they are formed, the subspace step's blocks between contacts
-    // from C itself.
+    // was written and read once: 9 MB a 10x bunny frame); each contact's own 3x3 block of W and
+    // the subspace step's blocks between contacts are taken from C itself.
     const bool single = p.single_columns == 1 || (p.single_columns < 0 && bytes > kSingleColumnsBytes);
     for (int b = 0; b < nb; ++b) {  // (each contact's share writes its own columns)
         if (single) hs.emplace_back(p.bodies[b].C.rows(), columns[b]);
@@ -944,47 +971,55 @@ ReducedColumns::ReducedColumns(const ReducedContactProblem& p) : p(p) {
 
 void ReducedColumns::form(int part, int parts_count) {
     const int c = static_cast<int>(p.gap.size());
+    for (int i = part; i < c; i += parts_count)
+        if (up_front[i] && !formed[i]) form_contact(i);
+}
+
+int ReducedColumns::formed_count() const {
+    return static_cast<int>(std::count(formed.begin(), formed.end(), 1));
+}
+
+// The contact's columns, and its diagonal block of W from their rows at its own entries
+void ReducedColumns::form_contact(int i) {
     const bool single = !hs.empty();
     MatX scratch;  // single: one contact's columns on one body, in double
     std::vector<const double*> cols;
     std::vector<Vec3> coefficients;
-    for (int i = part; i < c; i += parts_count) {
-        for (const auto& q : parts[i]) {
-            const int b = q.first;
-            const long m = p.bodies[b].C.rows();
-            double* hb;
-            if (single) {
-                scratch.resize(m, 3);
-                hb = scratch.data();
-            } else {
-                hb = h[b].data() + m * q.second;
-            }
-            // the contact's entries on this body: its columns of C and their coefficients
-            cols.clear();
-            coefficients.clear();
-            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
-                const auto& a = p.entries[e];
-                if (a.body != b) continue;
-                cols.push_back(p.bodies[b].C.col(a.index).data());
-                coefficients.push_back(a.coefficient);
-            }
-            form_three_columns(hb, m, m, cols.data(), coefficients.data(), static_cast<int>(cols.size()));
-            // the contact's diagonal block of W: its rows of its own columns
-            const Eigen::Map<const MatX> hi(hb, m, 3);
-            for (int e = p.begin[i]; e < p.begin[i + 1]; ++e)
-                if (p.entries[e].body == b) blocks[i] += p.entries[e].coefficient * hi.row(p.entries[e].index);
-            if (single) hs[b].middleCols(q.second, 3) = scratch.cast<float>();
+    for (const auto& q : parts[i]) {
+        const int b = q.first;
+        const long m = p.bodies[b].C.rows();
+        double* hb;
+        if (single) {
+            scratch.resize(m, 3);
+            hb = scratch.data();
+        } else {
+            hb = h[b].data() + m * q.second;
         }
+        // the contact's entries on this body: its columns of C and their coefficients
+        cols.clear();
+        coefficients.clear();
+        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e) {
+            const auto& a = p.entries[e];
+            if (a.body != b) continue;
+            cols.push_back(p.bodies[b].C.col(a.index).data());
+            coefficients.push_back(a.coefficient);
+        }
+        form_three_columns(hb, m, m, cols.data(), coefficients.data(), static_cast<int>(cols.size()));
+        const Eigen::Map<const MatX> hi(hb, m, 3);
+        for (int e = p.begin[i]; e < p.begin[i + 1]; ++e)
+            if (p.entries[e].body == b) blocks[i] += p.entries[e].coefficient * hi.row(p.entries[e].index);
+        if (single) hs[b].middleCols(q.second, 3) = scratch.cast<float>();
     }
+    formed[i] = 1;
 }
 
 PgsResult solve_pgs(const ReducedContactProblem& p, VecX& lambda, int max_iterations, double tolerance) {
-    ReducedColumns columns(p);
+    ReducedColumns columns(p, &lambda);
     columns.form(0, 1);
     return solve_pgs(p, columns, lambda, max_iterations, tolerance);
 }
 
-PgsResult solve_pgs(const ReducedContactProblem& p, const ReducedColumns& columns, VecX& lambda, int max_iterations,
+PgsResult solve_pgs(const ReducedContactProblem& p, ReducedColumns& columns, VecX& lambda, int max_iterations,
                     double tolerance) {
     const int c = static_cast<int>(p.gap.size());
     start(c, lambda);

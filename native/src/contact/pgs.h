@@ -59,15 +59,33 @@ struct ReducedContactProblem {
 // outgrow the caches. Formed in shares (every parts-th contact; each contact's columns are its
 // own), which the world runs on its two threads side by side; solve_pgs forms them itself
 // when not given them.
+// Only the contacts a sweep changes (or focuses on) read their columns or their diagonal
+// block of W: on the 10x bunny a third to a half of them; the others stay open throughout.
+// Given the warm start, the shares form the columns (and blocks) of the contacts it gives an
+// impulse, nearly all of which the sweeps change, and the sweeps form any other contact's the
+// first time they need them (ensure). Columns and block are the same values whoever forms
+// them and whenever, so the sweeps' results do not depend on the split.
 struct ReducedColumns {
-    explicit ReducedColumns(const ReducedContactProblem& p);  // lays them out (no arithmetic yet)
+    // lays them out (no arithmetic yet); warm: the sweeps' warm start (3c impulses), or null
+    // (every contact's columns formed in the shares)
+    explicit ReducedColumns(const ReducedContactProblem& p, const VecX* warm = nullptr);
     void form(int part, int parts);
+    // contact i's columns, formed now if they were not yet (one thread at a time: the sweeps')
+    void ensure(int i) {
+        if (!formed[i]) form_contact(i);
+    }
     const ReducedContactProblem& p;
     std::vector<MatX> h;                                  // per body: m_b x 3 (its contacts), or none
     std::vector<Eigen::MatrixXf> hs;                      // per body: the same in single precision, or none
     std::vector<std::vector<std::pair<int, int>>> parts;  // per contact: (body, first column in h[body])
-    std::vector<Mat3> blocks;                             // per contact: its 3x3 diagonal block of W
+    std::vector<Mat3> blocks;                             // per contact: its 3x3 diagonal block of W (once formed)
+    std::vector<unsigned char> up_front;                  // per contact: formed by the shares
+    std::vector<unsigned char> formed;                    // per contact: its columns are formed
     size_t bytes = 0;                                     // of the columns in double
+    int formed_count() const;
+
+private:
+    void form_contact(int i);  // its columns, and its diagonal block of W from them
 };
 
 struct PgsResult {
@@ -80,7 +98,8 @@ struct PgsResult {
 PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, double tolerance);
 PgsResult solve_pgs(const ReducedContactProblem& p, VecX& lambda, int max_iterations, double tolerance);
 // the same on columns formed beforehand (every share of them)
-PgsResult solve_pgs(const ReducedContactProblem& p, const ReducedColumns& columns, VecX& lambda, int max_iterations,
+// (the sweeps form the columns the shares left out as they need them)
+PgsResult solve_pgs(const ReducedContactProblem& p, ReducedColumns& columns, VecX& lambda, int max_iterations,
                     double tolerance);
 
 }  // namespace hh

@@ -52,6 +52,7 @@ struct World::ContactSetup {
         std::unique_ptr<ReducedColumns> columns;
         std::vector<double> form_seconds;  // per share
         bool shared = false;               // formed in shares (else all at setup)
+        int formed = 0;                    // contacts whose columns were formed (shares and sweeps)
     };
     std::vector<GroupSolve> group_solve;
     std::map<int, VecX> u_body;    // per body: its share of u_free on its rows
