@@ -960,8 +960,9 @@ ReducedColumns::ReducedColumns(const ReducedContactProblem& p, const VecX* warm)
     // the single-precision round-off (~1e-7 relative) does not accumulate; the paper bunny's
     // ~2 MB stay double (the copy cost more than it saved there). No double copy is kept
     // then: each contact's columns are formed in double in a scratch and rounded (the copy
-    // was written and read once: 9 MB a 10x bunny frame); each contact's own 3x3 block of W and
-    // the subspace step's blocks between contacts are taken from C itself.
+    // was written and read once: 9 MB a 10x bunny frame); each contact's own 3x3 block of W is
+    // taken from its columns as they are formed, the subspace step's blocks between contacts
+    // from C itself.
     const bool single = p.single_columns == 1 || (p.single_columns < 0 && bytes > kSingleColumnsBytes);
     for (int b = 0; b < nb; ++b) {  // (each contact's share writes its own columns)
         if (single) hs.emplace_back(p.bodies[b].C.rows(), columns[b]);

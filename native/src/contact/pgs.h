@@ -80,7 +80,7 @@ struct ReducedColumns {
     std::vector<std::vector<std::pair<int, int>>> parts;  // per contact: (body, first column in h[body])
     std::vector<Mat3> blocks;                             // per contact: its 3x3 diagonal block of W (once formed)
     std::vector<unsigned char> up_front;                  // per contact: formed by the shares
-    std::vector<unsigned char> formed;                    // per contact: its columns are formed
+    std::vector<unsigned char> formed;                    // per contact: its columns (and block) are formed
     size_t bytes = 0;                                     // of the columns in double
     int formed_count() const;
 
