@@ -96,6 +96,7 @@ class WorldParams(ctypes.Structure):
         ("contact_patch", ctypes.c_double),
         ("max_iterations", ctypes.c_int),
         ("tolerance", ctypes.c_double),
+        ("stall_factor", ctypes.c_double),
         ("threads", ctypes.c_int),
     ]
 

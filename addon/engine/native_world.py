@@ -41,7 +41,7 @@ class World:
 
     def __init__(self, dt: float = 1 / 30, gravity=(0.0, 0.0, -9.81), contact_thickness: float = 1e-3,
                  contact_patch: float = 4e-3, max_iterations: int = 300, tolerance: float = 1e-5,
-                 threads: int = 2):
+                 threads: int = 2, stall_factor: float = 4.0):
         p = WorldParams()
         library().hh_default_world_params(ctypes.byref(p))
         p.dt = float(dt)
@@ -50,6 +50,7 @@ class World:
         p.contact_patch = float(contact_patch)
         p.max_iterations = int(max_iterations)
         p.tolerance = float(tolerance)
+        p.stall_factor = float(stall_factor)
         p.threads = int(threads)
         handle = ctypes.c_void_p()
         _check(library().hh_world_create(ctypes.byref(p), ctypes.byref(handle)))

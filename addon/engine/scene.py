@@ -36,7 +36,8 @@ DEFAULTS = {
         "kinetic_friction": None,
         "self_collision": True,
     },
-    "contact": {"thickness": 1e-3, "patch": 4e-3, "max_iterations": 300, "tolerance": 1e-5, "threads": 2},
+    "contact": {"thickness": 1e-3, "patch": 4e-3, "max_iterations": 300, "tolerance": 1e-5, "stall_factor": 4.0,
+                "threads": 2},
     "bodies": [],
     "material": {"young_modulus": 5e4, "poisson_ratio": 0.3, "density": 1000.0,
                  "rayleigh_alpha": 0.0, "rayleigh_beta": 0.01},
@@ -235,6 +236,12 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     for key in ("thickness", "patch", "tolerance"):
         _positive(merged["contact"][key], f"contact.{key}")
     _positive(merged["contact"]["max_iterations"], "contact.max_iterations", integer=True)
+    stall = merged["contact"]["stall_factor"]
+    if not (isinstance(stall, (int, float)) and not isinstance(stall, bool) and math.isfinite(stall)
+            and (stall == 0 or stall >= 1)):
+        raise SceneError(f"contact.stall_factor = {stall!r} is invalid: use 0 (the sweeps go on to contact.tolerance "
+                         "or contact.max_iterations) or a factor of at least 1 (default 4: they may end once within "
+                         "4x the tolerance and no longer on course to reach it)")
     if isinstance(merged["contact"]["threads"], bool) or merged["contact"]["threads"] not in (1, 2):
         raise SceneError(f"contact.threads = {merged['contact']['threads']!r} is invalid: use 1 (the visual loop on "
                          "one thread) or 2 (collision detection and a share of the solves on a second one)")

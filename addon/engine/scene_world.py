@@ -16,7 +16,7 @@ def build_world(scene: scenes.Scene, progress=None):
     c = scene.data["contact"]
     world = native_world.World(dt=scene.dt, gravity=scene.data["gravity"], contact_thickness=c["thickness"],
                                contact_patch=c["patch"], max_iterations=c["max_iterations"], tolerance=c["tolerance"],
-                               threads=c["threads"])
+                               threads=c["threads"], stall_factor=c["stall_factor"])
     tet_index, weights = meshing.embed_points(scene.nodes, scene.tets, scene.surface_vertices)
     sn, sw = native_world.embedded_surface(scene.tets, tet_index, weights)
     hand_spec = scene.data["hand"]

@@ -181,6 +181,10 @@ typedef struct hh_world_params {
                                  of this size, which bounds the contact count of large areas */
     int max_iterations;       /* projected Gauss-Seidel sweeps, > 0 */
     double tolerance;         /* m/s, > 0: largest constraint velocity error that ends the sweeps */
+    double stall_factor;      /* 0, or >= 1 (default 4): the sweeps also end once their residual is
+                                 within this factor of the tolerance and, at their recent rate, the
+                                 tolerance is out of reach within max_iterations; 0: they go on to
+                                 the tolerance or max_iterations */
     int threads;              /* 1 or 2 (default): with 2, a second thread runs collision detection
                                  and a share of the bodies' solves side by side with the caller's
                                  (same results; the haptic loop's thread is separate) */

@@ -80,6 +80,30 @@ ReducedContactProblem element_on_plane(std::mt19937& rng, int c, double side = 0
     return p;
 }
 
+// `elements` of those elements on the plane as one problem (each element a body of its own),
+// `per` contacts each: with 8 x 60, far more active contacts than the subspace step takes.
+ReducedContactProblem elements_on_plane(std::mt19937& rng, int elements, int per) {
+    ReducedContactProblem p;
+    p.dt = 1.0 / 30;
+    p.begin.assign(1, 0);
+    for (int k = 0; k < elements; ++k) {
+        const ReducedContactProblem e = element_on_plane(rng, per);
+        p.bodies.push_back(e.bodies[0]);
+        for (int i = 0; i < per; ++i) {
+            for (int j = e.begin[i]; j < e.begin[i + 1]; ++j) p.entries.push_back({k, e.entries[j].index, e.entries[j].coefficient});
+            p.begin.push_back(static_cast<int>(p.entries.size()));
+        }
+        p.u_free.conservativeResize(3 * per * (k + 1));
+        p.u_free.tail(3 * per) = e.u_free;
+        for (const VecX* from : {&e.gap, &e.friction, &e.kinetic}) {
+            VecX& to = from == &e.gap ? p.gap : (from == &e.friction ? p.friction : p.kinetic);
+            to.conservativeResize(per * (k + 1));
+            to.tail(per) = *from;
+        }
+    }
+    return p;
+}
+
 // Every condition of the contact problem, checked on the dense W independently of the solver.
 double dense_residual(const ReducedContactProblem& p, const MatX& w, const VecX& lambda) {
     const VecX u = p.u_free + w * lambda;
@@ -393,24 +417,7 @@ TEST(large_problems_leave_settled_contacts_out_and_still_meet_every_condition) {
     std::srand(7);
     std::mt19937 rng(7);
     const int elements = 8, per = 60;
-    ReducedContactProblem p;
-    p.dt = 1.0 / 30;
-    p.begin.assign(1, 0);
-    for (int k = 0; k < elements; ++k) {  // eight elements on the plane, as one problem
-        const ReducedContactProblem e = element_on_plane(rng, per);
-        p.bodies.push_back(e.bodies[0]);
-        for (int i = 0; i < per; ++i) {
-            for (int j = e.begin[i]; j < e.begin[i + 1]; ++j) p.entries.push_back({k, e.entries[j].index, e.entries[j].coefficient});
-            p.begin.push_back(static_cast<int>(p.entries.size()));
-        }
-        p.u_free.conservativeResize(3 * per * (k + 1));
-        p.u_free.tail(3 * per) = e.u_free;
-        for (const VecX* from : {&e.gap, &e.friction, &e.kinetic}) {
-            VecX& to = from == &e.gap ? p.gap : (from == &e.friction ? p.friction : p.kinetic);
-            to.conservativeResize(per * (k + 1));
-            to.tail(per) = *from;
-        }
-    }
+    ReducedContactProblem p = elements_on_plane(rng, elements, per);
     for (int columns : {0, 1}) {
         p.single_columns = columns;
         VecX lambda;
@@ -484,5 +491,48 @@ TEST(columns_formed_as_the_sweeps_need_them_give_the_same_impulses) {
             CHECK(ra.residual == rb.residual);
             CHECK(la == lb);
         }
+    }
+}
+
+TEST(sweeps_that_stall_near_the_tolerance_end_early_within_the_factor) {
+    // The eight elements of the test above (too many active contacts for the subspace step)
+    // crawl near the tolerance. Reference: no stall stop and a cap far beyond need.
+    std::mt19937 rng(7);
+    const ReducedContactProblem p = elements_on_plane(rng, 8, 60);
+    const double tolerance = 1e-6, factor = 4;
+    const MatX w = p.delassus();
+    VecX reference;
+    const PgsResult converged = solve_pgs(p, reference, 20000, tolerance);
+    CHECK(converged.residual <= tolerance);
+    // With the stall stop and that cap, the sweeps' rate brings the tolerance within reach:
+    // nothing changes.
+    VecX lambda;
+    PgsResult res = solve_pgs(p, lambda, 20000, tolerance, factor);
+    CHECK(res.iterations == converged.iterations);
+    CHECK((lambda - reference).cwiseAbs().maxCoeff() == 0);
+    // A cap that does not leave room for the tolerance. The first sweep count (in tens) where
+    // the residual is within 2x the tolerance, and a cap a quarter of the way from there to
+    // where the tolerance is met.
+    int near = 10;
+    for (;; near += 10) {
+        VecX l;
+        if (solve_pgs(p, l, near, tolerance).residual <= 2 * tolerance) break;
+    }
+    const int cap = near + (converged.iterations - near) / 4;
+    // without the stall stop: on to the cap, above the tolerance
+    VecX plain;
+    const PgsResult capped = solve_pgs(p, plain, cap, tolerance);
+    CHECK(capped.iterations == cap);
+    CHECK(capped.residual > tolerance);
+    // with it: an earlier end, within the factor of the tolerance by the solver's count and on
+    // the dense W
+    lambda.resize(0);
+    res = solve_pgs(p, lambda, cap, tolerance, factor);
+    CHECK(res.iterations < cap);
+    CHECK(res.residual <= factor * tolerance);
+    CHECK_LT(dense_residual(p, w, lambda), factor * tolerance * (1 + 1e-6));
+    for (int i = 0; i < 480; ++i) {
+        CHECK(lambda[3 * i] >= 0);
+        CHECK(std::hypot(lambda[3 * i + 1], lambda[3 * i + 2]) <= p.friction[i] * lambda[3 * i] * (1 + 1e-12) + 1e-15);
     }
 }

@@ -245,6 +245,16 @@ def test_a_soft_body_solver_is_checked():
     world.step()  # (the body steps on the reused factor)
 
 
+@pytest.mark.parametrize("factor", [-1.0, 0.5, float("nan"), float("inf"), True, "4"])
+def test_bad_stall_factors_are_named(factor):
+    # 0 (off) or at least 1: a factor below 1 would never let the sweeps stop before the tolerance
+    with pytest.raises(scenes.SceneError, match="contact.stall_factor"):
+        scenes.from_dict({"format": scenes.FORMAT, "contact": {"stall_factor": factor}})
+    if isinstance(factor, float):
+        with pytest.raises(native.InvalidInput, match="stall_factor"):
+            W.World(stall_factor=factor)
+
+
 @pytest.mark.parametrize("threads", [0, 3, True, 1.5])
 def test_bad_thread_counts_are_named(threads):
     with pytest.raises(scenes.SceneError, match="contact.threads"):

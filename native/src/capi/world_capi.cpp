@@ -66,6 +66,7 @@ void hh_default_world_params(hh_world_params* p) {
     p->contact_patch = 4e-3;
     p->max_iterations = 300;
     p->tolerance = 1e-5;
+    p->stall_factor = 4;
     p->threads = 2;
 }
 
@@ -92,6 +93,9 @@ int hh_world_create(const hh_world_params* p, hh_world** out) {
         require_finite_positive(p->contact_patch, "contact_patch", "a positive distance in metres (e.g. 4e-3)");
         require(p->max_iterations > 0, "max_iterations must be positive");
         require_finite_positive(p->tolerance, "tolerance", "a positive speed in m/s (e.g. 1e-5)");
+        require(std::isfinite(p->stall_factor) && (p->stall_factor == 0 || p->stall_factor >= 1),
+                "stall_factor = " + std::to_string(p->stall_factor) +
+                    " is invalid: use 0 (sweep to the tolerance or max_iterations) or a factor of at least 1 (e.g. 4)");
         require(p->threads == 1 || p->threads == 2,
                 "threads = " + std::to_string(p->threads) + " is invalid: use 1 (all on the caller's thread) or 2");
         hh::WorldSettings s;
@@ -101,6 +105,7 @@ int hh_world_create(const hh_world_params* p, hh_world** out) {
         s.contact_patch = p->contact_patch;
         s.max_iterations = p->max_iterations;
         s.tolerance = p->tolerance;
+        s.stall_factor = p->stall_factor;
         s.threads = p->threads;
         *out = new hh_world(s);
         return HH_OK;

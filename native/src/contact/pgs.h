@@ -94,12 +94,17 @@ struct PgsResult {
 };
 
 // lambda: in, a warm start when it has 3c entries (the previous step's impulses of the same
-// contacts); out, the impulses. Sweeps end when every condition holds to `tolerance` m/s.
-PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, double tolerance);
-PgsResult solve_pgs(const ReducedContactProblem& p, VecX& lambda, int max_iterations, double tolerance);
+// contacts); out, the impulses. Sweeps end when every condition holds to `tolerance` m/s, or
+// after max_iterations; with stall_factor > 0 (at least 1) also once they stall near the
+// tolerance: their residual within stall_factor x tolerance and, at the rate of their last
+// kStallWindow sweeps (pgs.cpp), the tolerance out of reach within max_iterations.
+PgsResult solve_pgs(const ContactProblem& p, VecX& lambda, int max_iterations, double tolerance,
+                    double stall_factor = 0);
+PgsResult solve_pgs(const ReducedContactProblem& p, VecX& lambda, int max_iterations, double tolerance,
+                    double stall_factor = 0);
 // the same on columns formed beforehand (every share of them)
 // (the sweeps form the columns the shares left out as they need them)
 PgsResult solve_pgs(const ReducedContactProblem& p, ReducedColumns& columns, VecX& lambda, int max_iterations,
-                    double tolerance);
+                    double tolerance, double stall_factor = 0);
 
 }  // namespace hh

@@ -84,6 +84,8 @@ struct WorldSettings {
     double contact_patch = 4e-3;      // m: one contact per cell of this size per pair of bodies
     int max_iterations = 300;         // projected Gauss-Seidel sweeps (resting contacts end far sooner)
     double tolerance = 1e-5;          // m/s: largest constraint velocity error that ends the sweeps
+    // the sweeps also end once they stall within this factor of the tolerance (solve_pgs); 0: never
+    double stall_factor = 4;
     // 2: a second thread takes parts of the step (detection, bodies' solves, contact groups)
     // beside the caller's (the results are the same as with 1, bit for bit: only parts that do
     // not depend on each other run side by side; see World::step)

@@ -502,7 +502,8 @@ void World::solve_contact_group(int group) {
     ContactSetup& cs = *setup_;
     ContactSetup::GroupSolve& gs = cs.group_solve[group];
     ContactGroup& g = contact_groups[group];
-    const PgsResult res = solve_pgs(gs.problem, *gs.columns, gs.lambda, settings.max_iterations, settings.tolerance);
+    const PgsResult res = solve_pgs(gs.problem, *gs.columns, gs.lambda, settings.max_iterations, settings.tolerance,
+                                    settings.stall_factor);
     g.iterations = res.iterations;
     g.residual = res.residual;
     for (size_t i = 0; i < g.contacts.size(); ++i) cs.lambda.segment<3>(3 * g.contacts[i]) = gs.lambda.segment<3>(3 * i);
