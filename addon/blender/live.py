@@ -85,7 +85,6 @@ def start(context, session_factory=None) -> LiveState:
 def _start(context, export, device, factory) -> LiveState:
     bscene = context.scene
     s = bscene.haptic_hand
-    export.scene.data["dt"] = float(s.time_step)
     deformed = [("hand", export.hand, export.hand_rest_matrix)]
     deformed += [(b.name, b.obj, b.rest_matrix) for b in export.bodies if b.role == "SOFT"]
     for name, obj, _ in deformed:
@@ -93,7 +92,7 @@ def _start(context, export, device, factory) -> LiveState:
             raise LiveError(f"'{obj.name}' is driven by a bake (shape keys or a Mesh Cache): press Free Bake "
                             "before a live session")
     try:
-        session = factory(export.scene, device=device, haptic_rate=float(s.haptic_rate))
+        session = factory(export.scene, device=device)
     except (scenes.SceneError, meshing.MeshError, native.NativeError, ValueError, OSError) as e:
         raise LiveError(f"The live session could not start: {e}") from None
     state = LiveState(session, export)
@@ -161,7 +160,7 @@ def update(context, state: LiveState) -> bool:
         "device_position": np.asarray(frame.device_position) / scale,
         "proxy_position": np.asarray(frame.proxy_position) / scale,
         "force": np.asarray(frame.force), "force_scale": draw.FORCE_SCALE / scale,
-        "radius": context.scene.haptic_hand.handle_radius / scale,
+        "radius": context.scene.haptic_hand.handle_radius_si / scale,
     }
     return True
 

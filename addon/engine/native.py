@@ -17,7 +17,7 @@ HH_OK = 0
 HH_ERR_INVALID_ARGUMENT = -1
 HH_ERR_NUMERICAL = -2
 SOLVERS = {"cholesky": 0, "cg": 1, "reused_cholesky": 2}
-API_VERSION = 1
+API_VERSION = 2
 
 _HERE = Path(__file__).resolve().parent
 LIBRARY_NAME = "libhaptic_hand.so"
@@ -33,30 +33,6 @@ class InvalidInput(NativeError, ValueError):
 
 class NumericalFailure(NativeError):
     """A solve failed or produced non-finite values."""
-
-
-class Params(ctypes.Structure):
-    _fields_ = [
-        ("struct_size", ctypes.c_int),
-        ("young_modulus", ctypes.c_double),
-        ("poisson_ratio", ctypes.c_double),
-        ("density", ctypes.c_double),
-        ("rayleigh_alpha", ctypes.c_double),
-        ("rayleigh_beta", ctypes.c_double),
-        ("palm_seed", ctypes.c_double * 3),
-        ("handle_radius", ctypes.c_double),
-        ("spring_stiffness", ctypes.c_double),
-        ("spring_damping", ctypes.c_double),
-        ("coupling_stiffness", ctypes.c_double),
-        ("coupling_damping", ctypes.c_double),
-        ("coupling_angular_stiffness", ctypes.c_double),
-        ("coupling_angular_damping", ctypes.c_double),
-        ("gravity", ctypes.c_double * 3),
-        ("dt", ctypes.c_double),
-        ("solver", ctypes.c_int),
-        ("cg_tolerance", ctypes.c_double),
-        ("cg_max_iterations", ctypes.c_int),
-    ]
 
 
 class ModelInfo(ctypes.Structure):
@@ -85,31 +61,6 @@ class StepStats(ctypes.Structure):
 
     def as_dict(self) -> dict:
         return {name: getattr(self, name) for name, _ in self._fields_}
-
-
-class WorldParams(ctypes.Structure):
-    _fields_ = [
-        ("struct_size", ctypes.c_int),
-        ("dt", ctypes.c_double),
-        ("gravity", ctypes.c_double * 3),
-        ("contact_thickness", ctypes.c_double),
-        ("contact_patch", ctypes.c_double),
-        ("max_iterations", ctypes.c_int),
-        ("tolerance", ctypes.c_double),
-        ("stall_factor", ctypes.c_double),
-        ("threads", ctypes.c_int),
-    ]
-
-
-class Material(ctypes.Structure):
-    _fields_ = [
-        ("struct_size", ctypes.c_int),
-        ("young_modulus", ctypes.c_double),
-        ("poisson_ratio", ctypes.c_double),
-        ("density", ctypes.c_double),
-        ("rayleigh_alpha", ctypes.c_double),
-        ("rayleigh_beta", ctypes.c_double),
-    ]
 
 
 class WorldStats(ctypes.Structure):
@@ -172,13 +123,17 @@ def _declare(lib: ctypes.CDLL) -> None:
     sig = {
         "hh_last_error": ([], ctypes.c_char_p),
         "hh_api_version": ([], i),
-        "hh_default_params": ([ctypes.POINTER(Params)], None),
-        "hh_model_create": ([pd, i, pi, i, ctypes.POINTER(Params), ctypes.POINTER(vp)], i),
+        "hh_param_count": ([], i),
+        "hh_param_info_get": ([i, vp], i),
+        "hh_struct_size": ([i, pi], i),
+        "hh_param_check": ([ctypes.c_char_p, pd, i], i),
+        "hh_default_params": ([vp], None),
+        "hh_model_create": ([pd, i, pi, i, vp, ctypes.POINTER(vp)], i),
         "hh_model_free": ([vp], None),
         "hh_model_info_get": ([vp, ctypes.POINTER(ModelInfo)], i),
         "hh_model_handle_nodes": ([vp, pi, i], i),
         "hh_model_lumped_masses": ([vp, pd, i], i),
-        "hh_model_params": ([vp, ctypes.POINTER(Params)], i),
+        "hh_model_params": ([vp, vp], i),
         "hh_count_captured": ([pd, i, pd, d, pi], i),
         "hh_data_create": ([vp, ctypes.POINTER(vp)], i),
         "hh_data_free": ([vp], None),
@@ -196,12 +151,12 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hh_energies": ([vp, vp, pd, pd, pd], i),
         "hh_linear_momentum": ([vp, vp, pd], i),
         # worlds (scenes with contact)
-        "hh_default_world_params": ([ctypes.POINTER(WorldParams)], None),
-        "hh_default_material": ([ctypes.POINTER(Material)], None),
-        "hh_world_create": ([ctypes.POINTER(WorldParams), ctypes.POINTER(vp)], i),
+        "hh_default_world_params": ([vp], None),
+        "hh_default_material": ([vp], None),
+        "hh_world_create": ([vp, ctypes.POINTER(vp)], i),
         "hh_world_free": ([vp], None),
         "hh_world_add_hand": ([vp, vp, pi, pd, i, pi, i, d, i, pi], i),
-        "hh_world_add_soft_body": ([vp, pd, i, pi, i, ctypes.POINTER(Material), pi, i, pi, pd, i, pi, i, d, pi], i),
+        "hh_world_add_soft_body": ([vp, pd, i, pi, i, vp, pi, i, pi, pd, i, pi, i, d, pi], i),
         "hh_world_add_mesh_body": ([vp, i, pd, i, pi, i, d, d, pi], i),
         "hh_world_add_plane": ([vp, pd, pd, d, pi], i),
         "hh_world_set_pose": ([vp, i, pd, pd, pd, pd], i),
@@ -251,46 +206,11 @@ def _ptr(a: np.ndarray | None, ctype=ctypes.c_double):
     return None if a is None else a.ctypes.data_as(ctypes.POINTER(ctype))
 
 
-PARAM_NAMES = [name for name, _ in Params._fields_ if name != "struct_size"]
-
-
 def default_params() -> dict:
-    """The engine's defaults as a dict (solver as its name)."""
-    p = Params()
-    library().hh_default_params(ctypes.byref(p))
-    return _params_to_dict(p)
+    """The hand rig's defaults as {C field name: value} (the solver as its index)."""
+    from . import params
 
-
-def _params_to_dict(p: Params) -> dict:
-    out = {}
-    for name in PARAM_NAMES:
-        value = getattr(p, name)
-        out[name] = list(value) if isinstance(value, ctypes.Array) else value
-    out["solver"] = {v: k for k, v in SOLVERS.items()}[p.solver]
-    return out
-
-
-def _params_from_dict(values: dict) -> Params:
-    p = Params()
-    library().hh_default_params(ctypes.byref(p))
-    for name, value in values.items():
-        if name not in PARAM_NAMES:
-            raise InvalidInput(f"unknown parameter '{name}'; known parameters: {', '.join(PARAM_NAMES)}")
-        if name == "solver":
-            if value not in SOLVERS:
-                raise InvalidInput(f"solver '{value}' is unknown: use one of {', '.join(SOLVERS)}")
-            value = SOLVERS[value]
-        if name in ("palm_seed", "gravity"):
-            v = np.asarray(value, dtype=np.float64)
-            if v.shape != (3,):
-                raise InvalidInput(f"{name} must have 3 components, got {v.shape}")
-            value = (ctypes.c_double * 3)(*v)
-        elif name in ("solver", "cg_max_iterations"):
-            value = int(value)
-        else:
-            value = float(value)
-        setattr(p, name, value)
-    return p
+    return params.struct_values(params.new_struct(params.STRUCT_PARAMS))
 
 
 def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
@@ -300,6 +220,16 @@ def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
     out = ctypes.c_int()
     _check(library().hh_count_captured(_ptr(x), x.shape[0], _ptr(s), float(radius), ctypes.byref(out)))
     return out.value
+
+
+def _solver_index(values: dict) -> dict:
+    """The hand's parameters with the solver given by name turned into its C code."""
+    out = dict(values)
+    if isinstance(out.get("solver"), str):
+        if out["solver"] not in SOLVERS:
+            raise InvalidInput(f"solver '{out['solver']}' is unknown: use one of {', '.join(SOLVERS)}")
+        out["solver"] = SOLVERS[out["solver"]]
+    return out
 
 
 @dataclass
@@ -320,7 +250,9 @@ class HandModel:
         self.tets = np.ascontiguousarray(tets, dtype=np.int32)
         if self.tets.ndim != 2 or self.tets.shape[1] != 4:
             raise InvalidInput(f"tets must be an (m, 4) array, got shape {self.tets.shape}")
-        p = _params_from_dict(params)
+        from . import params as table
+
+        p = table.new_struct(table.STRUCT_PARAMS, _solver_index(params))
         handle = ctypes.c_void_p()
         _check(
             library().hh_model_create(
@@ -366,9 +298,14 @@ class HandModel:
         return out
 
     def params(self) -> dict:
-        p = Params()
+        """The model's parameters as {C field name: value}, the solver by name."""
+        from . import params as table
+
+        p = table.structure(table.STRUCT_PARAMS)()
         _check(library().hh_model_params(self._handle, ctypes.byref(p)))
-        return _params_to_dict(p)
+        out = table.struct_values(p)
+        out["solver"] = {v: k for k, v in SOLVERS.items()}[out["solver"]]
+        return out
 
     def set_solver(self, solver: str, cg_tolerance: float = 1e-8, cg_max_iterations: int = 5000) -> None:
         if solver not in SOLVERS:

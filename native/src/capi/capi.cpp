@@ -21,29 +21,6 @@ extern "C" {
 const char* hh_last_error(void) { return hh::capi::last_error().c_str(); }
 int hh_api_version(void) { return HH_API_VERSION; }
 
-void hh_default_params(hh_params* p) {
-    if (!p) return;
-    std::memset(p, 0, sizeof(*p));
-    p->struct_size = sizeof(hh_params);
-    p->young_modulus = 5e4;  // soft tissue, Pa
-    p->poisson_ratio = 0.3;
-    p->density = 1000;
-    p->rayleigh_alpha = 0;
-    p->rayleigh_beta = 0.01;
-    p->handle_radius = 0.03;
-    p->spring_stiffness = 1e4;
-    p->spring_damping = 10;
-    p->coupling_stiffness = 2e3;
-    p->coupling_damping = 20;
-    p->coupling_angular_stiffness = 20;
-    p->coupling_angular_damping = 0.2;
-    p->gravity[2] = -9.81;
-    p->dt = 1.0 / 30.0;
-    p->solver = HH_SOLVER_CHOLESKY;
-    p->cg_tolerance = 1e-8;
-    p->cg_max_iterations = 5000;
-}
-
 int hh_model_create(const double* rest_positions, int n_nodes, const int* tets, int n_tets,
                     const hh_params* params, hh_model** out_model) {
     return guard([&] {
