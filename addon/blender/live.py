@@ -18,6 +18,7 @@ import bpy
 
 from ..engine import mesh as meshing
 from ..engine import native, native_world
+from ..engine.session import LiveSession
 from ..engine import scene as scenes
 from . import draw, meshdata, scene_export
 
@@ -57,15 +58,6 @@ def device_name(s) -> str:
     return DEVICES[s.device]
 
 
-def _session_class():
-    try:
-        from ..engine import session
-    except ImportError as e:
-        raise LiveError("Live sessions need haptic_hand.engine.session, which this build lacks "
-                        f"({e}): update the add-on, or bake instead") from None
-    return session.LiveSession
-
-
 def start(context, session_factory=None) -> LiveState:
     """Export the scene, start a session and remember the meshes it will move. Raises
     LiveError / ExportError with the fix; on error nothing is left running or changed."""
@@ -76,7 +68,7 @@ def start(context, session_factory=None) -> LiveState:
     device = device_name(s)
     export = scene_export.export(context, bscene.frame_start, max(bscene.frame_end, bscene.frame_start + 1))
     try:
-        return _start(context, export, device, session_factory or _session_class())
+        return _start(context, export, device, session_factory or LiveSession)
     except Exception:
         export.cleanup()
         raise

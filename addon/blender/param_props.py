@@ -90,6 +90,7 @@ def _length(p: params.Param, update) -> dict:
 
     limits = _limits(p)
     stored = bpy.props.FloatProperty(default=p.default_value[0], options={"HIDDEN"},
+                                     description=f"{p.label} in metres (what the engine gets)",
                                      **{k: v for k, v in limits.items() if k in ("min", "max")})
     shown = bpy.props.FloatProperty(name=p.label, description=tooltip(p), get=get, set=set, unit="LENGTH",
                                     precision=4, update=update, **limits)

@@ -147,8 +147,8 @@ class HapticSceneSettings(bpy.types.PropertyGroup):
                               description="How the bake stores the motion")
     bake_range_set: BoolProperty(default=False, options={"HIDDEN"},
                                  description="The bake has a frame range of its own (else the scene's)")
-    stored_bake_frame_start: IntProperty(default=1, options={"HIDDEN"})
-    stored_bake_frame_end: IntProperty(default=250, options={"HIDDEN"})
+    stored_bake_frame_start: IntProperty(default=1, options={"HIDDEN"}, description="The bake's own start frame")
+    stored_bake_frame_end: IntProperty(default=250, options={"HIDDEN"}, description="The bake's own end frame")
     bake_frame_start: IntProperty(name="Start", min=0, get=_frame_range_accessors("start")[0],
                                   set=_frame_range_accessors("start")[1],
                                   description="First frame of the bake (the scene's start until you change it)")

@@ -140,13 +140,10 @@ def check_seed(scene, nodes, tets) -> np.ndarray:
         raise ExportError(
             f"The palm seed '{s.seed.name}' is outside the hand's tet mesh (about {max(gap, 0) * 1000:.0f} mm out): "
             "move it inside the palm, or press Place Seed to snap it in")
-    count = native.count_captured(nodes, seed, s.handle_radius_si)
-    if count < 4:
-        raise ExportError(f"The handle sphere (radius {s.handle_radius_si * 1000:.1f} mm) captures {count} tet nodes; "
-                          "a rigid handle needs at least 4: increase Handle radius or move the seed")
-    if count >= len(nodes):
-        raise ExportError(f"The handle sphere (radius {s.handle_radius_si * 1000:.1f} mm) captures all {count} tet "
-                          "nodes, leaving no flesh: decrease Handle radius")
+    try:
+        native.check_handle(nodes, seed, s.handle_radius_si)
+    except native.InvalidInput as e:
+        raise ExportError(f"The palm seed '{s.seed.name}': {e} (Haptic Hand > Rig > Handle radius)") from None
     return seed
 
 

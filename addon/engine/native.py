@@ -135,6 +135,7 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hh_model_lumped_masses": ([vp, pd, i], i),
         "hh_model_params": ([vp, vp], i),
         "hh_count_captured": ([pd, i, pd, d, pi], i),
+        "hh_check_handle": ([pd, i, pd, d, pi], i),
         "hh_data_create": ([vp, ctypes.POINTER(vp)], i),
         "hh_data_free": ([vp], None),
         "hh_data_reset": ([vp, vp], i),
@@ -230,6 +231,16 @@ def _solver_index(values: dict) -> dict:
             raise InvalidInput(f"solver '{out['solver']}' is unknown: use one of {', '.join(SOLVERS)}")
         out["solver"] = SOLVERS[out["solver"]]
     return out
+
+
+def check_handle(nodes: np.ndarray, seed, radius: float) -> int:
+    """The nodes a handle sphere captures; InvalidInput (the model's own message) when it would
+    hold fewer than 4 nodes or all of them."""
+    x = _f64(nodes)
+    s = _f64(seed, (3,), "palm_seed")
+    out = ctypes.c_int()
+    _check(library().hh_check_handle(_ptr(x), x.shape[0], _ptr(s), float(radius), ctypes.byref(out)))
+    return out.value
 
 
 @dataclass

@@ -36,7 +36,7 @@ class ScriptedInputs:
     """What drives a scene without haptics: the device trajectory, through the virtual coupling,
     applied for the step that ends at time t (kinematic bodies follow their scripts natively)."""
 
-    def __init__(self, scene: scenes.Scene, world, hand: int, model, others):
+    def __init__(self, scene: scenes.Scene, world, hand: int, model):
         self.world, self.hand = world, hand
         self.device = scene.trajectory(np.array(model.info()["handle_com"]))
         self.device_on = bool(scene.data["device"]["enabled"])
@@ -51,7 +51,7 @@ def run(scene: scenes.Scene, progress=None) -> dict:
     """Simulates scene.frames visual-loop steps and returns the result arrays."""
     world, hand, model, others, (tet_index, weights) = build_world(
         scene, progress=(lambda f, m: progress(0.2 * f, m)) if progress else None)
-    inputs = ScriptedInputs(scene, world, hand, model, others)
+    inputs = ScriptedInputs(scene, world, hand, model)
     trajectory = inputs.device
     frames, dt, n = scene.frames, scene.dt, model.n_nodes
     haptics = None

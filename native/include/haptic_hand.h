@@ -136,6 +136,10 @@ int hh_model_params(const hh_model* model, hh_params* out);
 /* Nodes a handle of this radius would capture (without building a model). */
 int hh_count_captured(const double* rest_positions, int n_nodes, const double seed[3],
                       double radius, int* out_count);
+/* The same count, and HH_ERR_INVALID_ARGUMENT with hh_model_create's message when the handle
+ * would hold fewer than 4 nodes or all of them. */
+int hh_check_handle(const double* rest_positions, int n_nodes, const double seed[3], double radius,
+                    int* out_count);
 
 /* --- data (state) --- */
 int hh_data_create(const hh_model* model, hh_data** out_data);

@@ -88,6 +88,16 @@ int hh_count_captured(const double* rest_positions, int n_nodes, const double se
     });
 }
 
+int hh_check_handle(const double* rest_positions, int n_nodes, const double seed[3], double radius, int* out_count) {
+    return guard([&] {
+        require(rest_positions && seed && out_count && n_nodes >= 0, "hh_check_handle: bad arguments");
+        const hh::VecX rest = Eigen::Map<const hh::VecX>(rest_positions, 3 * n_nodes);
+        *out_count = static_cast<int>(hh::capture_nodes(rest, vec3(seed), radius).size());
+        hh::check_capture(*out_count, n_nodes, radius);
+        return HH_OK;
+    });
+}
+
 int hh_data_create(const hh_model* model, hh_data** out_data) {
     return guard([&] {
         require(model && out_data, "hh_data_create: null pointer");
