@@ -4,10 +4,14 @@ deformed surfaces into the Blender meshes and the rigid bodies' poses into their
 The UI thread never steps the simulation: it only reads the newest frame the visual loop
 published. Esc (or Stop) ends the session and puts every object back as it was.
 
+With Live Session > Record on, stopping saves the session's haptic log (the device stream and
+the felt force, one row per haptic step, plus the frames Blender showed) to the Recording file;
+Bake Recording replays it through the Playback device.
+
 The per-frame work is plain functions, so tests drive a session without a window:
     state = start(context)            # export, create and start the session
     update(context, state)            # one viewport frame (what the timer calls)
-    stop(context, state)              # join the threads, restore the scene
+    stop(context, state)              # join the threads, save the recording, restore the scene
 """
 
 from __future__ import annotations
@@ -16,15 +20,14 @@ import numpy as np
 
 import bpy
 
+from ..engine import bake_formats, devices
 from ..engine import mesh as meshing
 from ..engine import native, native_world
 from ..engine.session import LiveSession
 from ..engine import scene as scenes
-from . import draw, meshdata, scene_export
+from . import draw, meshdata, runtime, scene_export
 
 DEVICES = {"SIMULATED": "simulated", "OPENHAPTICS": "openhaptics", "HID": "hid", "TARGET": "external"}
-
-_state = None  # the running session's LiveState (one at a time)
 
 
 class LiveError(RuntimeError):
@@ -43,6 +46,10 @@ class LiveState:
         self.last_frame = None
         self.target = None      # (object, rest position m, rest quaternion) for the viewport target
         self.handle_com = None
+        self.recording = None   # where stop() saves the recording (absolute), or None
+        self.recorded = None    # the file stop() wrote
+        self.record_error = None
+        self.shown = []         # (time, handle pose, device pose) of every frame written
 
 
 def device_name(s) -> str:
@@ -85,7 +92,7 @@ def _start(context, export, device, factory) -> LiveState:
                             "before a live session")
     try:
         session = factory(export.scene, device=device)
-    except (scenes.SceneError, meshing.MeshError, native.NativeError, ValueError, OSError) as e:
+    except (scenes.SceneError, meshing.MeshError, native.NativeError, devices.DeviceError, ValueError, OSError) as e:
         raise LiveError(f"The live session could not start: {e}") from None
     state = LiveState(session, export)
     for name, obj, rest in deformed:
@@ -94,10 +101,12 @@ def _start(context, export, device, factory) -> LiveState:
     for b in export.bodies:
         if b.role in ("RIGID", "MOVING"):
             kind = native_world.RIGID if b.role == "RIGID" else native_world.KINEMATIC
-            v = meshdata.world_vertices(b.obj, bscene)
+            v = scene_export.rest_vertices(b.obj, bscene)
             centre = scene_export._kinematic_centre(v, meshdata.triangles(b.obj.data), kind)
             state.rigid[b.name] = (b.obj, b.rest_matrix, centre)
             state.saved_matrices[b.obj.name] = b.obj.matrix_world.copy()
+    if s.live_record and s.live_recording:
+        state.recording = bpy.path.abspath(s.live_recording)
     if s.device == "TARGET":
         m = meshdata.matrix(s.target)
         state.target = (s.target, m[:3, 3] * export.scale, m)
@@ -146,6 +155,8 @@ def update(context, state: LiveState) -> bool:
             obj.matrix_world = mathutils.Matrix(m.tolist())
     state.frames_written += 1
     state.last_frame = frame
+    state.shown.append((frame.time, np.concatenate([frame.handle_position, frame.handle_quaternion]),
+                        np.concatenate([frame.device_position, frame.device_quaternion])))
     draw.overlay = {
         "handle_position": np.asarray(frame.handle_position) / scale,
         "handle_quaternion": np.asarray(frame.handle_quaternion),
@@ -157,10 +168,29 @@ def update(context, state: LiveState) -> bool:
     return True
 
 
+def save_recording(state: LiveState) -> None:
+    """The session's haptic log (haptic_t, haptic_device_position, haptic_force, ...) and the
+    frames Blender showed (time, handle_pose, device_pose) to state.recording."""
+    log = {f"haptic_{k}": np.asarray(v) for k, v in state.session.haptic_log().items()}
+    if not len(log.get("haptic_t", ())):
+        raise LiveError("the session ran no haptic step: nothing to record")
+    if state.shown:
+        log["time"] = np.array([t for t, _, _ in state.shown])
+        log["handle_pose"] = np.array([h for _, h, _ in state.shown])
+        log["device_pose"] = np.array([d for _, _, d in state.shown])
+    state.recorded = bake_formats.write_log(state.recording, log)
+
+
 def stop(context, state: LiveState) -> None:
-    """Stop the session and put the meshes and objects back as they were. Never raises."""
+    """Stop the session, save its recording (state.record_error says why not) and put the
+    meshes and objects back as they were. Never raises."""
     try:
         state.session.stop()
+        if state.recording:
+            try:
+                save_recording(state)
+            except (OSError, ValueError, LiveError) as e:
+                state.record_error = f"The recording could not be saved to {state.recording}: {e}"
     finally:
         draw.overlay = None
         for name, (obj, _) in state.surfaces.items():
@@ -184,21 +214,20 @@ class HAPTIC_HAND_OT_live(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         s = context.scene.haptic_hand
-        if s.live_running or s.bake_running:
-            cls.poll_message_set("A live session or bake is already running")
+        busy = runtime.state.busy()
+        if busy:
+            cls.poll_message_set(busy)
             return False
         return s.hand is not None and context.mode == "OBJECT"
 
     def invoke(self, context, event):
-        global _state
         try:
             self.state = start(context)
-        except (LiveError, scene_export.ExportError, meshing.MeshError, native.NativeError) as e:
+        except (LiveError, scene_export.ExportError, meshing.MeshError, native.NativeError, devices.DeviceError,
+                OSError, ValueError) as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        _state = self.state
-        s = context.scene.haptic_hand
-        s.live_running, s.live_stop = True, False
+        runtime.state.live, runtime.state.live_stop = self.state, False
         wm = context.window_manager
         self.timer = wm.event_timer_add(1.0 / 60.0, window=context.window)
         wm.modal_handler_add(self)
@@ -210,10 +239,13 @@ class HAPTIC_HAND_OT_live(bpy.types.Operator):
         return {"CANCELLED"}
 
     def modal(self, context, event):
-        s = context.scene.haptic_hand
-        if event.type == "ESC" or s.live_stop:
+        if runtime.state.live is not self.state:  # stopped from outside (a file was opened)
+            context.window_manager.event_timer_remove(self.timer)
+            return {"CANCELLED"}
+        if event.type == "ESC" or runtime.state.live_stop:
             self._end(context)
             self.report({"INFO"}, f"Live session stopped after {self.state.frames_written} frames")
+            self._report_recording()
             return {"FINISHED"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
@@ -226,6 +258,7 @@ class HAPTIC_HAND_OT_live(bpy.types.Operator):
         if not alive:
             self._end(context)
             self.report({"INFO"}, "Live session ended (the device stopped)")
+            self._report_recording()
             return {"FINISHED"}
         for area in context.screen.areas if context.screen else []:
             if area.type == "VIEW_3D":
@@ -233,15 +266,19 @@ class HAPTIC_HAND_OT_live(bpy.types.Operator):
         return {"PASS_THROUGH"}
 
     def cancel(self, context):
-        self._end(context)
+        if runtime.state.live is self.state:
+            self._end(context)
 
     def _end(self, context):
-        global _state
         context.window_manager.event_timer_remove(self.timer)
+        runtime.state.live, runtime.state.live_stop = None, False
         stop(context, self.state)
-        s = context.scene.haptic_hand
-        s.live_running, s.live_stop = False, False
-        _state = None
+
+    def _report_recording(self):
+        if self.state.record_error:
+            self.report({"WARNING"}, self.state.record_error)
+        elif self.state.recorded:
+            self.report({"INFO"}, f"Recording saved to {self.state.recorded}: Bake > Bake Recording replays it")
 
 
 class HAPTIC_HAND_OT_live_stop(bpy.types.Operator):
@@ -252,10 +289,10 @@ class HAPTIC_HAND_OT_live_stop(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.scene.haptic_hand.live_running
+        return runtime.state.live is not None
 
     def execute(self, context):
-        context.scene.haptic_hand.live_stop = True
+        runtime.state.live_stop = True
         return {"FINISHED"}
 
 
@@ -268,9 +305,5 @@ def register():
 
 
 def unregister():
-    global _state
-    if _state is not None:
-        stop(bpy.context, _state)
-        _state = None
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

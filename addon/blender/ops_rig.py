@@ -3,12 +3,17 @@ the palm seed, count the nodes the handle captures, check the rig with the engin
 
 from __future__ import annotations
 
+import shutil
+import tempfile
+from pathlib import Path
+
 import bpy
 import numpy as np
 
+from ..engine import child as child_process
 from ..engine import mesh as meshing
 from ..engine import native
-from . import meshdata, scene_export
+from . import meshdata, runtime, scene_export
 
 SEED_NAME = "Palm seed"
 
@@ -61,52 +66,219 @@ class HAPTIC_HAND_OT_use_as_hand(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class TetJob:
+    """One tetrahedralization of a mesh in a child process (fTetWild holds Python's lock for
+    its whole call, so a thread could neither report progress nor be stopped)."""
+
+    def __init__(self, obj, surface: np.ndarray, faces: np.ndarray, options: dict, argv=None):
+        self.obj_name = obj.name
+        self.matrix = meshdata.matrix(obj)
+        self.surface = surface
+        self.folder = Path(tempfile.mkdtemp(prefix="haptic_hand_tets_"))
+        given, self.output = self.folder / "surface.npz", self.folder / "tets.npz"
+        np.savez(given, vertices=surface, faces=faces, **options)
+        self.child = child_process.Child(["tetrahedralize", given, self.output], what="Tetrahedralize's process",
+                                         parse_log=True, argv=argv)
+        self.error = None
+        self.summary = None
+
+    @property
+    def progress(self) -> float:
+        return self.child.progress
+
+    @property
+    def message(self) -> str:
+        return self.child.message
+
+    def start(self) -> "TetJob":
+        self.child.start()
+        return self
+
+    def cancel(self) -> None:
+        self.child.cancel()
+
+    def release(self) -> None:
+        self.child.close()
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+def tet_estimate(obj, scene) -> int:
+    """About how many tets Tetrahedralize will make of obj with its own settings."""
+    o = obj.haptic_hand
+    return child_process.estimate_tets(meshdata.world_vertices(obj, scene), meshdata.triangles(obj.data),
+                                       o.edge_length_fac, o.coarsen)
+
+
+def start_tetrahedralize(context, obj, confirmed: bool = False, argv=None) -> TetJob:
+    """Checks obj's surface and starts the child; MeshError with the fix when the surface
+    cannot be filled, or when the estimate passes Rig > Confirm above and not confirmed."""
+    scene = context.scene
+    o = obj.haptic_hand  # each mesh has its own tetrahedralize settings
+    surface = meshdata.world_vertices(obj, scene)
+    faces = meshdata.triangles(obj.data)
+    try:
+        meshing.check_closed_surface(surface, faces)
+    except meshing.MeshError as e:
+        raise meshing.MeshError(f"Cannot tetrahedralize '{obj.name}': {e}") from None
+    limit = scene.haptic_hand.tet_confirm_limit
+    estimate = child_process.estimate_tets(surface, faces, o.edge_length_fac, o.coarsen)
+    if limit and estimate > limit and not confirmed:
+        raise meshing.MeshError(
+            f"'{obj.name}' would get about {estimate} tets, more than Rig > Confirm above ({limit}): raise Edge "
+            "length, or press Tetrahedralize and confirm (from a script: confirmed=True)")
+    options = dict(edge_length_fac=o.edge_length_fac, coarsen=o.coarsen, epsilon=o.epsilon)
+    return TetJob(obj, surface, faces, options, argv=argv).start()
+
+
+def poll_tetrahedralize(context, job: TetJob) -> str:
+    """'RUNNING', or when the child is done, store the tets and return 'FINISHED', 'CANCELLED'
+    or 'FAILED' (job.error says why). Never raises."""
+    state = job.child.poll()
+    if state == "RUNNING":
+        return "RUNNING"
+    try:
+        if state != "FINISHED":
+            if state == "FAILED":
+                job.error = f"Cannot tetrahedralize '{job.obj_name}': {job.child.error}"
+            return state
+        obj = bpy.data.objects.get(job.obj_name)
+        if obj is None:
+            job.error = f"'{job.obj_name}' was deleted while it was tetrahedralized"
+            return "FAILED"
+        with np.load(job.output) as out:
+            nodes, tets, gap = out["nodes"], out["tets"], out["gap"]
+        scale = meshdata.unit_scale(context.scene)
+        tet_obj = make_tet_object(context, obj, meshdata.transform(np.linalg.inv(job.matrix), nodes / scale), tets)
+        if obj == context.scene.haptic_hand.hand:
+            update_captured(context.scene)
+        job.summary = f"'{obj.name}': {len(tets)} tets, {len(nodes)} nodes in '{tet_obj.name}'; " + gap_message(gap)
+        return "FINISHED"
+    except (OSError, ValueError, KeyError) as e:
+        job.error = f"Cannot read the tets of '{job.obj_name}': {e}; press Tetrahedralize again"
+        return "FAILED"
+    finally:
+        job.release()
+        if runtime.state.tetrahedralize is job:
+            runtime.state.tetrahedralize = None
+
+
+def gap_message(gap: np.ndarray) -> str:
+    """What the user needs to know of how the render surface sits in the tets: how far it lies
+    outside them (it rides along by extrapolation there)."""
+    outside = int((gap > 0).sum())
+    if outside == 0:
+        return "the render surface lies inside the tets"
+    return (f"the render surface lies up to {gap.max() * 1000:.2f} mm outside the tets ({outside} of {len(gap)} "
+            "vertices; they ride along by extrapolation)")
+
+
 class HAPTIC_HAND_OT_tetrahedralize(bpy.types.Operator):
-    """Fill the active mesh (the hand or a soft body) with tetrahedra (pytetwild); the tets are
-    kept as their own object, parented to the mesh, which is embedded in them"""
+    """Fill the active mesh (the hand or a soft body) with tetrahedra (pytetwild, in a child
+    process: Esc cancels); the tets are kept as their own object, parented to the mesh"""
 
     bl_idname = "haptic_hand.tetrahedralize"
     bl_label = "Tetrahedralize"
     bl_options = {"REGISTER", "UNDO"}
+
+    confirmed: bpy.props.BoolProperty(default=False, options={"SKIP_SAVE", "HIDDEN"},
+                                      description="Go ahead even above Rig > Confirm above")
+    interactive: bpy.props.BoolProperty(default=False, options={"SKIP_SAVE", "HIDDEN"},
+                                        description="Run in the background (started from the UI)")
 
     @classmethod
     def poll(cls, context):
         if not _mesh_poll(context):
             cls.poll_message_set("Select a mesh object in Object Mode")
             return False
+        busy = runtime.state.busy()
+        if busy:
+            cls.poll_message_set(busy)
+            return False
         return True
 
+    def invoke(self, context, event):
+        self.interactive = True
+        limit = context.scene.haptic_hand.tet_confirm_limit
+        estimate = tet_estimate(context.active_object, context.scene)
+        if limit and estimate > limit and not self.confirmed:
+            self.confirmed = True
+            message = (f"About {estimate} tets (more than Confirm above, {limit}): this can take minutes; Esc "
+                       "cancels it")
+            try:
+                return context.window_manager.invoke_confirm(self, event, title="Tetrahedralize", message=message)
+            except TypeError:  # an older signature
+                return context.window_manager.invoke_confirm(self, event)
+        return self.execute(context)
+
     def execute(self, context):
-        scene = context.scene
-        s = scene.haptic_hand
-        obj = context.active_object
-        o = obj.haptic_hand  # each mesh has its own tetrahedralize settings
-        scale = meshdata.unit_scale(scene)
-        m = meshdata.matrix(obj)
-        surface = meshdata.world_vertices(obj, scene)
-        faces = meshdata.triangles(obj.data)
-        wm = context.window_manager
-        wm.progress_begin(0.0, 1.0)
         try:
-            nodes, tets = meshing.tetrahedralize(
-                surface, faces, edge_length_fac=o.edge_length_fac, coarsen=o.coarsen, epsilon=o.epsilon,
-                progress=lambda fraction, message: wm.progress_update(0.9 * fraction))
-            tet_index, weights = meshing.embed_points(nodes, tets, surface)
-        except meshing.MeshError as e:
-            self.report({"ERROR"}, f"Cannot tetrahedralize '{obj.name}': {e}")
+            job = start_tetrahedralize(context, context.active_object, confirmed=self.confirmed)
+        except (meshing.MeshError, OSError) as e:
+            self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        finally:
-            wm.progress_end()
-        # How far the render surface strays outside the tets (it rides along by extrapolation).
-        embedded = meshing.interpolate_embedded(nodes, tets, tet_index, weights)
-        outside = int((weights.min(axis=1) < -1e-9).sum())
-        error = float(np.abs(embedded - surface).max())
-        tet_obj = make_tet_object(context, obj, meshdata.transform(np.linalg.inv(m), nodes / scale), tets)
-        if obj == s.hand:
-            update_captured(scene)
-        self.report({"INFO"}, f"'{obj.name}': {len(tets)} tets, {len(nodes)} nodes in '{tet_obj.name}'; "
-                              f"{outside} of {len(surface)} surface vertices ride just outside the tets "
-                              f"(embedding error {error:.1e} m)")
+        runtime.state.tetrahedralize = self.job = job
+        wm = context.window_manager
+        if self.interactive and context.window is not None:
+            wm.progress_begin(0.0, 1.0)
+            self.timer = wm.event_timer_add(0.1, window=context.window)
+            wm.modal_handler_add(self)
+            return {"RUNNING_MODAL"}
+        job.child.wait()
+        return self._end(poll_tetrahedralize(context, job))
+
+    def modal(self, context, event):
+        if event.type == "ESC":
+            self.job.cancel()
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        state = poll_tetrahedralize(context, self.job)
+        if state == "RUNNING":
+            context.window_manager.progress_update(self.job.progress)
+            context.workspace.status_text_set(f"Haptic Hand: tetrahedralizing '{self.job.obj_name}' "
+                                              f"{self.job.progress * 100:.0f}% ({self.job.message}); Esc cancels")
+            runtime.redraw()
+            return {"PASS_THROUGH"}
+        self._stop_modal(context)
+        return self._end(state)
+
+    def _stop_modal(self, context):
+        wm = context.window_manager
+        wm.event_timer_remove(self.timer)
+        wm.progress_end()
+        if context.workspace is not None:
+            context.workspace.status_text_set(None)
+        runtime.redraw()
+
+    def cancel(self, context):
+        self.job.cancel()
+        self.job.release()
+        if runtime.state.tetrahedralize is self.job:
+            runtime.state.tetrahedralize = None
+        self._stop_modal(context)
+
+    def _end(self, state):
+        if state == "FINISHED":
+            self.report({"INFO"}, self.job.summary)
+            return {"FINISHED"}
+        if state == "CANCELLED":
+            self.report({"WARNING"}, f"Tetrahedralize cancelled: '{self.job.obj_name}' keeps the tets it had")
+        else:
+            self.report({"ERROR"}, self.job.error)
+        return {"CANCELLED"}
+
+
+class HAPTIC_HAND_OT_tetrahedralize_cancel(bpy.types.Operator):
+    """Stop the running Tetrahedralize (its child process is killed); the mesh keeps its tets"""
+
+    bl_idname = "haptic_hand.tetrahedralize_cancel"
+    bl_label = "Cancel Tetrahedralize"
+
+    @classmethod
+    def poll(cls, context):
+        return runtime.state.tetrahedralize is not None
+
+    def execute(self, context):
+        runtime.state.tetrahedralize.cancel()
         return {"FINISHED"}
 
 
@@ -215,7 +387,8 @@ class HAPTIC_HAND_OT_check_rig(bpy.types.Operator):
         return {"FINISHED"}
 
 
-classes = (HAPTIC_HAND_OT_use_as_hand, HAPTIC_HAND_OT_tetrahedralize, HAPTIC_HAND_OT_place_seed,
+classes = (HAPTIC_HAND_OT_use_as_hand, HAPTIC_HAND_OT_tetrahedralize, HAPTIC_HAND_OT_tetrahedralize_cancel,
+           HAPTIC_HAND_OT_place_seed,
            HAPTIC_HAND_OT_check_rig)
 
 

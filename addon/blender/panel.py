@@ -6,7 +6,18 @@ from __future__ import annotations
 import bpy
 
 from ..engine import params
-from . import meshdata, ops_rig, param_props, scene_export
+from . import bake_store, meshdata, ops_rig, param_props, runtime, scene_export
+
+
+def mib(size: int) -> str:
+    return f"{size / 2**20:.1f} MiB" if size >= 2**20 else f"{size / 2**10:.0f} KiB"
+
+
+def deformed_meshes(scene) -> list:
+    """The meshes a bake deforms: the hand and the soft bodies."""
+    s = scene.haptic_hand
+    out = [s.hand] if s.hand is not None and s.hand.type == "MESH" else []
+    return out + [o for o in scene.objects if o.haptic_hand.role == "SOFT" and o.type == "MESH" and o != s.hand]
 
 
 class _Panel:
@@ -22,10 +33,13 @@ class HAPTIC_HAND_PT_main(_Panel, bpy.types.Panel):
     def draw(self, context):
         s = context.scene.haptic_hand
         col = self.layout.column(align=True)
-        if s.live_running:
+        rt = runtime.state
+        if rt.live is not None:
             col.label(text="Live session running (Esc stops)", icon="REC")
-        elif s.bake_running:
-            col.label(text="Baking...", icon="TIME")
+        elif rt.bake is not None:
+            col.label(text=f"Baking {rt.bake.progress * 100:.0f}% ({rt.bake.message})", icon="TIME")
+        elif rt.tetrahedralize is not None:
+            col.label(text=f"Tetrahedralizing {rt.tetrahedralize.progress * 100:.0f}%", icon="TIME")
         elif s.baked:
             col.label(text=f"Baked frames {s.baked_range}", icon="CHECKMARK")
         else:
@@ -51,7 +65,17 @@ class HAPTIC_HAND_PT_rig(_Panel, bpy.types.Panel):
             row.prop(o, "edge_length_fac")
             row.prop(o, "epsilon")
             box.prop(o, "coarsen")
-        box.operator("haptic_hand.tetrahedralize", icon="MESH_ICOSPHERE")
+            if len(obj.data.polygons):
+                estimate = ops_rig.tet_estimate(obj, context.scene)
+                over = s.tet_confirm_limit and estimate > s.tet_confirm_limit
+                box.label(text=f"About {estimate} tets", icon="ERROR" if over else "INFO")
+        box.prop(s, "tet_confirm_limit")
+        job = runtime.state.tetrahedralize
+        if job is not None:
+            box.progress(factor=job.progress, text=f"{job.progress * 100:.0f}% {job.message}")
+            box.operator("haptic_hand.tetrahedralize_cancel", icon="CANCEL")
+        else:
+            box.operator("haptic_hand.tetrahedralize", icon="MESH_ICOSPHERE")
         if s.hand is not None:
             tet_obj = s.hand.haptic_hand.tet_object
             if meshdata.has_tets(tet_obj):
@@ -164,10 +188,17 @@ class HAPTIC_HAND_PT_live(_Panel, bpy.types.Panel):
 
     def draw(self, context):
         s = context.scene.haptic_hand
-        if s.live_running:
-            self.layout.operator("haptic_hand.live_stop", icon="CANCEL")
+        layout = self.layout
+        if runtime.state.live is not None:
+            layout.operator("haptic_hand.live_stop", icon="CANCEL")
         else:
-            self.layout.operator("haptic_hand.live", icon="PLAY")
+            layout.operator("haptic_hand.live", icon="PLAY")
+        row = layout.row(align=True)
+        row.prop(s, "live_record")
+        sub = row.row(align=True)
+        sub.active = s.live_record
+        sub.prop(s, "live_recording", text="")
+        layout.operator("haptic_hand.bake_recording", icon="RENDER_ANIMATION")
 
 
 class HAPTIC_HAND_PT_bake(_Panel, bpy.types.Panel):
@@ -181,16 +212,40 @@ class HAPTIC_HAND_PT_bake(_Panel, bpy.types.Panel):
         row.prop(s, "bake_frame_start")
         row.prop(s, "bake_frame_end")
         layout.prop(s, "bake_format")
-        if s.bake_running:
-            layout.progress(factor=s.bake_progress, text=f"Baking {s.bake_progress * 100:.0f}%")
+        draw_bake_size(layout, context.scene)
+        job = runtime.state.bake
+        if job is not None:
+            layout.progress(factor=job.progress, text=f"Baking {job.progress * 100:.0f}% ({job.message})")
             layout.operator("haptic_hand.bake_cancel", icon="CANCEL")
         else:
             layout.operator("haptic_hand.bake", icon="RENDER_ANIMATION")
         if s.baked:
             layout.label(text=f"Baked {s.baked_range} ({s.baked_format.lower()})", icon="CHECKMARK")
+            for name, path in bake_store.missing_caches(context.scene):
+                layout.label(text=f"{name}: point cache {path} is missing", icon="ERROR")
+                layout.label(text=f"Copy the folder {bake_store.cache_dir().name} beside the .blend, or bake again")
             if s.bake_log:
                 layout.label(text=f"Log: {s.bake_log}")
             layout.operator("haptic_hand.free_bake", icon="TRASH")
+
+
+def draw_bake_size(layout, scene) -> None:
+    """What the bake will store, before it starts: shape keys grow the .blend, point caches
+    sit in files beside it."""
+    s = scene.haptic_hand
+    meshes = deformed_meshes(scene)
+    frames = s.bake_frame_end - s.bake_frame_start + 1
+    if not meshes or frames < 2:
+        return
+    vertices = sum(len(o.data.vertices) for o in meshes)
+    if s.bake_format == "KEYS":
+        layout.label(text=f"Shape keys add up to {mib(bake_store.keys_size(meshes, frames))} to the .blend "
+                          f"({frames} frames, {vertices} vertices)", icon="INFO")
+        layout.label(text=f"PC2 keeps it beside the .blend instead ({mib(bake_store.pc2_size(meshes, frames))})")
+    else:
+        layout.label(text=f"Point caches: {mib(bake_store.pc2_size(meshes, frames))} in "
+                          f"{bake_store.cache_dir().name if bpy.data.filepath else '<blend name>_haptic'}/",
+                     icon="INFO")
 
 
 classes = (HAPTIC_HAND_PT_main, HAPTIC_HAND_PT_rig, HAPTIC_HAND_PT_material, HAPTIC_HAND_PT_advanced,

@@ -22,6 +22,19 @@ BLENDER_UNITS = {"m": "LENGTH", "s": "TIME_ABSOLUTE", "kg": "MASS", "m/s": "VELO
                  "Hz": "FREQUENCY"}
 
 
+def _path_options() -> set:
+    """Options of a file-path property: blend-relative paths (//) allowed where Blender asks
+    (PATH_SUPPORTS_BLEND_RELATIVE, Blender 4.5 and newer; older ones take // everywhere)."""
+    try:
+        bpy.props.StringProperty(subtype="FILE_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"})
+    except TypeError:
+        return set()
+    return {"PATH_SUPPORTS_BLEND_RELATIVE"}
+
+
+PATH_OPTIONS = _path_options()
+
+
 def rows(where: int) -> list[params.Param]:
     """The rows kept on the scene's settings (params.UI_SCENE) or each object's (UI_OBJECT), once
     per property name (two rows sharing a name share their declaration: the tetrahedralize
@@ -125,8 +138,8 @@ def annotations(where: int, updates: dict | None = None) -> dict:
             out[p.name] = bpy.props.EnumProperty(name=p.label, description=tooltip(p), items=items,
                                                  default=p.choices[int(p.default_value[0])], update=update)
         elif p.kind in (params.KIND_PATH, params.KIND_STRING):
-            out[p.name] = bpy.props.StringProperty(name=p.label, description=tooltip(p) + " (empty: null)",
-                                                   subtype="FILE_PATH" if p.kind == params.KIND_PATH else "NONE")
+            path = {"subtype": "FILE_PATH", "options": PATH_OPTIONS} if p.kind == params.KIND_PATH else {}
+            out[p.name] = bpy.props.StringProperty(name=p.label, description=tooltip(p) + " (empty: null)", **path)
         elif p.kind == params.KIND_JSON:
             out[p.name] = bpy.props.BoolProperty(name=p.label, description=tooltip(p), default=False)
         elif p.unit == "m":

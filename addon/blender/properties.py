@@ -10,7 +10,7 @@ in metres.
 from __future__ import annotations
 
 import bpy
-from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, PointerProperty,
+from bpy.props import (BoolProperty, EnumProperty, FloatVectorProperty, IntProperty, PointerProperty,
                        StringProperty)
 
 from ..engine import params
@@ -110,6 +110,10 @@ class HapticObjectSettings(bpy.types.PropertyGroup):
                                   description="The bake added this object's Basis shape key")
     previous_action: PointerProperty(type=bpy.types.Action, options={"HIDDEN"},
                                      description="The action the object had before the bake")
+    previous_key_action: PointerProperty(type=bpy.types.Action, options={"HIDDEN"},
+                                         description="The action the object's shape keys had before the bake")
+    bake_keyed_transform: BoolProperty(default=False, options={"HIDDEN"},
+                                       description="The bake keyed this object's transform (a rigid body)")
     rest_matrix: FloatVectorProperty(size=16, options={"HIDDEN"}, description="World matrix before the bake")
     rest_rotation_mode: StringProperty(default="XYZ", options={"HIDDEN"},
                                        description="Rotation mode before the bake")
@@ -125,6 +129,9 @@ class HapticSceneSettings(bpy.types.PropertyGroup):
     seed: PointerProperty(name="Palm seed", type=bpy.types.Object, poll=_is_empty,
                           description="Empty at the palm: the rigid handle captures the tet nodes within "
                                       "the radius around it (scene file: hand.palm_seed)")
+    tet_confirm_limit: IntProperty(name="Confirm above", default=50000, min=0,
+                                   description="Tetrahedralize asks before making more tets than this (its "
+                                               "estimate); 0 never asks")
     captured_nodes: IntProperty(name="Captured nodes", default=0, min=0,
                                 description="Tet nodes inside the handle sphere (updated when the radius "
                                             "changes)")
@@ -132,16 +139,22 @@ class HapticSceneSettings(bpy.types.PropertyGroup):
     device: EnumProperty(name="Device", items=DEVICES, default="SIMULATED",
                          description="What moves the hand: a simulated user, a recording, a haptic device, a "
                                      "SpaceMouse, or the target empty (scene file: haptics.device)")
-    device_file: StringProperty(name="Recording", subtype="FILE_PATH",
-                                description="Haptic log (.npz) or CSV of device poses to play back")
+    device_file: StringProperty(name="Recording", subtype="FILE_PATH", options=param_props.PATH_OPTIONS,
+                                description="Haptic log (.npz) or CSV of device poses to play back (// is the "
+                                            ".blend's folder)")
     hid_device: EnumProperty(name="HID device", items=_hid_items,
                              description="Which 6-DoF HID device drives the hand")
     target: PointerProperty(name="Target", type=bpy.types.Object, poll=_is_empty,
                             description="Empty that stands for the device: its motion since the first "
                                         "frame moves the handle (scene file: device.trajectory)")
-    # --- live session (state shown by the panel) ---
-    live_running: BoolProperty(default=False, options={"SKIP_SAVE"}, description="A live session runs")
-    live_stop: BoolProperty(default=False, options={"SKIP_SAVE"}, description="The live session was asked to stop")
+    # --- live session ---
+    live_record: BoolProperty(name="Record", default=True,
+                              description="Save the live session's device stream and the felt force (the haptic "
+                                          "log) to the Recording file when it stops; Bake Recording replays it")
+    live_recording: StringProperty(name="Recording file", subtype="FILE_PATH", default="//haptic_recording.npz",
+                                   options=param_props.PATH_OPTIONS,
+                                   description="Where a live session saves its recording (// is the .blend's "
+                                               "folder)")
     # --- bake ---
     bake_format: EnumProperty(name="Format", items=BAKE_FORMATS, default="KEYS",
                               description="How the bake stores the motion")
@@ -155,10 +168,6 @@ class HapticSceneSettings(bpy.types.PropertyGroup):
     bake_frame_end: IntProperty(name="End", min=1, get=_frame_range_accessors("end")[0],
                                 set=_frame_range_accessors("end")[1],
                                 description="Last frame of the bake (the scene's end until you change it)")
-    bake_running: BoolProperty(default=False, options={"SKIP_SAVE"}, description="A bake runs")
-    bake_progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"},
-                                 description="How far the bake is")
-    bake_cancel: BoolProperty(default=False, options={"SKIP_SAVE"}, description="The bake was asked to stop")
     baked: BoolProperty(default=False, description="A bake is stored in this scene")
     baked_format: StringProperty(default="", description="The stored bake's format")
     baked_range: StringProperty(default="", description="The stored bake's frames")

@@ -89,6 +89,20 @@ def fps(scene) -> float:
     return scene.render.fps / scene.render.fps_base
 
 
+def rest_matrix(obj) -> np.ndarray:
+    """obj's world matrix; for a rigid body whose transform a bake keyed, where it stood
+    before the bake (the keyed motion is the bake's, not the scene's)."""
+    o = obj.haptic_hand
+    if o.baked and o.bake_keyed_transform:
+        return np.array(o.rest_matrix, dtype=np.float64).reshape(4, 4).T
+    return meshdata.matrix(obj)
+
+
+def rest_vertices(obj, scene) -> np.ndarray:
+    """obj's mesh (no modifiers, no shape keys) in metres, world space, at its rest_matrix."""
+    return meshdata.transform(rest_matrix(obj), meshdata.local_vertices(obj.data)) * meshdata.unit_scale(scene)
+
+
 def _objects_with_roles(scene):
     out = []
     for obj in sorted(scene.objects, key=lambda o: o.name):
@@ -232,7 +246,7 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
     links, moving = [], []
     for obj, role in _objects_with_roles(bscene):
         o = obj.haptic_hand
-        link = BodyLink(obj.name, obj, role, meshdata.matrix(obj))
+        link = BodyLink(obj.name, obj, role, rest_matrix(obj))
         if role == "PLANE":
             m = link.rest_matrix
             normal = m[:3, 2] / np.linalg.norm(m[:3, 2])
@@ -244,7 +258,7 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
         if obj.type != "MESH":
             raise ExportError(f"'{obj.name}' is marked as {role.lower()} but is not a mesh: mark a mesh object, "
                               "or set its role to None")
-        v, f = meshdata.world_vertices(obj, bscene), meshdata.triangles(obj.data)
+        v, f = rest_vertices(obj, bscene), meshdata.triangles(obj.data)
         if len(f) == 0:
             raise ExportError(f"'{obj.name}' has no faces: give it a closed mesh or set its role to None")
         spec = {"name": obj.name, "type": BODY_TYPES[role], "mesh": _write_obj(folder, obj.name, v, f)}

@@ -16,7 +16,7 @@ import numpy as np
 from ..engine import bodies as bodies_module
 from ..engine import params
 from ..engine import scene as scenes
-from . import meshdata, ops_rig, param_props, scene_export
+from . import bake_store, meshdata, ops_rig, param_props, scene_export
 
 
 class ImportError_(ValueError):
@@ -30,11 +30,11 @@ def _link(context, obj):
 
 def _fcurves_of(obj):
     """The fcurves of obj's action (a new action if it has none)."""
-    from . import ops_bake
-
     ad = obj.animation_data
     if ad is None or ad.action is None:
-        return ops_bake._new_action(obj, f"{obj.name} motion")[1]
+        action, slot, fcurves = bake_store.new_action(obj, f"{obj.name} motion")
+        bake_store.assign_action(obj, action, slot)
+        return fcurves
     if hasattr(ad.action, "slots"):
         from bpy_extras import anim_utils
 
@@ -44,8 +44,6 @@ def _fcurves_of(obj):
 
 def _keyed_motion(obj, start_location, points, rate: float, frame_start: int) -> None:
     """Key obj's location (start + offset) and quaternion at the trajectory's times."""
-    from . import ops_bake
-
     obj.rotation_mode = "QUATERNION"
     frames = [frame_start + float(p.get("t", 0.0)) * rate for p in points]
     pos = np.array([p.get("position", [0, 0, 0]) for p in points], dtype=float) + start_location
@@ -53,10 +51,10 @@ def _keyed_motion(obj, start_location, points, rate: float, frame_start: int) ->
     quat /= np.linalg.norm(quat, axis=1)[:, None]
     fcurves = _fcurves_of(obj)
     for i in range(3):
-        ops_bake._fcurve(fcurves, "location", i, frames, pos[:, i])
+        bake_store.fcurve(fcurves, "location", i, frames, pos[:, i])
     wxyz = quat[:, [3, 0, 1, 2]]
     for i in range(4):
-        ops_bake._fcurve(fcurves, "rotation_quaternion", i, frames, wxyz[:, i])
+        bake_store.fcurve(fcurves, "rotation_quaternion", i, frames, wxyz[:, i])
 
 
 def build(context, path, frame_start: int = 1) -> dict:
