@@ -51,10 +51,10 @@ FORCE_PROPERTIES = {
 }
 # an object whose every vertex stays within this of its rest place (m) never moves: no keys
 STILL = 1e-6
-# what one shape key costs in a saved .blend beyond its vertices (12 bytes each): the key
-# block and its value's F-curve of 2-3 keyframes (measured on Blender 5.0 by
-# tests/blender/test_bake.py::test_keys_size_estimate)
-KEY_OVERHEAD = 900
+# what one shape key costs in an uncompressed .blend beyond its vertices (12 bytes each): the
+# key block and its value's F-curve of 2-3 keyframes (about 1460 bytes on Blender 5.0; a
+# compressed .blend, the default, takes about 0.9 of it all; tests/blender/test_bake.py)
+KEY_OVERHEAD = 1500
 
 
 class BakeWriteError(OSError):
@@ -152,9 +152,10 @@ def plan(export: scene_export.Export, result: dict, fmt: str) -> Plan:
     p.curves = {"hh_force": wrench[:, :3], "hh_torque": wrench[:, 3:6]}
     haptic = result.get("haptic")
     if isinstance(haptic, dict) and len(haptic.get("t", ())):
+        # the feedback of the last haptic step by each frame's time (none before the first)
         t, felt = np.asarray(haptic["t"]), np.asarray(haptic["force"])
-        times = np.asarray(result["time"])
-        p.curves["hh_felt_force"] = np.stack([np.interp(times, t, felt[:, i]) for i in range(3)], axis=1)
+        last = np.searchsorted(t, np.asarray(result["time"]) + 1e-9, side="right") - 1
+        p.curves["hh_felt_force"] = np.where(last[:, None] >= 0, felt[np.maximum(last, 0)], 0.0)
     return p
 
 

@@ -189,7 +189,7 @@ def stop(context, state: LiveState) -> None:
         if state.recording:
             try:
                 save_recording(state)
-            except (OSError, ValueError, LiveError) as e:
+            except Exception as e:  # a full disk, a folder that is not there: the session still ends
                 state.record_error = f"The recording could not be saved to {state.recording}: {e}"
     finally:
         draw.overlay = None

@@ -162,6 +162,7 @@ def main(argv=None) -> int:
     bake.add_argument("scene")
     bake.add_argument("output")
     args = parser.parse_args(argv)
+    limit_memory()
     try:
         if args.command == "tetrahedralize":
             done = run_tetrahedralize(args.input, args.output)
@@ -263,6 +264,18 @@ def memory_limit() -> int:
         return 0
 
 
+def limit_memory(pid: int = 0) -> None:
+    """Limits a process's address space (0: this one) to memory_limit()."""
+    try:
+        import resource
+
+        limit = memory_limit()
+        if limit > 0:
+            resource.prlimit(pid, resource.RLIMIT_AS, (limit, limit))
+    except (ImportError, OSError, ValueError, AttributeError):
+        pass
+
+
 class TetwildLog:
     """Progress of a tetrahedralization from fTetWild's log lines: its stages in order, then
     the optimization passes, whose worst element quality falls towards the stop energy (10)."""
@@ -362,16 +375,10 @@ class Child:
 
     @staticmethod
     def _contain(pid: int) -> None:
-        """Limit the child's address space, and make it the OOM killer's first choice, so a
-        runaway allocation ends the child and never the host."""
-        try:
-            import resource
-
-            limit = memory_limit()
-            if limit > 0:
-                resource.prlimit(pid, resource.RLIMIT_AS, (limit, limit))
-        except (ImportError, OSError, ValueError, AttributeError):
-            pass
+        """Limit the child's address space (the child limits itself too, first thing), and make
+        it the OOM killer's first choice, so a runaway allocation ends the child and never the
+        host."""
+        limit_memory(pid)
         try:
             Path(f"/proc/{pid}/oom_score_adj").write_text("1000")
         except OSError:

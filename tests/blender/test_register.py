@@ -23,8 +23,13 @@ def snapshot():
     }
 
 
+def handlers_added(during, before) -> dict:
+    return {k: during["handlers"][k] - before["handlers"][k] for k in before["handlers"]
+            if during["handlers"][k] != before["handlers"][k]}
+
+
 def test_register_unregister_twice_leaves_nothing():
-    from haptic_hand.blender import draw, live, ops_bake
+    from haptic_hand.blender import draw, runtime
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     before = snapshot()
@@ -43,7 +48,8 @@ def test_register_unregister_twice_leaves_nothing():
         haptic_hand.unregister()
         assert snapshot() == before
         assert draw._handle is None and draw.overlay is None
-        assert live._state is None and ops_bake._running is None
+        assert not runtime.state.busy()
+        assert handlers_added(during, before) == {"load_pre": 1, "load_post": 1}
 
 
 def test_engine_imports_without_bpy():
