@@ -1,10 +1,17 @@
 """`make addon`: the installable Blender extension zip.
 
 Stages a copy of addon/ in build/addon/ with the native library in lib/ (where
-engine/native.py looks inside an installed extension) and the Python wheels the add-on needs
-in wheels/ (numpy is left out: Blender ships it), lists the wheels in the staged manifest,
-then builds and validates the zip with Blender's own extension tool (bl_pkg/cli/blender_ext.py,
-shipped in the bpy wheel).
+engine/native.py looks inside an installed extension) and the Python wheels the add-on imports
+at run time in wheels/, lists the wheels in the staged manifest, then builds and validates the
+zip with Blender's own extension tool (bl_pkg/cli/blender_ext.py, shipped in the bpy wheel).
+
+The wheels: scipy, pytetwild and hidapi, without their dependencies (numpy comes with
+Blender). pyvista and vtk (140 MB) stay out: pytetwild's package imports pyvista, but its
+numpy API needs only its own compiled wrapper, which the tetrahedralizing child process loads
+without pyvista (engine/child.py); and the procedural shapes of the sample scenes (marching
+cubes by vtk) are written into the staged sample scenes as .obj meshes and .npz tets here, so
+File > Import brings them in without vtk. A scene of the user's own with procedural meshes
+needs pyvista installed into Blender's Python (the importer says so).
 
     python scripts/build_addon.py [--out out] [--no-wheels]
 """
@@ -13,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import json
 import re
 import shutil
 import subprocess
@@ -20,7 +28,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-BUNDLED = ("scipy", "pytetwild", "pyvista", "vtk", "hidapi")  # pinned in requirements.txt
+BUNDLED = ("scipy", "pytetwild", "hidapi")  # pinned in requirements.txt; their only dependency is numpy
 BLENDER_HAS = ("numpy",)
 PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64", "linux_x86_64")
 
@@ -39,8 +47,8 @@ def pins() -> list[str]:
 
 def download_wheels(cache: Path) -> list[Path]:
     cache.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "pip", "download", "-q", "--only-binary=:all:", "--python-version", "3.11",
-           "--implementation", "cp", "-d", str(cache)]
+    cmd = [sys.executable, "-m", "pip", "download", "-q", "--no-deps", "--only-binary=:all:", "--python-version",
+           "3.11", "--implementation", "cp", "-d", str(cache)]
     for p in PLATFORMS:
         cmd += ["--platform", p]
     subprocess.run(cmd + pins(), check=True)
@@ -48,9 +56,51 @@ def download_wheels(cache: Path) -> list[Path]:
     chosen = {}
     for whl in sorted(cache.glob("*.whl")):
         dist = whl.name.split("-")[0].lower().replace("-", "_")
-        if dist not in BLENDER_HAS:
+        if dist in BUNDLED:  # a cache filled by an older build may hold others
             chosen[dist] = whl
     return sorted(chosen.values())
+
+
+def stage_sample_scenes(folder: Path) -> None:
+    """Writes the sample scenes' procedural meshes (and their tets, when a scene does not
+    store them) as files beside the staged scenes, so importing them needs no pyvista or vtk.
+    The shapes are the engine's own, at full precision: the scenes are the same."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    import conftest  # noqa: F401  (addon/ as the package haptic_hand)
+    import numpy as np
+
+    from haptic_hand.engine import mesh, shapes
+
+    def write_obj(name, surface):
+        mesh.save_obj(folder / name, *surface)
+        return name
+
+    written = {}
+    for path in sorted(folder.glob("*.json")):
+        data = json.loads(path.read_text())
+        hand = data["hand"]
+        if hand.get("mesh") == "procedural":
+            hand["mesh"] = written.get("hand") or write_obj("procedural_hand.obj", mesh.procedural_hand())
+            written["hand"] = hand["mesh"]
+            hand.setdefault("palm_seed", mesh.procedural_hand_palm_seed().tolist())
+        for body in data.get("bodies", []):
+            source = body.get("mesh")
+            if not (isinstance(source, str) and source.startswith("procedural:")):
+                continue
+            name = source.split(":", 1)[1].replace(":", "_")
+            if source == "procedural:bunny":
+                surface, tets = shapes.procedural_bunny, shapes.procedural_bunny_coarse_tets
+            else:
+                letter = source.split(":", 2)[2]
+                surface, tets = (lambda ch=letter: shapes.procedural_letter(ch)), (lambda ch=letter: shapes.letter_tets(ch))
+            if name not in written:
+                written[name] = write_obj(f"procedural_{name}.obj", surface())
+            body["mesh"] = written[name]
+            if not body.get("tets"):
+                nodes, t = tets()
+                np.savez(folder / f"procedural_{name}_tets.npz", nodes=nodes, tets=t)
+                body["tets"] = f"procedural_{name}_tets.npz"
+        path.write_text(json.dumps(data, indent=2))
 
 
 def extension_tool() -> Path:
@@ -81,6 +131,7 @@ def main(argv=None) -> int:
                                                                         "*.partial*"))
     (stage / "lib").mkdir()
     shutil.copy2(lib, stage / "lib" / lib.name)
+    stage_sample_scenes(stage / "engine" / "sample_scenes")
     wheels = [] if args.no_wheels else download_wheels(ROOT / "build" / "addon_wheels")
     if wheels:
         (stage / "wheels").mkdir()

@@ -106,7 +106,7 @@ def tet_estimate(obj, scene) -> int:
     """About how many tets Tetrahedralize will make of obj with its own settings."""
     o = obj.haptic_hand
     return child_process.estimate_tets(meshdata.world_vertices(obj, scene), meshdata.triangles(obj.data),
-                                       o.edge_length_fac, o.coarsen)
+                                       o.edge_length_fac, o.epsilon)
 
 
 def start_tetrahedralize(context, obj, confirmed: bool = False, argv=None) -> TetJob:
@@ -121,7 +121,7 @@ def start_tetrahedralize(context, obj, confirmed: bool = False, argv=None) -> Te
     except meshing.MeshError as e:
         raise meshing.MeshError(f"Cannot tetrahedralize '{obj.name}': {e}") from None
     limit = scene.haptic_hand.tet_confirm_limit
-    estimate = child_process.estimate_tets(surface, faces, o.edge_length_fac, o.coarsen)
+    estimate = child_process.estimate_tets(surface, faces, o.edge_length_fac, o.epsilon)
     if limit and estimate > limit and not confirmed:
         raise meshing.MeshError(
             f"'{obj.name}' would get about {estimate} tets, more than Rig > Confirm above ({limit}): raise Edge "
@@ -303,6 +303,7 @@ def make_tet_object(context, obj, nodes_local: np.ndarray, tets: np.ndarray):
         bpy.data.objects.remove(old)
         if old_mesh.users == 0:
             bpy.data.meshes.remove(old_mesh)
+    tet_obj.name = me.name = f"{obj.name}.tets"  # the name the old one had
     return tet_obj
 
 

@@ -24,12 +24,11 @@ BLENDER_UNITS = {"m": "LENGTH", "s": "TIME_ABSOLUTE", "kg": "MASS", "m/s": "VELO
 
 def _path_options() -> set:
     """Options of a file-path property: blend-relative paths (//) allowed where Blender asks
-    (PATH_SUPPORTS_BLEND_RELATIVE, Blender 4.5 and newer; older ones take // everywhere)."""
-    try:
-        bpy.props.StringProperty(subtype="FILE_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"})
-    except TypeError:
-        return set()
-    return {"PATH_SUPPORTS_BLEND_RELATIVE"}
+    (PATH_SUPPORTS_BLEND_RELATIVE, Blender 4.5 and newer; older ones take // everywhere and
+    refuse the option when the property registers)."""
+    if "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties:
+        return {"PATH_SUPPORTS_BLEND_RELATIVE"}
+    return set()
 
 
 PATH_OPTIONS = _path_options()

@@ -173,6 +173,11 @@ class HAPTIC_HAND_OT_import_scene(bpy.types.Operator):
         except (scenes.SceneError, meshing.MeshError, bodies_module.BodyError, ImportError_, OSError) as e:
             self.report({"ERROR"}, f"Cannot import {self.filepath}: {e}")
             return {"CANCELLED"}
+        except ImportError as e:  # procedural shapes are contoured by pyvista (vtk), not bundled
+            self.report({"ERROR"}, f"Cannot import {self.filepath}: its procedural meshes need pyvista ({e}), which "
+                                   "the add-on does not bundle: give the scene .obj meshes, or install pyvista into "
+                                   "Blender's Python (<Blender's python> -m pip install pyvista)")
+            return {"CANCELLED"}
         return {"FINISHED"}
 
 

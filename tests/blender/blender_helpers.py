@@ -86,3 +86,51 @@ def props(log) -> list[str]:
 
 def operators(log) -> list[str]:
     return [what for kind, what, _ in log if kind == "operator"]
+
+
+class FakeFrame:
+    """A live session's frame with the given surfaces and poses (the rest made up)."""
+
+    def __init__(self, t, surfaces, poses=None):
+        import numpy as np
+
+        self.time, self.surfaces, self.poses = t, surfaces, poses or {}
+        self.handle_position = np.array([0.0, 0.0, -0.04])
+        self.handle_quaternion = np.array([0.0, 0.0, 0.0, 1.0])
+        self.device_position = self.proxy_position = self.handle_position
+        self.device_quaternion = self.proxy_quaternion = self.handle_quaternion
+        self.force, self.torque = np.array([0.0, 0.0, 2.0]), np.zeros(3)
+
+
+class FakeSession:
+    """LiveSession's API, frames given by the test; its haptic log has one row per frame."""
+
+    def __init__(self, scene, device="simulated", haptic_rate=1000.0):
+        self.scene, self.device, self.frames, self.poses_pushed = scene, device, [], []
+        self.running, self.error, self.started, self.stopped = False, None, False, False
+        self.polled = []
+
+    def start(self):
+        self.running = self.started = True
+
+    def poll(self):
+        frame = self.frames.pop(0) if self.frames else None
+        if frame is not None:
+            self.polled.append(frame)
+        return frame
+
+    def set_device_pose(self, position, quaternion):
+        import numpy as np
+
+        self.poses_pushed.append((np.array(position), np.array(quaternion)))
+
+    def stop(self):
+        self.running, self.stopped = False, True
+
+    def haptic_log(self):
+        import numpy as np
+
+        f = self.polled
+        return {"t": np.array([x.time for x in f]), "device_position": np.array([x.device_position for x in f]),
+                "device_quaternion": np.array([x.device_quaternion for x in f]),
+                "force": np.array([x.force for x in f]), "torque": np.array([x.torque for x in f])}

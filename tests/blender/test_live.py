@@ -1,5 +1,7 @@
-"""Live session: the per-frame update writes the session's frames into the meshes, Esc/stop
-puts the scene back; a real session driven by the simulated device for 2 s."""
+"""Live session: the per-frame update writes the session's frames into the meshes and every
+body's pose into its object, Esc/stop puts the scene back; a real session with a falling
+rigid body and a moving collider, as the engine moves them; a recorded session (to a
+blend-relative file) baked through the Playback device to the same motion."""
 
 import time
 
@@ -8,43 +10,14 @@ import pytest
 bpy = pytest.importorskip("bpy")
 import numpy as np
 
-from haptic_hand.blender import draw, live, meshdata
+from haptic_hand.blender import draw, live, meshdata, ops_bake, scene_export
+from haptic_hand.engine import quaternion
 
-from blender_helpers import open_copy
+from blender_helpers import FakeFrame, FakeSession, open_copy
 
 
 def world_vertices(context, obj):
     return meshdata.world_vertices(obj, context.scene)
-
-
-class FakeFrame:
-    def __init__(self, t, surfaces, poses=None):
-        self.time, self.surfaces, self.poses = t, surfaces, poses or {}
-        self.handle_position = np.array([0.0, 0.0, -0.04])
-        self.handle_quaternion = np.array([0.0, 0.0, 0.0, 1.0])
-        self.device_position = self.proxy_position = self.handle_position
-        self.device_quaternion = self.proxy_quaternion = self.handle_quaternion
-        self.force, self.torque = np.array([0.0, 0.0, 2.0]), np.zeros(3)
-
-
-class FakeSession:
-    """LiveSession's API, frames given by the test."""
-
-    def __init__(self, scene, device="simulated", haptic_rate=1000.0):
-        self.scene, self.device, self.frames, self.poses_pushed = scene, device, [], []
-        self.running, self.error, self.started, self.stopped = False, None, False, False
-
-    def start(self):
-        self.running = self.started = True
-
-    def poll(self):
-        return self.frames.pop(0) if self.frames else None
-
-    def set_device_pose(self, position, quaternion):
-        self.poses_pushed.append((np.array(position), np.array(quaternion)))
-
-    def stop(self):
-        self.running, self.stopped = False, True
 
 
 def test_update_writes_frames_and_stop_restores(addon, built_scenes, tmp_path):
@@ -58,6 +31,7 @@ def test_update_writes_frames_and_stop_restores(addon, built_scenes, tmp_path):
     context.view_layer.update()
     rest_hand, rest_bunny = world_vertices(context, hand), world_vertices(context, bunny)
     s.device, s.target = "TARGET", s.target
+    s.live_recording = "//fake take.npz"  # blend-relative, as the field offers
     state = live.start(context, session_factory=FakeSession)
     session = state.session
     assert session.started and session.device == "external"
@@ -81,7 +55,7 @@ def test_update_writes_frames_and_stop_restores(addon, built_scenes, tmp_path):
     live.update(context, state)
     np.testing.assert_allclose(session.poses_pushed[-1][0] - first, [0.01, 0.0, 0.0], atol=1e-6)
 
-    # an error in the session ends it; stopping restores every mesh exactly
+    # an error in the session ends it; stopping restores every mesh exactly and saves the take
     session.error = "device disconnected"
     with pytest.raises(live.LiveError, match="device disconnected"):
         live.update(context, state)
@@ -89,6 +63,11 @@ def test_update_writes_frames_and_stop_restores(addon, built_scenes, tmp_path):
     assert session.stopped and draw.overlay is None
     np.testing.assert_array_equal(world_vertices(context, hand), rest_hand)
     np.testing.assert_array_equal(world_vertices(context, bunny), rest_bunny)
+    assert state.record_error is None and state.recorded == tmp_path / "fake take.npz"
+    with np.load(state.recorded) as take:
+        np.testing.assert_allclose(take["haptic_t"], [0, 1 / 30, 2 / 30])
+        np.testing.assert_allclose(take["haptic_force"], [[0, 0, 2.0]] * 3)  # the felt force
+        np.testing.assert_allclose(take["time"], [0, 1 / 30, 2 / 30])  # the frames Blender showed
 
 
 def test_live_refuses_baked_meshes(addon, built_scenes, tmp_path):
@@ -100,37 +79,141 @@ def test_live_refuses_baked_meshes(addon, built_scenes, tmp_path):
         live.start(context, session_factory=FakeSession)
 
 
-def test_simulated_device_live_for_two_seconds(addon, built_scenes, tmp_path):
-    pytest.importorskip("haptic_hand.engine.session")
+def run_live(context, seconds, on_frame=None):
+    """A real session for `seconds` of wall time, one update every 1/60 s (as the timer)."""
+    state = live.start(context)
+    try:
+        start = time.monotonic()
+        while time.monotonic() - start < seconds:
+            before = state.frames_written
+            assert live.update(context, state), state.session.error
+            if state.frames_written > before and on_frame is not None:
+                on_frame(state.last_frame)
+            time.sleep(1.0 / 60.0)
+    finally:
+        live.stop(context, state)
+    return state
+
+
+def add_cube(context, name, location, role):
+    bpy.ops.mesh.primitive_cube_add(size=0.02, location=location)
+    cube = context.active_object
+    cube.name = name
+    cube.haptic_hand.role = role
+    return cube
+
+
+def test_rigid_and_moving_bodies_move_in_blender_as_in_the_engine(addon, built_scenes, tmp_path):
+    """A cube falls beside the waving hand and a moving collider follows its animation: each
+    frame Blender shows them where the engine's session has them, the falling one drops as
+    gravity says, the moving one is where its Blender animation puts it at that time."""
+    context = open_copy(built_scenes("hand_wave"), tmp_path)
+    s = context.scene.haptic_hand
+    s.device, s.live_record = "SIMULATED", False
+    falling = add_cube(context, "Falling", (0.0, 0.25, 1.0), "RIGID")
+    falling.rotation_euler = (0.2, 0.1, 0.0)
+    pusher = add_cube(context, "Pusher", (0.0, 0.4, 0.0), "MOVING")
+    pusher.keyframe_insert("location", frame=1)
+    pusher.location.x = 0.06
+    pusher.keyframe_insert("location", frame=31)
+    context.scene.frame_set(1)
+    fps = scene_export.fps(context.scene)
+    rest = {o.name: world_vertices(context, o) for o in (falling, pusher)}
+    matrices = {o.name: np.array(o.matrix_world) for o in (falling, pusher)}
+    keyed = {}
+    for frame in range(1, 32):
+        context.scene.frame_set(frame)
+        keyed[frame] = np.array(pusher.matrix_world.translation)
+    context.scene.frame_set(1)
+    seen = []
+
+    def check(frame):
+        """Blender's objects against the engine's published poses, this frame."""
+        for obj in (falling, pusher):
+            pose = np.asarray(frame.poses[obj.name])
+            first = seen[0][obj.name] if seen else pose
+            expected = pose[:3] + (rest[obj.name] - first[:3]) @ quaternion.to_matrix(
+                quaternion.multiply(pose[3:], quaternion.conjugate(first[3:]))).T
+            assert np.abs(world_vertices(context, obj) - expected).max() < 1e-5, (obj.name, frame.time)
+        seen.append({o.name: np.asarray(frame.poses[o.name]) for o in (falling, pusher)} | {"t": frame.time})
+
+    run_live(context, 1.2, on_frame=check)
+    assert len(seen) >= 10, f"only {len(seen)} frames"
+    first, last = seen[0], seen[-1]
+    t = last["t"] - first["t"]
+    drop = first["Falling"][2] - last["Falling"][2]
+    assert 0.8 < drop / (0.5 * 9.81 * (last["t"] ** 2 - first["t"] ** 2)) < 1.25, (drop, t)
+    for pose in seen:  # the collider is where its animation has it at that time
+        frame = 1 + pose["t"] * fps
+        if frame <= 31:
+            lo = int(np.floor(frame))
+            expected = keyed[lo] + (frame - lo) * (keyed[min(lo + 1, 31)] - keyed[lo])
+            np.testing.assert_allclose(pose["Pusher"][:3], expected, atol=2e-4)
+    assert seen[-1]["Pusher"][0] - seen[0]["Pusher"][0] > 0.01, "the collider moved"
+    # stopping puts both back
+    for obj in (falling, pusher):
+        np.testing.assert_allclose(np.array(obj.matrix_world), matrices[obj.name], atol=1e-7)
+
+
+def test_recorded_live_session_bakes_through_playback_to_the_same_motion(addon, built_scenes, tmp_path):
+    """Record a live session (device stream and felt force, to a // file), then Bake
+    Recording: the bake replays the device stream exactly, and the hand moves as it did live,
+    within a frame's worth of the device's motion (the live loops are paced by the wall clock,
+    the bake's by virtual time)."""
     context = open_copy(built_scenes("hand_wave"), tmp_path)
     s = context.scene.haptic_hand
     hand = s.hand
     rest = world_vertices(context, hand)
-    s.device = "SIMULATED"
-    state = live.start(context)
-    written, times, shapes = 0, [], []
-    try:
-        start = time.monotonic()
-        while time.monotonic() - start < 2.0:
-            before = state.frames_written
-            assert live.update(context, state), state.session.error
-            if state.frames_written > before:  # a new frame: it is in the mesh now
-                frame = state.last_frame
-                shown = world_vertices(context, hand)
-                assert np.abs(shown - frame.surfaces["hand"]).max() < 1e-6
-                times.append(frame.time)
-                shapes.append(shown)
-            time.sleep(1.0 / 60.0)
-        written = state.frames_written
-    finally:
-        live.stop(context, state)
-    session = state.session
-    print(f"{written} frames, {len(session.haptic_log()['t'])} haptic steps in 2 s")
-    assert written >= 10, f"only {written} frames in 2 s"
-    assert np.all(np.diff(times) > 0), "every frame written is newer than the last"
-    # the simulated device waves the hand: the mesh moves between frames
-    assert np.abs(shapes[-1] - shapes[0]).max() > 1e-3
-    assert not session.running and session.error is None
-    log = session.haptic_log()
-    assert len(log["t"]) > 500  # about 1 kHz for 2 s, even on a busy 2-core machine
+    s.device, s.live_record, s.live_recording = "SIMULATED", True, "//takes/wave.npz"
+    shown = []
+    state = run_live(context, 2.0, on_frame=lambda f: shown.append(world_vertices(context, hand)))
+    assert state.frames_written >= 10, f"only {state.frames_written} frames in 2 s"
+    assert np.abs(shown[-1] - shown[0]).max() > 1e-3, "the simulated device waves the hand"
     np.testing.assert_array_equal(world_vertices(context, hand), rest)
+    path = tmp_path / "takes" / "wave.npz"
+    assert state.recorded == path and state.record_error is None
+    with np.load(path) as take:
+        take = dict(take)
+    assert len(take["haptic_t"]) > 500, "about 1 kHz for 2 s, even on a busy 2-core machine"
+    assert take["haptic_force"].shape == take["haptic_device_position"].shape == (len(take["haptic_t"]), 3)
+
+    assert bpy.ops.haptic_hand.bake_recording() == {"FINISHED"}
+    frames = int(np.ceil(take["haptic_t"][-1] * 30 - 1e-9))
+    assert s.baked_range == f"{s.bake_frame_start}-{s.bake_frame_start + frames}"
+    with np.load(bpy.path.abspath(s.bake_log)) as log:
+        log = dict(log)
+    device = np.stack([np.interp(log["time"], take["haptic_t"], take["haptic_device_position"][:, i])
+                       for i in range(3)], axis=1)
+    np.testing.assert_allclose(log["device_pose"][:, :3], device, atol=1e-9)  # the device, replayed exactly
+    step = np.linalg.norm(np.diff(take["haptic_device_position"], axis=0), axis=1) / np.diff(take["haptic_t"])
+    one_frame = step.max() / 30  # how far the device moves in a frame at its fastest
+    k = np.round(take["time"] * 30).astype(int)
+    inside = k < len(log["time"])
+    apart = np.linalg.norm(log["handle_pose"][k[inside], :3] - take["handle_pose"][inside, :3], axis=1)
+    travel = np.linalg.norm(log["handle_pose"][:, :3] - log["handle_pose"][0, :3], axis=1).max()
+    assert travel > 3 * one_frame, "the hand travels further than the tolerance below"
+    assert apart.max() < 1.5 * one_frame, (apart.max(), one_frame)
+
+
+def test_blend_relative_paths_work_everywhere(addon, built_scenes, tmp_path):
+    """Every file-path setting takes // paths (Blender 4.5+ says so per property), and the
+    Playback device reads a // recording."""
+    from haptic_hand.blender import properties
+
+    for cls in properties.classes:
+        for prop in cls.bl_rna.properties:
+            if getattr(prop, "subtype", "") == "FILE_PATH" and hasattr(prop, "is_path_supports_blend_relative"):
+                assert prop.is_path_supports_blend_relative, f"{cls.__name__}.{prop.identifier}"
+    context = open_copy(built_scenes("hand_wave"), tmp_path)
+    s = context.scene.haptic_hand
+    t = np.linspace(0, 0.2, 21)
+    np.savez(tmp_path / "down.npz", t=t, position=np.c_[0 * t, 0 * t, -0.05 * t])
+    s.device, s.device_file = "PLAYBACK", "//down.npz"
+    s.bake_frame_end = s.bake_frame_start + 6
+    job = ops_bake.prepare(context)
+    try:
+        data = __import__("json").loads((job.export.folder / "scene.json").read_text())
+    finally:
+        job.release()
+    assert data["haptics"]["device"] == f"playback:{tmp_path / 'down.npz'}"
+    assert bpy.ops.haptic_hand.bake() == {"FINISHED"}

@@ -1,79 +1,109 @@
 """The sidebar panels draw without errors against a recording layout: every property they
 show exists and every button names a registered operator (a typo there would only show up as
-a broken panel in a real Blender window)."""
+a broken panel in a real Blender window); and docs/blender.md names only controls the panel
+draws."""
+
+import re
+from pathlib import Path
 
 import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from blender_helpers import open_copy
+from haptic_hand.blender import live, ops_bake, panel, runtime
 
+from blender_helpers import FakeSession, draw_panels, labels, open_copy, operators, props
 
-class Recorder:
-    """Stands in for bpy.types.UILayout: checks and records what a panel draws."""
-
-    def __init__(self, log):
-        self.log = log
-
-    def _child(self, *args, **kwargs):
-        return Recorder(self.log)
-
-    row = column = box = grid_flow = split = _child
-
-    def prop(self, data, name, **kwargs):
-        assert name in data.bl_rna.properties, f"{type(data).__name__} has no property '{name}'"
-        self.log.append(("prop", name))
-
-    def operator(self, idname, **kwargs):
-        module, name = idname.split(".")
-        assert name in dir(getattr(bpy.ops, module)), f"operator {idname} is not registered"
-        self.log.append(("operator", idname))
-
-        class Props:
-            pass
-        return Props()
-
-    def label(self, text="", **kwargs):
-        self.log.append(("label", text))
-
-    def separator(self, **kwargs):
-        pass
-
-    def progress(self, **kwargs):
-        self.log.append(("progress", kwargs.get("factor")))
-
-
-class FakePanel:
-    def __init__(self, log):
-        self.layout = Recorder(log)
-
-
-def draw_all(context):
-    from haptic_hand.blender import panel
-
-    log = []
-    for cls in panel.classes:
-        cls.draw(FakePanel(log), context)
-    return log
+DOC = Path(__file__).resolve().parents[2] / "docs" / "blender.md"
+# emphasised words in docs/blender.md that are Blender's own, not the add-on panel's
+BLENDER_NAMES = {"Mesh Cache", "Graph Editor", "Get Extensions", "Install from Disk...", "Shape Keys",
+                 "Object Data", "Custom Properties", "File > Import > Haptic Hand Scene (.json)",
+                 "Edit > Preferences > Get Extensions > ⌄ > Install from Disk...", "Mesh > Clean Up"}
 
 
 def test_panels_draw_empty_and_rigged_scenes(addon, built_scenes, tmp_path):
-    log = draw_all(addon)  # nothing authored yet
-    assert ("operator", "haptic_hand.tetrahedralize") in log and ("operator", "haptic_hand.bake") in log
+    log = draw_panels(addon)  # nothing authored yet
+    assert "haptic_hand.tetrahedralize" in operators(log) and "haptic_hand.bake" in operators(log)
 
     context = open_copy(built_scenes("bunny_press"), tmp_path)
     bunny = bpy.data.objects["bunny"]
     context.view_layer.objects.active = bunny
     s = context.scene.haptic_hand
-    log = draw_all(context)
-    labels = [text for kind, text in log if kind == "label"]
-    assert f"Handle captures {s.captured_nodes} nodes" in labels
-    assert any(text.startswith("bunny: soft") for text in labels)
-    assert ("prop", "young_modulus") in log
+    log = draw_panels(context)
+    assert f"Handle captures {s.captured_nodes} nodes" in labels(log)
+    assert any(text.startswith("bunny: soft") for text in labels(log))
+    assert "young_modulus" in props(log)
     # a bake in progress and a finished one change what the Bake section offers
-    s.bake_running, s.bake_progress = True, 0.4
-    assert ("operator", "haptic_hand.bake_cancel") in draw_all(context)
-    s.bake_running = False
+    s.bake_frame_end = 61
+    job = ops_bake.prepare(context)
+    runtime.state.bake = job.start()
+    try:
+        log = draw_panels(context)
+        assert "haptic_hand.bake_cancel" in operators(log) and "haptic_hand.bake" not in operators(log)
+        assert any(kind == "progress" for kind, _, _ in log)
+    finally:
+        job.cancel()
+        assert ops_bake.poll_job(context, job) == "CANCELLED"
     s.bake_frame_end = 3
     assert bpy.ops.haptic_hand.bake() == {"FINISHED"}
-    assert ("operator", "haptic_hand.free_bake") in draw_all(context)
+    assert "haptic_hand.free_bake" in operators(draw_panels(context))
+
+
+def drawn_names(context) -> set:
+    """Every name the panel shows, in the states it can be in: settings' and buttons' labels,
+    the sections' titles."""
+    names = {cls.bl_label for cls in panel.classes}
+
+    def collect():
+        for kind, what, extra in draw_panels(context):
+            if kind == "prop":
+                names.add(extra.bl_rna.properties[what].name)
+            elif kind == "operator":
+                module, name = what.split(".")
+                names.add(extra or getattr(getattr(bpy.ops, module), name).get_rna_type().name)
+            elif kind == "label":
+                names.add(what)
+
+    s = context.scene.haptic_hand
+    collect()
+    for obj in ("bunny", "ground", "Hand"):
+        context.view_layer.objects.active = bpy.data.objects[obj]
+        collect()
+    bpy.ops.mesh.primitive_cube_add(size=0.02, location=(0.3, 0.3, 0.3))
+    context.active_object.haptic_hand.role = "RIGID"
+    collect()
+    for device in ("PLAYBACK", "HID", "TARGET"):
+        s.device = device
+        collect()
+    s.device = "SIMULATED"
+    runtime.state.live = live.start(context, session_factory=FakeSession)
+    collect()
+    runtime.state.stop_all()
+    s.bake_frame_end = 3
+    assert bpy.ops.haptic_hand.bake() == {"FINISHED"}
+    collect()
+    return names
+
+
+def doc_names() -> set:
+    """The names docs/blender.md puts in bold (buttons, sections) or italics (settings), code
+    left out."""
+    text = re.sub(r"```.*?```", "", DOC.read_text(), flags=re.S)
+    text = re.sub(r"`[^`]*`", "", text)
+    bold = re.findall(r"\*\*([^*]+?)\*\*", text)
+    italic = re.findall(r"(?<![*\w])\*([^*\s][^*]*?)\*(?![*\w])", re.sub(r"\*\*[^*]+?\*\*", "", text))
+    return {n.strip() for n in bold + italic}
+
+
+def test_docs_name_only_what_the_panel_draws(addon, built_scenes, tmp_path):
+    context = open_copy(built_scenes("bunny_press"), tmp_path)
+    drawn = drawn_names(context)
+    named = doc_names()
+    assert {"Tetrahedralize", "Haptic loop", "Bake Recording", "Record", "Confirm above"} <= named, \
+        "the check reads the docs' names"
+    missing = sorted(n for n in named - BLENDER_NAMES if n not in drawn)
+    assert not missing, f"docs/blender.md names controls the panel does not draw: {missing}"
+    # and the docs' table of the panel has a row for every section
+    for cls in panel.classes:
+        if cls.bl_label != "Haptic Hand":
+            assert f"| {cls.bl_label} |" in DOC.read_text(), cls.bl_label

@@ -1,11 +1,13 @@
 """Authoring the rig: tetrahedralize from the operator, the captured-node count, bad input."""
 
+import time
+
 import pytest
 
 bpy = pytest.importorskip("bpy")
 import numpy as np
 
-from haptic_hand.blender import meshdata, scene_export
+from haptic_hand.blender import meshdata, ops_rig, runtime, scene_export
 from haptic_hand.engine import mesh as meshing
 from haptic_hand.engine import native
 
@@ -138,3 +140,100 @@ def test_seed_outside_hand_is_refused_and_scene_untouched(addon, built_scenes, t
     seed = np.array(s.seed.matrix_world.translation)
     assert meshing.embed_points(nodes, tets, seed[None])[1].min() >= -1e-9
     assert s.captured_nodes == native.count_captured(nodes, seed, s.handle_radius)
+
+
+def box_surface(half):
+    """A closed box surface (8 corners, 12 outward triangles) of half-extents `half`."""
+    v = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float) * half
+    import scipy.spatial
+
+    f = scipy.spatial.ConvexHull(v).simplices
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    f[np.einsum("ij,ij->i", n, v[f[:, 0]]) < 0] = f[np.einsum("ij,ij->i", n, v[f[:, 0]]) < 0][:, ::-1]
+    return v, f
+
+
+def test_surface_gap_is_the_distance_outside_the_tets():
+    """The gap Tetrahedralize reports: a render surface a little larger than its tets lies
+    outside them by exactly how much larger it is; points inside have no gap."""
+    from haptic_hand.engine import child
+
+    nodes, tets = meshing.structured_box((0.1, 0.06, 0.04), (4, 3, 2), origin=(-0.05, -0.03, -0.02))
+    corners, _ = box_surface(np.array([0.05, 0.03, 0.02]) + [0.001, 0.0005, 0.002])
+    mid_faces = np.array([[0.0501, 0.0, 0.0], [0.0, 0.0, -0.0203], [0.01, 0.01, 0.0]])
+    gap = child.surface_gap(nodes, tets, np.vstack([corners, mid_faces]))
+    np.testing.assert_allclose(gap[:8], np.linalg.norm([0.001, 0.0005, 0.002]), rtol=1e-9)
+    np.testing.assert_allclose(gap[8:], [0.0001, 0.0003, 0.0], atol=1e-12)
+    assert "up to 2.29 mm outside" in ops_rig.gap_message(gap)
+    assert ops_rig.gap_message(np.zeros(5)) == "the render surface lies inside the tets"
+
+
+def test_tetrahedralize_in_a_child_streams_progress_and_cancels(addon):
+    """The child's stages reach the panel as they happen (fTetWild's log read by the host);
+    Cancel kills it and the mesh keeps the tets it had; the message gives the real gap."""
+    context = addon
+    v, f = meshing.procedural_hand()
+    hand = add_mesh(context, "Hand", v, f)
+    o = hand.haptic_hand
+    o.edge_length_fac, o.coarsen, o.epsilon = 0.2, True, 0.004
+    assert bpy.ops.haptic_hand.use_as_hand() == {"FINISHED"}
+    job = ops_rig.start_tetrahedralize(context, hand)
+    runtime.state.tetrahedralize = job
+    from blender_helpers import draw_panels, operators
+
+    assert "haptic_hand.tetrahedralize_cancel" in operators(draw_panels(context))
+    seen = []
+    while (state := ops_rig.poll_tetrahedralize(context, job)) == "RUNNING":
+        if not seen or seen[-1] != (job.progress, job.message):
+            seen.append((job.progress, job.message))
+        time.sleep(0.005)
+    assert state == "FINISHED", job.error
+    assert runtime.state.tetrahedralize is None
+    messages = [m for _, m in seen]
+    progress = [p for p, _ in seen]
+    assert progress == sorted(progress) and progress[-1] > 0.8
+    for stage in ("simplifying the surface", "inserting the surface", "optimizing (pass"):
+        assert any(m.startswith(stage) for m in messages), (stage, messages)
+    # the message: the real gap (in mm) of the render surface outside the tets
+    nodes, tets = scene_export.hand_tets_world(context.scene)
+    from haptic_hand.engine import child
+
+    gap = child.surface_gap(nodes, tets, meshdata.world_vertices(hand, context.scene))
+    assert gap.max() > 0 and f"up to {gap.max() * 1000:.2f} mm outside the tets" in job.summary, job.summary
+    first = nodes.copy()
+
+    # a finer run, cancelled part-way: the process is killed, the hand keeps its tets
+    o.edge_length_fac, o.coarsen = 0.03, False
+    job = ops_rig.start_tetrahedralize(context, hand)
+    while ops_rig.poll_tetrahedralize(context, job) == "RUNNING" and job.progress < 0.2:
+        time.sleep(0.005)
+    job.cancel()
+    assert ops_rig.poll_tetrahedralize(context, job) == "CANCELLED"
+    assert job.child.process.returncode < 0 and not job.folder.exists()
+    np.testing.assert_array_equal(scene_export.hand_tets_world(context.scene)[0], first)
+
+
+def test_tet_count_estimate_asks_above_the_limit(addon):
+    """The estimate is near what fTetWild makes, and above Confirm above Tetrahedralize asks
+    (from a script: refuses unless confirmed=True) before starting anything."""
+    from haptic_hand.engine import child
+
+    context = addon
+    v, f = meshing.procedural_hand()
+    hand = add_mesh(context, "Hand", v, f)
+    o = hand.haptic_hand
+    o.edge_length_fac, o.coarsen, o.epsilon = 0.2, True, 0.004
+    s = context.scene.haptic_hand
+    estimate = ops_rig.tet_estimate(hand, context.scene)
+    s.tet_confirm_limit = estimate - 1
+    before = _state(context)
+    with pytest.raises(RuntimeError, match=f"about {estimate} tets, more than Rig > Confirm above"):
+        bpy.ops.haptic_hand.tetrahedralize()
+    assert _state(context) == before
+    assert bpy.ops.haptic_hand.tetrahedralize(confirmed=True) == {"FINISHED"}
+    made = len(hand.haptic_hand.tet_object.data[meshdata.TETS_KEY]) // 4
+    assert estimate / 2 < made < estimate * 2, (estimate, made)
+    # a ten times smaller edge length: the volume's share grows a thousandfold
+    coarse = child.estimate_tets(v, f, 0.1, 1.0) - child.estimate_tets(v, f, 1.0, 1.0)
+    fine = child.estimate_tets(v, f, 0.01, 1.0) - child.estimate_tets(v, f, 1.0, 1.0)
+    assert fine / coarse == pytest.approx(1000, rel=0.02)
