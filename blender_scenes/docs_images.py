@@ -5,6 +5,9 @@
 blender_rig.png: the hand see-through, its tets as wires, the handle sphere around the palm
 seed; blender_bake.png: frames of a bake of the bunny scene side by side (the hand at rest,
 pressing, stroking). Each is a render of the .blend the scripts build, not a mock-up.
+blender_panel.png: the Haptic Hand tab as its own draw code lays it out for the bunny scene with
+the bunny selected (headless Blender draws no UI, so the panels draw into a recording layout
+and matplotlib paints what they drew).
 """
 
 from __future__ import annotations
@@ -84,6 +87,107 @@ def bake_picture(out: pathlib.Path, work: pathlib.Path, frames=(1, 31, 76)) -> N
     print(f"wrote {out / 'blender_bake.png'}")
 
 
+class PanelRecorder:
+    """Stands in for bpy.types.UILayout: keeps each row the panels draw, in order."""
+
+    def __init__(self, rows, depth=0):
+        self.rows, self.depth, self.active = rows, depth, True
+
+    def row(self, *args, **kwargs):
+        return PanelRecorder(self.rows, self.depth)
+
+    column = split = grid_flow = row
+
+    def box(self, *args, **kwargs):
+        return PanelRecorder(self.rows, self.depth + 1)
+
+    def prop(self, data, name, text=None, **kwargs):
+        rna = data.bl_rna.properties[name]
+        value = getattr(data, name)
+        if rna.type == "ENUM":
+            shown = next((i.name for i in rna.enum_items if i.identifier == value), str(value))
+        elif rna.type == "BOOLEAN":
+            shown = "[x]" if value else "[ ]"
+        elif rna.type == "POINTER":
+            shown = value.name if value is not None else "-"
+        elif rna.type == "FLOAT":
+            shown = f"{value:.4g}" + (" m" if rna.unit == "LENGTH" else "")
+        else:
+            shown = str(value) if value != "" else "-"
+        self.rows.append((self.depth, "prop", rna.name if text is None else text, shown))
+
+    def operator(self, idname, text=None, **kwargs):
+        import bpy
+
+        module, name = idname.split(".")
+        label = text or getattr(getattr(bpy.ops, module), name).get_rna_type().name
+        self.rows.append((self.depth, "button", label, ""))
+
+        class Props:
+            pass
+        return Props()
+
+    def label(self, text="", **kwargs):
+        self.rows.append((self.depth, "label", text, ""))
+
+    def progress(self, factor=0.0, text="", **kwargs):
+        self.rows.append((self.depth, "label", text, ""))
+
+    def separator(self, **kwargs):
+        pass
+
+
+def panel_picture(out: pathlib.Path, work: pathlib.Path) -> None:
+    import bpy
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from haptic_hand.blender import panel
+
+    objects = common.build("bunny", work / "panel.blend")
+    bpy.context.view_layer.objects.active = objects["bunny"]
+    sections = []
+    for cls in panel.classes:
+        rows = []
+
+        class Fake:
+            layout = PanelRecorder(rows)
+        cls.draw(Fake(), bpy.context)
+        sections.append((cls.bl_label, getattr(cls, "bl_parent_id", ""), rows))
+    height = sum(len(rows) + 1.4 for _, _, rows in sections) * 0.2
+    fig = plt.figure(figsize=(4.6, height), dpi=110)
+    fig.patch.set_facecolor("#303030")
+    ax = fig.add_axes([0, 0, 1, 1])
+    ax.set_xlim(0, 46)
+    ax.set_ylim(-height * 5, 0)
+    ax.axis("off")
+    y = -1.0
+    text = dict(color="#e6e6e6", fontsize=7.5, va="center", family="DejaVu Sans")
+    for title, parent, rows in sections:
+        indent = 1.5 if parent and parent != "HAPTIC_HAND_PT_main" else 0.5
+        ax.add_patch(plt.Rectangle((indent, y - 0.6), 45.5 - indent, 1.2, color="#3d3d3d"))
+        ax.text(indent + 0.6, y, "v  " + title, fontweight="bold", **text)
+        y -= 1.4
+        for depth, kind, label, value in rows:
+            x = indent + 1.0 + 1.2 * depth
+            if kind == "button":
+                ax.add_patch(plt.Rectangle((x, y - 0.5), 44.5 - x, 1.0, color="#545454"))
+                ax.text((x + 44.5) / 2, y, label, ha="center", **text)
+            elif kind == "prop":
+                ax.text(x, y, label, **text)
+                ax.add_patch(plt.Rectangle((24, y - 0.5), 20.5, 1.0, color="#1d1d1d"))
+                ax.text(24.5, y, value, **text)
+            else:
+                ax.text(x, y, label, **dict(text, color="#b0b0b0"))
+            y -= 1.0
+        y -= 0.4
+    fig.savefig(out / "blender_panel.png", facecolor=fig.get_facecolor())
+    plt.close(fig)
+    print(f"wrote {out / 'blender_panel.png'}")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default=str(common.ROOT / "docs" / "images"))
@@ -96,6 +200,7 @@ def main(argv=None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             rig_picture(out, pathlib.Path(tmp))
             bake_picture(out, pathlib.Path(tmp))
+            panel_picture(out, pathlib.Path(tmp))
     finally:
         haptic_hand.unregister()
     return 0

@@ -26,6 +26,7 @@ import json
 import math
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -362,6 +363,7 @@ class Child:
         self._reader = None
         self._cancelled = False
         self._stderr = None
+        self._cwd = self.workdir = None
         self._lock = threading.Lock()
         self.started_at = None
 
@@ -370,9 +372,11 @@ class Child:
         argv, env = command(*self.args)
         argv, env = self._argv or argv, self._env or env
         self._stderr = tempfile.TemporaryFile()
+        # a folder of its own: fTetWild leaves debug files (__cutting.stl, ...) where it runs
+        self._cwd = self.workdir = tempfile.mkdtemp(prefix="haptic_hand_child_")
         self.started_at = time.monotonic()
         self.process = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=self._stderr,
-                                        env=env, cwd=tempfile.gettempdir(), start_new_session=True)
+                                        env=env, cwd=self._cwd, start_new_session=True)
         self._contain(self.process.pid)
         self._reader = threading.Thread(target=self._read, name="haptic_hand child reader", daemon=True)
         self._reader.start()
@@ -405,6 +409,8 @@ class Child:
                 break
             except subprocess.TimeoutExpired:
                 continue
+        if self._reader is not None:
+            self._reader.join(timeout=2.0)  # its pipe closed with the child: poll() is final now
 
     # --- reading ---
     def _read(self) -> None:
@@ -495,6 +501,9 @@ class Child:
         if self._stderr is not None:
             self._stderr.close()
             self._stderr = None
+        if self._cwd is not None:
+            shutil.rmtree(self._cwd, ignore_errors=True)
+            self._cwd = None
 
 
 if __name__ == "__main__":

@@ -189,6 +189,9 @@ def test_tetrahedralize_in_a_child_streams_progress_and_cancels(addon):
         time.sleep(0.005)
     assert state == "FINISHED", job.error
     assert runtime.state.tetrahedralize is None
+    from pathlib import Path
+
+    assert not Path(job.child.workdir).exists(), "fTetWild's debug files went with the child's folder"
     messages = [m for _, m in seen]
     progress = [p for p, _ in seen]
     assert progress == sorted(progress) and progress[-1] > 0.8
