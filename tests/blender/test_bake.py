@@ -332,3 +332,33 @@ def test_unsaved_blend_is_refused(addon):
         bpy.ops.haptic_hand.bake()
     assert not context.scene.haptic_hand.baked and context.scene.haptic_hand.hand.data.shape_keys is None
     assert sorted(o.name for o in bpy.data.objects) == objects
+
+
+def test_objects_that_never_move_store_nothing(addon, built_scenes, tmp_path):
+    """Without gravity or ground, a bunny the hand has not reached yet and a rigid cube far
+    away never move: they get no keys, no cache and no keyed transform, and the report says
+    so."""
+    context = open_copy(built_scenes("bunny_press"), tmp_path)
+    context.scene.use_gravity = False
+    bpy.data.objects["ground"].haptic_hand.role = "NONE"  # the bunny rests just into its contact layer
+    bpy.ops.mesh.primitive_cube_add(size=0.02, location=(0.5, 0.5, 0.5))
+    cube = context.active_object
+    cube.name = "Far cube"
+    cube.haptic_hand.role = "RIGID"
+    s = context.scene.haptic_hand
+    s.bake_frame_start, s.bake_frame_end = 1, 4
+    reference = reference_run(context)
+    assert np.abs(engine_surfaces(reference, "bunny") - engine_surfaces(reference, "bunny")[0]).max() <= \
+        bake_store.STILL, "the bunny is still in the engine too"
+    assert np.abs(reference["body_Far cube_pose"] - reference["body_Far cube_pose"][0]).max() <= bake_store.STILL
+    for fmt in ("KEYS", "PC2"):
+        s.bake_format = fmt
+        state, job, _ = bake_in_background(context)
+        assert state == "FINISHED", job.error
+        bunny = bpy.data.objects["bunny"]
+        assert bunny.data.shape_keys is None and not bunny.modifiers and not bunny.haptic_hand.baked
+        assert cube.animation_data is None or cube.animation_data.action is None
+        assert "nothing stored for Far cube, bunny" in job.summary or "nothing stored for bunny, Far cube" in \
+            job.summary, job.summary
+        assert s.hand.haptic_hand.baked, "the hand moves: it is baked"
+        assert not (bake_store.cache_dir() / "bunny.pc2").exists()
