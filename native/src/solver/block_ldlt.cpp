@@ -928,10 +928,9 @@ __attribute__((target("avx512f,avx512vl,avx2,fma"))) void supernodal_avx512(cons
 //   use, and each value is then a broadcast load as on the float panels: the conversions cost
 //   one instruction per 16 values instead of one per value (the former double-arithmetic half
 //   kernels', which made the 8-lane half pass slower than the float one). On the 16826-tet
-//   hand's factor in a loop of its own an 8-lane pass takes 1.02-1.16x the float panels' time
-//   (two machine states); in the 10x bunny's frames, where b_t's one-lane passes stream the
-//   half copy beside it, the Schur columns' pass took 4.44-4.75 ms against 5.35-5.38
-//   (bench/README.md, twenty-fifth round).
+//   hand's factor in a loop of its own an 8-lane pass takes about the float panels' time; in
+//   the 10x bunny's frames, where b_t's one-lane passes stream the half copy beside it, the
+//   Schur columns' pass on the half panels is the faster.
 template <int VL> struct FloatLanes;
 template <> struct FloatLanes<4> { typedef float V __attribute__((vector_size(16))); };
 template <> struct FloatLanes<8> { typedef HalfFloat8 V; };
@@ -1441,9 +1440,8 @@ void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& row
     }
     // Up to 16 unit columns a pass on the up-looking factor (8 for its other solves): the
     // paper-size hands' factors stay in cache, so a pass is bound by its arithmetic, and two
-    // vectors of lanes per row give each 3x3 block's loads twice the work. Measured on the paper
-    // bunny with the 1695-tet hand (four alternating pairs, against the sweeps in the same run):
-    // the contact build 6-7% cheaper than with 8 (bench/README.md, twenty-third round).
+    // vectors of lanes per row give each 3x3 block's loads twice the work (the paper bunny's
+    // contact build is a few percent cheaper than with 8).
     const int most = supernodal_ ? kWidestSolve : 16;
     // The right-hand sides stay zero between calls: each batch clears the dirty nodes it leaves
     // nonzero. Clearing all 3n x w values per call instead (the calls mostly take one batch)
