@@ -6,6 +6,7 @@
 // solve (Delassus operator W = J A^-1 J^T, projected Gauss-Seidel), then all bodies advance.
 #pragma once
 #include <cstdint>
+#include <cstdio>
 #include <map>
 #include <memory>
 #include <unordered_map>
@@ -163,6 +164,10 @@ public:
     // through_aht = Aht A_t^-1 J^T e_row. False when the hand is not in that row.
     bool contact_handle_terms(int body, int row, Vec6& through_ath, Vec6& through_aht) const;
     double time = 0;  // s: simulated time, advanced by step()
+    // When set (C++ only, for measurements), every step writes its contact solve's parts here:
+    // warm-start hits, contacts, groups, the build / sweeps / apply times, the columns formed, and
+    // each body's rows and touched unknowns
+    std::FILE* contact_trace = nullptr;
 
     int add(std::unique_ptr<Body> body);
     void step();

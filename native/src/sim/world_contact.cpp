@@ -8,7 +8,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <functional>
 #include <map>
 #include <string>
@@ -33,10 +32,6 @@ Vec3 carried_velocity(const Body& b, const Vec3& x) {
 }
 
 // A contact row's direction in the world: normal, tangent1, tangent2 (rows 3c, 3c + 1, 3c + 2)
-// HH_CONTACT_TRACE set: every step prints its contact solve's parts to stderr (read once, at
-// load: the per-frame path does not consult the environment)
-const bool kContactTrace = std::getenv("HH_CONTACT_TRACE") != nullptr;
-
 const Vec3& contact_direction(const std::vector<Contact>& contacts, int row) {
     const Contact& c = contacts[row / 3];
     return row % 3 == 0 ? c.normal : (row % 3 == 1 ? c.tangent1 : c.tangent2);
@@ -415,7 +410,7 @@ void World::finish_contact_body(int bi) {
     } else {
         response = 0.5 * (cb.K + cb.K.transpose());
     }
-    if (kContactTrace) std::fprintf(stderr, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(cs.start));
+    if (contact_trace) std::fprintf(contact_trace, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(cs.start));
 }
 
 // One group of coupled contacts (it shares no body with the other groups): its problem on its
@@ -571,23 +566,23 @@ void World::finish_contacts() {
     contact_friction = cs.friction;
 }
 
-// The step's contact solve, for HH_CONTACT_TRACE: called once the step has summed its parts' times
+// The step's contact solve, to contact_trace: called once the step has summed its parts' times
 void World::trace_contacts() const {
-    if (!kContactTrace || !setup_) return;
+    if (!contact_trace || !setup_) return;
     const ContactSetup& cs = *setup_;
-    std::fprintf(stderr, "warm %d patch %d ", cs.warm_hits, cs.patch_hits);
+    std::fprintf(contact_trace, "warm %d patch %d ", cs.warm_hits, cs.patch_hits);
     double columns = 0;  // (of the sweeps' time)
     int formed = 0;
     for (const auto& gs : cs.group_solve) {
         for (double t : gs.form_seconds) columns += t;
         formed += gs.formed;
     }
-    std::fprintf(stderr, "contacts %zu groups %zu build %.2f sweeps %.2f (columns %.2f, formed %d) apply %.2f ms it %d |",
+    std::fprintf(contact_trace, "contacts %zu groups %zu build %.2f sweeps %.2f (columns %.2f, formed %d) apply %.2f ms it %d |",
                  contacts.size(), contact_groups.size(), 1e3 * stats.t_contact_build, 1e3 * stats.t_contact_sweeps, 1e3 * columns,
                  formed, 1e3 * stats.t_contact_apply, stats.iterations);
     for (const auto& e : contact_bodies)
-        std::fprintf(stderr, " body %d rows %zu touched %zu %s", e.first, e.second.rows.size(), e.second.touched.size(), e.second.row_basis ? "R" : "D");
-    std::fprintf(stderr, "\n");
+        std::fprintf(contact_trace, " body %d rows %zu touched %zu %s", e.first, e.second.rows.size(), e.second.touched.size(), e.second.row_basis ? "R" : "D");
+    std::fprintf(contact_trace, "\n");
 }
 
 MatX World::contact_delassus(const std::vector<int>& rows) const {

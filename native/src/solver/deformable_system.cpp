@@ -4,9 +4,6 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
-#include <string>
 
 #include "fem/corotational.h"
 #include "rigid/quaternion.h"
@@ -112,23 +109,16 @@ struct DeformableSystem::Impl {
     std::vector<Mat3> node_r, node_r_factor, warp;  // this step's, at the factorization, and R R_factor^T
     bool have_rotations = false;
     bool block_pattern = false;  // At's pattern suits the block kernel of multiply_node_major
-    // A/B switches for measurements: HH_REUSE_PANELS=double|single|half (the preconditioner
-    // passes' panels; default half, where the CPU converts halves, else single),
-    // HH_REUSE_UPLOOKING (the up-looking block LDL^T instead of the supernodal form)
-    Panels preconditioner = [] {
-        const char* v = std::getenv("HH_REUSE_PANELS");
-        const std::string panels = v ? v : "";
-        return panels == "double" ? Panels::Double : panels == "single" ? Panels::Single : Panels::Half;
-    }();
-    bool supernodal = std::getenv("HH_REUSE_UPLOOKING") == nullptr;
+    FactorForms forms;
     // The panels a preconditioner pass of `width` lanes reads: the narrowest copy the factor
     // keeps (see pcg_block). The half copy's rounding bounds an iteration's contraction at ~5e-4
     // even on an exact factor, so a wider block asked for a relative residual below 1e-8 (from
     // warm starts 1e-4 to 1e-5 off, two iterations instead of one) reads the float copy: its
     // iterations cost several one-lane passes each.
     Panels pass_panels(int width, double tolerance) const {
-        if (preconditioner == Panels::Half && cholesky.has_half() && (width == 1 || tolerance >= 1e-8)) return Panels::Half;
-        return preconditioner != Panels::Double && cholesky.has_single() ? Panels::Single : Panels::Double;
+        if (forms.preconditioner == Panels::Half && cholesky.has_half() && (width == 1 || tolerance >= 1e-8))
+            return Panels::Half;
+        return forms.preconditioner != Panels::Double && cholesky.has_single() ? Panels::Single : Panels::Double;
     }
     // Cost bookkeeping of the refactorization policy, in work units (one unit: a one-lane pass
     // over the factor), counted, not timed: the policy does not depend on the machine's load,
@@ -182,9 +172,9 @@ struct DeformableSystem::Impl {
         if (!cholesky.analysed()) {
             // many preconditioner passes per factorization: the supernodal form's dense panel
             // kernels (and its single-precision copy) pay off
-            cholesky.set_supernodal(supernodal);
-            cholesky.set_keep_single(preconditioner != Panels::Double);
-            cholesky.set_keep_half(preconditioner == Panels::Half);
+            cholesky.set_supernodal(forms.reused_supernodal);
+            cholesky.set_keep_single(forms.preconditioner != Panels::Double);
+            cholesky.set_keep_half(forms.preconditioner == Panels::Half);
             cholesky.analyze(sys.A);
             block_pattern = has_node_block_pattern(sys.A);
             // a factorization against a one-lane pass over its result: flops against stored
@@ -231,18 +221,13 @@ struct DeformableSystem::Impl {
     // supernodal): 1700 tets (4.6e6) 0.65 / 0.43 ms, 4101 tets (1.9e7) 2.4 / 1.7 ms, 17208 tets
     // (4.6e8) 55 / 26 ms; in the contact scenes the supernodal solves cost a little more, so the
     // paper's hands (1700 tets: as fast either way) stay up-looking, the 10x bunny scene's 4101-
-    // and 2594-tet bodies gain ~2 ms a frame on one thread.
-    // HH_CHOLESKY_FORM=uplooking|supernodal forces one (to measure).
+    // and 2594-tet bodies gain ~2 ms a frame on one thread. (FactorForms::per_step forces one.)
     static constexpr double kSupernodalFlops = 1e7;
     void analyze_per_step(const SpMat& a) {
-        const char* form = std::getenv("HH_CHOLESKY_FORM");
-        const std::string forced = form ? form : "";
+        using PerStep = FactorForms::PerStep;
         cholesky.analyze(a);
         const bool big = cholesky.factor_flops() > kSupernodalFlops;
-        if (std::getenv("HH_CHOLESKY_TRACE"))
-            std::fprintf(stderr, "per-step Cholesky: %d nodes, %.3g flops per factorization\n", cholesky.nodes(),
-                         cholesky.factor_flops());
-        if (forced == "supernodal" || (forced != "uplooking" && big)) {
+        if (forms.per_step == PerStep::Supernodal || (forms.per_step == PerStep::Auto && big)) {
             cholesky = BlockLDLT();
             cholesky.set_supernodal(true);
             cholesky.analyze(a);
@@ -275,6 +260,17 @@ void DeformableSystem::configure(DeformableSolver solver, double cg_tolerance, i
 }
 
 DeformableSolver DeformableSystem::solver() const { return impl_->solver; }
+
+void DeformableSystem::set_factor_forms(const FactorForms& forms) {
+    Impl& m = *impl_;
+    m.forms = forms;
+    m.cholesky = BlockLDLT();  // (analysed again, in the new forms, by the next solve)
+    m.have_factor = m.factor_current = false;
+    m.drop_blocks();
+    factor_valid_ = false;
+}
+
+const FactorForms& DeformableSystem::factor_forms() const { return impl_->forms; }
 
 void DeformableSystem::matrix_changed() {
     Impl& m = *impl_;
