@@ -453,30 +453,133 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
 // The sweeps, on any form of W. Op gives, per contact i, its current relative velocity
 // velocity(i) (3: normal, tangent1, tangent2), the symmetric 3x3 diagonal block block(i) of
 // W, and apply(i, delta): the impulses of contact i change by delta.
+//
+// Which contacts a sweep visits. Open contacts are left out: a contact without impulse whose
+// gap stays open (u_n + gap/dt > 0) is a no-op in a sweep (its update leaves lambda = 0). Most
+// contacts of the paper's bunny are such (about 20 of 250 push), yet each would cost a
+// velocity in every sweep and in every residual. A full sweep (every contact, and the residual
+// on every contact) every kFullEvery sweeps marks those without impulse that are open by more
+// than the tolerance; the sweeps in between visit the others only. A contact that closes in
+// between is caught at the next full sweep, and every decision (to stop, to take or keep a
+// subspace step) is made on the residual of every contact, so the stopping criterion is
+// unchanged; while the left-out contacts stay open the sweeps are exactly the full ones. (The
+// margin is the tolerance: a wider one leaves more contacts in.)
+// Where the subspace step cannot run (more active contacts than it takes), settled contacts
+// are left out in between too: those whose own residual at the full sweep is within the
+// tolerance or within kHotFraction of the worst; full sweeps then come every kFullEveryLarge
+// sweeps. There (the 10x bunny ends every frame at the cap) the error sits in a few groups of
+// 2-5 nearly dependent contacts (the eigen-directions of W that carry most of the hand's
+// impulse error), while most contacts the sweeps visit are already far closer than the worst:
+// the partial sweeps, focused on the contacts they visit (ReducedOp::focus), then cost a
+// fraction of the full ones, and the residual left at the cap, and the hand's generalized
+// impulse's distance from the converged one, stay as they are with full sweeps.
+//
+// Subspace steps: every `interval` sweeps, kSubspaceEvery while the steps are kept, doubled (up
+// to kSubspaceMaxInterval) after each rejected one. Steps come in pairs: step_due is taken
+// before a pending step is decided, so the sweep that decides one takes the next at once (after
+// a rejection from the restored impulses, the contacts the rejected step took out starting
+// out); skipping that second step leaves a larger residual. A rejected step costs its dense
+// solves and the sweep after it, hence the longer interval after one.
+//
+// The stall stop. Near the tolerance the sweeps often crawl: on the paper bunny's pressed
+// frames the residual comes within a few times the tolerance in tens of sweeps and then falls
+// ~10% every 30 sweeps, so many frames would sweep on to the cap for a residual a little lower
+// (micrometres over a step). With stall_factor, once the residual on every contact is within
+// stall_factor x the tolerance and the best residual's rate of fall over the last kStallWindow
+// sweeps would not bring it to the tolerance within the sweeps left, the solve ends as if
+// converged (the reported residual is the one reached). Far from the tolerance the sweeps go
+// on: there they still matter (the 10x scenes end at the cap 10-20x above it).
 template <class Op>
-PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX& kinetic, double dt,
-                double recovery_speed, VecX& lambda, int max_iterations, double tolerance, double stall_factor) {
+class Sweeps {
+public:
+    Sweeps(Op& op, int c, const VecX& gap, const VecX& friction, const VecX& kinetic, double dt, double recovery_speed,
+           VecX& lambda, int max_iterations, double tolerance, double stall_factor)
+        : op(op), c(c), kinetic(kinetic), lambda(lambda), max_iterations(max_iterations), tolerance(tolerance),
+          stall_factor(stall_factor), bias(c), coefficient(friction), u(c), all(c), own(c, 0.0), disks(c),
+          disk_made(c, 0), blocks_cache(c), last_state(c, -1) {
+        // target normal velocity: close an open gap exactly within the step, never faster; push
+        // out of a penetration at a bounded speed, so a deep one is resolved over a few steps
+        // instead of by one violent impulse that would feed energy into the scene
+        for (int i = 0; i < c; ++i) bias[i] = std::max(gap[i] / dt, -recovery_speed);
+        for (int i = 0; i < c; ++i) all[i] = i;
+    }
+
+    PgsResult run() {
+        for (int it = 0, pass = 0; it < max_iterations; ++it) {
+            const bool full = it >= next_full;
+            if (full && it > 0) op.refresh(lambda);
+            const std::vector<int>& visit = full ? all : live;
+            const double estimate = sweep(visit, full);
+            result.iterations = it + 1;
+            result.residual = full ? residual(visit) : estimate;
+            if (full) after_full_sweep(it);
+            // every decision below (stop, subspace step, keep a step) on the residual of every
+            // contact. With more active contacts than the subspace step takes (`large`), a step
+            // that falls due in a partial sweep waits for the next full sweep, whose residual is
+            // every contact's anyway: measuring it in the partial sweep before (a catch-up of
+            // the focused contacts' columns and a velocity per contact, then a full sweep next)
+            // is wasted on a step that cannot run there unless the active set shrank.
+            const bool step_due = it + 1 >= next_step && (full || !large);
+            const bool deciding = pending || result.residual <= tolerance || it + 1 >= max_iterations || step_due;
+            if (!full && deciding) {
+                op.refresh(lambda);
+                result.residual = residual(all);
+                next_full = it + 1;  // the next sweep visits every contact again
+            }
+            if (pending) judge_step(it);
+            if (result.residual > tolerance && it + 1 < max_iterations && step_due && take_step(it)) continue;
+            // (a residual on every contact: after a full sweep or one that decided something)
+            const bool measured_all = full || deciding;
+            if (result.residual > tolerance && it + 1 < max_iterations && !(measured_all && stalled(it, result.residual)))
+                continue;
+            if (pass++ > 0 || !break_loose()) break;
+            next_full = it + 1;
+            progress.clear();  // the kinetic problem's progress is its own
+        }
+        return result;
+    }
+
+private:
+    Op& op;
+    const int c;
+    const VecX& kinetic;
+    VecX& lambda;
+    const int max_iterations;
+    const double tolerance, stall_factor;
     PgsResult result;
-    // target normal velocity: close an open gap exactly within the step, never faster; push
-    // out of a penetration at a bounded speed, so a deep one is resolved over a few steps
-    // instead of by one violent impulse that would feed energy into the scene
-    VecX bias(c);
-    for (int i = 0; i < c; ++i) bias[i] = std::max(gap[i] / dt, -recovery_speed);
+    VecX bias;
     // Friction coefficient each contact's disk uses: static first; contacts still sliding once
     // the static problem is solved break loose and are solved again against kinetic friction.
     // (Deciding per contact inside the sweep would let the first contact of a resting block
     // give way before its neighbours had taken their share.)
-    VecX coefficient = friction;
-    std::vector<Vec3> u(c);
+    VecX coefficient;
+    std::vector<Vec3> u;  // per contact, its relative velocity when its residual was last measured
     // How far the current impulses are from satisfying every condition, in m/s: normal
     // complementarity, sticking contacts at rest, sliding ones sliding against their friction.
-    // `all` the contacts, `live` those the sweeps visit (see below); `own` each contact's
-    // residual when last measured
-    std::vector<int> all(c), live;
-    std::vector<double> own(c, 0.0);
-    for (int i = 0; i < c; ++i) all[i] = i;
+    // `all` the contacts, `live` those the partial sweeps visit; `own` each contact's residual
+    // when last measured
+    std::vector<int> all, live;
+    std::vector<double> own;
+    // per contact, the eigen-decomposition of its tangential block, made when first needed
+    // (with the reduced form, a contact's block is formed with its columns: see below)
+    std::vector<Disk> disks;
+    std::vector<unsigned char> disk_made;
+    // the subspace steps: the impulses and residual before the pending one, the blocks of W
+    // they keep, each contact's state at the end of the last one, their solves' damping
+    VecX saved;
+    double saved_residual = 0;
+    ActiveBlocks blocks_cache;
+    std::vector<int> last_state;
+    double damping = kDampingStart;  // (adapted: see subspace_step)
+    bool pending = false;
+    int interval = kSubspaceEvery, next_step = kSubspaceEvery;
+    int next_full = 0;
+    bool large = false;  // more active contacts than the subspace step takes (at the last full sweep)
+    // (sweep, best residual so far) at each measurement of every contact's residual (stalled)
+    std::vector<std::pair<int, double>> progress;
+
     // contact i's conditions at relative velocity ui and its current impulses
-    auto local_residual = [&](int i, const Vec3& ui) {
+    double local_residual(int i, const Vec3& ui) const {
         const int n = 3 * i;
         const double un = ui[0] + bias[i];
         double r = lambda[n] > 0 ? std::abs(un) : std::max(0.0, -un);
@@ -490,8 +593,9 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
                 r = std::max(r, (ut + (ut.norm() / lt.norm()) * lt).norm());  // anti-parallel
         }
         return r;
-    };
-    auto residual = [&](const std::vector<int>& contacts) {
+    }
+
+    double residual(const std::vector<int>& contacts) {
         double worst = 0;
         for (const int i : contacts) {
             const Vec3 ui = op.velocity(i);
@@ -500,95 +604,15 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             worst = std::max(worst, own[i]);
         }
         return worst;
-    };
-    // per contact, the eigen-decomposition of its tangential block, made when first needed
-    // (with the reduced form, a contact's block is formed with its columns: see below)
-    std::vector<Disk> disks(c);
-    std::vector<unsigned char> disk_made(c, 0);
-    VecX saved;
-    ActiveBlocks blocks_cache(c);
-    std::vector<int> last_state(c, -1);  // per contact, its state at the end of the last subspace step
-    double saved_residual = 0;
-    double damping = kDampingStart;  // of the subspace steps' solves, adapted (see subspace_step)
-    bool pending = false;
-    // Sweeps until the next subspace step: kSubspaceEvery while the steps are kept, doubled
-    // (up to kSubspaceMaxInterval) after each rejected one. Steps come in pairs: step_due is
-    // taken before a pending step is decided, so the sweep that decides one takes the next at
-    // once (after a rejection from the restored impulses, the contacts the rejected step took
-    // out starting out); skipping that second step leaves a larger residual. A rejected step
-    // costs its dense solves and the sweep after it, hence the longer interval after one.
-    int interval = kSubspaceEvery, next_step = kSubspaceEvery;
-    // Open contacts left out of the sweeps. A contact without impulse whose gap stays open
-    // (u_n + gap/dt > 0) is a no-op in a sweep: its update leaves lambda = 0. Most contacts of
-    // the paper's bunny are such (about 20 of 250 push), yet each would cost a velocity in every
-    // sweep and in every residual. A full sweep (every contact, and
-    // the residual on every contact) every kFullEvery sweeps marks those without impulse that
-    // are open by more than the tolerance; the sweeps in between visit the others only. A
-    // contact that closes in between is caught at the next full sweep, and every decision (to
-    // stop, to take or keep a subspace step) is made on the residual of every contact, so the
-    // stopping criterion is unchanged; while the left-out contacts stay open the sweeps are
-    // exactly the full ones. (The margin is the tolerance: a wider one leaves more contacts in.)
-    // Where the subspace step cannot run (more active contacts than it takes), settled contacts
-    // are left out in between too: those whose own residual at the full sweep is within the
-    // tolerance or within kHotFraction of the worst; full sweeps then come every
-    // kFullEveryLarge sweeps. There (the 10x bunny ends every frame at the cap) the error sits
-    // in a few groups of 2-5 nearly dependent contacts (the eigen-directions of W that carry
-    // most of the hand's impulse error), while most contacts the sweeps visit are already far
-    // closer than the worst: the partial sweeps, focused on the contacts they visit
-    // (ReducedOp::focus), then cost a fraction of the full ones, and the residual left at the
-    // cap, and the hand's generalized impulse's distance from the converged one, stay as they
-    // are with full sweeps.
-    const double open_margin = tolerance;
-    int next_full = 0;
-    bool large = false;  // more active contacts than the subspace step takes (at the last full sweep)
-    // the contacts the partial sweeps visit, from every contact's residual (own, u) against the worst
-    auto select_live = [&](double worst) {
-        live.clear();
-        // settled contacts left out only where the subspace steps cannot run (too many
-        // active contacts): with them, the sweeps converge together and leaving contacts
-        // out slows them (test_contact_reduced's contacts on one element take more sweeps)
-        int active = 0;
-        for (int i = 0; i < c; ++i) active += lambda[3 * i] > 0;
-        large = active > kSubspaceMaxActive;
-        const double settled = large ? std::max(tolerance, kHotFraction * worst) : -1.0;
-        for (int i = 0; i < c; ++i)
-            if ((lambda[3 * i] > 0 || lambda[3 * i + 1] != 0 || lambda[3 * i + 2] != 0 || !(u[i][0] + bias[i] > open_margin)) &&
-                own[i] > settled)
-                live.push_back(i);
-    };
-    // The stall stop. Near the tolerance the sweeps often crawl: on the paper bunny's pressed
-    // frames the residual comes within a few times the tolerance in tens of sweeps and then
-    // falls ~10% every 30 sweeps, so many frames would sweep on to the cap for a residual a
-    // little lower (micrometres over a step). With stall_factor, once the
-    // residual on every contact is within stall_factor x the tolerance and the best residual's
-    // rate of fall over the last kStallWindow sweeps would not bring it to the tolerance within
-    // the sweeps left, the solve ends as if converged (the reported residual is the one
-    // reached). Far from the tolerance the sweeps go on: there they still matter (the 10x
-    // scenes end at the cap 10-20x above it). `progress`: (sweep, best residual so far) at
-    // each measurement of every contact's residual.
-    std::vector<std::pair<int, double>> progress;
-    auto stalled = [&](int it, double r) {
-        const double best = progress.empty() ? r : std::min(r, progress.back().second);
-        progress.emplace_back(it, best);
-        if (!(stall_factor > 0) || r > stall_factor * tolerance) return false;
-        int k = static_cast<int>(progress.size()) - 1;  // the last measurement kStallWindow or more sweeps before
-        while (k >= 0 && progress[k].first > it - kStallWindow) --k;
-        if (k < 0) return false;
-        const double fall = best / progress[k].second;  // over it - progress[k].first sweeps
-        if (fall >= 1) return true;
-        const double needed = (it - progress[k].first) * std::log(best / tolerance) / -std::log(fall);
-        return needed > max_iterations - 1 - it;
-    };
-    for (int it = 0, pass = 0; it < max_iterations; ++it) {
-        const bool full = it >= next_full;
-        if (full && it > 0) op.refresh(lambda);
-        const std::vector<int>& visit = full ? all : live;
-        // A partial sweep measures no residual of its own: each contact's conditions as the
-        // sweep finds it (before its update, with the contacts visited before it updated)
-        // estimate where the last sweep left them, and only when that estimate is within the
-        // tolerance is every contact's residual measured (see `deciding` below: every decision
-        // stays on the residual of every contact). The measurement after each partial sweep
-        // was a second pass of velocities over the visited contacts.
+    }
+
+    // One sweep over `visit`. A partial sweep measures no residual of its own: each contact's
+    // conditions as the sweep finds it (before its update, with the contacts visited before it
+    // updated) estimate where the last sweep left them, returned; only when that estimate is
+    // within the tolerance is every contact's residual measured (run: `deciding`). The
+    // measurement after each partial sweep would be a second pass of velocities over the
+    // visited contacts.
+    double sweep(const std::vector<int>& visit, bool full) {
         double estimate = 0;
         for (const int i : visit) {
             const int n = 3 * i;
@@ -609,99 +633,133 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             }
             if (!bare) ui = op.velocity(i);
             if (!full) estimate = std::max(estimate, local_residual(i, ui));
-            const double ln = std::max(0.0, lambda[n] - (ui[0] + bias[i]) / w(0, 0));
-            Vec3 delta(ln - lambda[n], 0, 0);
-            lambda[n] = ln;
-            ui += w.col(0) * delta[0];
-            // friction: the exact solution of this contact's 2x2 subproblem (impulse inside
-            // the disk of radius mu lambda_n minimizing the block's kinetic energy), whose
-            // optimality conditions are Coulomb's: sticking inside the disk, or on its rim
-            // exactly opposite the post-step sliding velocity (maximal dissipation).
-            const Eigen::Matrix2d wtt = 0.5 * (w.block<2, 2>(1, 1) + w.block<2, 2>(1, 1).transpose());
-            if (wtt.trace() > 0) {
-                const Eigen::Vector2d ut(ui[1], ui[2]);
-                const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
-                if (!disk_made[i]) {
-                    disks[i] = Disk(wtt);
-                    disk_made[i] = 1;
-                }
-                const Eigen::Vector2d target = disk_constrained_minimum(disks[i], wtt * lt - ut, coefficient[i] * lambda[n]);
-                delta[1] = target[0] - lt[0];
-                delta[2] = target[1] - lt[1];
-                lambda[n + 1] = target[0];
-                lambda[n + 2] = target[1];
+            update(i, w, ui);
+        }
+        return estimate;
+    }
+
+    // Contact i's impulses given the others': the normal one projected, then friction as the
+    // exact solution of the contact's 2x2 subproblem (the impulse inside the disk of radius
+    // mu lambda_n minimizing the block's kinetic energy), whose optimality conditions are
+    // Coulomb's: sticking inside the disk, or on its rim exactly opposite the post-step sliding
+    // velocity (maximal dissipation).
+    void update(int i, const Mat3& w, Vec3 ui) {
+        const int n = 3 * i;
+        const double ln = std::max(0.0, lambda[n] - (ui[0] + bias[i]) / w(0, 0));
+        Vec3 delta(ln - lambda[n], 0, 0);
+        lambda[n] = ln;
+        ui += w.col(0) * delta[0];
+        const Eigen::Matrix2d wtt = 0.5 * (w.block<2, 2>(1, 1) + w.block<2, 2>(1, 1).transpose());
+        if (wtt.trace() > 0) {
+            const Eigen::Vector2d ut(ui[1], ui[2]);
+            const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
+            if (!disk_made[i]) {
+                disks[i] = Disk(wtt);
+                disk_made[i] = 1;
             }
-            op.apply(i, delta);
+            const Eigen::Vector2d target = disk_constrained_minimum(disks[i], wtt * lt - ut, coefficient[i] * lambda[n]);
+            delta[1] = target[0] - lt[0];
+            delta[2] = target[1] - lt[1];
+            lambda[n + 1] = target[0];
+            lambda[n + 2] = target[1];
         }
-        result.iterations = it + 1;
-        result.residual = full ? residual(visit) : estimate;
-        if (full) {
-            select_live(result.residual);
-            next_full = it + (large ? kFullEveryLarge : kFullEvery);
-            // (on small problems the focus's copies cost more than they save)
-            if (large) op.focus(live, lambda);
-        }
-        // every decision below (stop, subspace step, keep a step) on the residual of every contact
-        // With more active contacts than the subspace step takes (`large`), a step that falls
-        // due in a partial sweep waits for the next full sweep, whose residual is every
-        // contact's anyway: measuring it in the partial sweep before (a catch-up of the focused
-        // contacts' columns and a velocity per contact, then a full sweep next) is wasted on a
-        // step that cannot run there unless the active set shrank.
-        const bool step_due = it + 1 >= next_step && (full || !large);
-        const bool deciding = pending || result.residual <= tolerance || it + 1 >= max_iterations || step_due;
-        if (!full && deciding) {
-            op.refresh(lambda);
+        op.apply(i, delta);
+    }
+
+    // After a full sweep (every contact's residual measured): the contacts the partial sweeps
+    // visit until the next one, and when that comes
+    void after_full_sweep(int it) {
+        select_live(result.residual);
+        next_full = it + (large ? kFullEveryLarge : kFullEvery);
+        // (on small problems the focus's copies cost more than they save)
+        if (large) op.focus(live, lambda);
+    }
+
+    // the contacts the partial sweeps visit, from every contact's residual (own, u) against the worst
+    void select_live(double worst) {
+        live.clear();
+        // settled contacts left out only where the subspace steps cannot run (too many
+        // active contacts): with them, the sweeps converge together and leaving contacts
+        // out slows them (test_contact_reduced's contacts on one element take more sweeps)
+        int active = 0;
+        for (int i = 0; i < c; ++i) active += lambda[3 * i] > 0;
+        large = active > kSubspaceMaxActive;
+        const double settled = large ? std::max(tolerance, kHotFraction * worst) : -1.0;
+        const double open_margin = tolerance;
+        for (int i = 0; i < c; ++i)
+            if ((lambda[3 * i] > 0 || lambda[3 * i + 1] != 0 || lambda[3 * i + 2] != 0 || !(u[i][0] + bias[i] > open_margin)) &&
+                own[i] > settled)
+                live.push_back(i);
+    }
+
+    // The pending subspace step, then this sweep: kept only if the residual fell
+    void judge_step(int it) {
+        pending = false;
+        const bool rejected = result.residual > saved_residual;
+        interval = rejected ? std::min(kSubspaceMaxInterval, 2 * interval) : kSubspaceEvery;
+        damping = rejected ? std::min(kDampingMax, 10 * damping) : std::max(kDampingMin, damping / 10);
+        next_step = it + 1 + interval;
+        if (rejected) {
+            lambda = saved;
+            op.reset(lambda);
             result.residual = residual(all);
-            next_full = it + 1;  // the next sweep visits every contact again
         }
-        if (pending) {
-            // a subspace step, then this sweep: kept only if the residual fell
-            pending = false;
-            const bool rejected = result.residual > saved_residual;
-            interval = rejected ? std::min(kSubspaceMaxInterval, 2 * interval) : kSubspaceEvery;
-            damping = rejected ? std::min(kDampingMax, 10 * damping) : std::max(kDampingMin, damping / 10);
-            next_step = it + 1 + interval;
-            if (rejected) {
-                lambda = saved;
-                op.reset(lambda);
-                result.residual = residual(all);
-            }
+    }
+
+    // A subspace step now, decided after the next sweep (judge_step); false when none could be
+    // taken (no active contact, or too many)
+    bool take_step(int it) {
+        saved = lambda;
+        saved_residual = result.residual;
+        if (subspace_step(op, c, bias, coefficient, u, tolerance, damping, blocks_cache, last_state, lambda)) {
+            op.reset(lambda);
+            pending = true;
+            next_full = it + 1;  // the step may close left-out contacts: the sweep after it visits all
+            return true;
         }
-        if (result.residual > tolerance && it + 1 < max_iterations && step_due) {
-            saved = lambda;
-            saved_residual = result.residual;
-            if (subspace_step(op, c, bias, coefficient, u, tolerance, damping, blocks_cache, last_state, lambda)) {
-                op.reset(lambda);
-                pending = true;
-                next_full = it + 1;  // the step may close left-out contacts: the sweep after it visits all
-                continue;
-            }
-            // no step (no active contact, or too many): not before then (with too many, not
-            // before the next full sweep: each step decision costs a residual on every contact)
-            next_step = it + 1 + (large ? kFullEveryLarge : interval);
-        }
-        // (a residual on every contact: after a full sweep or one that decided something)
-        const bool measured_all = full || deciding;
-        if (result.residual > tolerance && it + 1 < max_iterations && !(measured_all && stalled(it, result.residual)))
-            continue;
-        if (pass++ > 0) break;
-        bool broke_loose = false;
+        // not before then (with too many, not before the next full sweep: each step decision
+        // costs a residual on every contact)
+        next_step = it + 1 + (large ? kFullEveryLarge : interval);
+        return false;
+    }
+
+    // The stall stop (see the class's comment), on the residual r of every contact after sweep it
+    bool stalled(int it, double r) {
+        const double best = progress.empty() ? r : std::min(r, progress.back().second);
+        progress.emplace_back(it, best);
+        if (!(stall_factor > 0) || r > stall_factor * tolerance) return false;
+        int k = static_cast<int>(progress.size()) - 1;  // the last measurement kStallWindow or more sweeps before
+        while (k >= 0 && progress[k].first > it - kStallWindow) --k;
+        if (k < 0) return false;
+        const double fall = best / progress[k].second;  // over it - progress[k].first sweeps
+        if (fall >= 1) return true;
+        const double needed = (it - progress[k].first) * std::log(best / tolerance) / -std::log(fall);
+        return needed > max_iterations - 1 - it;
+    }
+
+    // The static problem solved: contacts sliding clearly faster than the solver's tolerance
+    // (not sticking ones still converging) while at the static limit break loose, to kinetic
+    // friction. Whether any did.
+    bool break_loose() {
+        bool any = false;
         for (int i = 0; i < c; ++i) {
             const Eigen::Vector2d ut(u[i][1], u[i][2]);
-            // sliding clearly faster than the solver's tolerance (not a sticking contact
-            // still converging) while at the static limit: it breaks loose
             const Eigen::Vector2d lt(lambda[3 * i + 1], lambda[3 * i + 2]);
             if (kinetic[i] < coefficient[i] && ut.norm() > kSlowSlip * tolerance &&
                 lt.norm() >= coefficient[i] * lambda[3 * i] * (1 - 1e-9)) {
                 coefficient[i] = kinetic[i];
-                broke_loose = true;
+                any = true;
             }
         }
-        if (!broke_loose) break;
-        next_full = it + 1;
-        progress.clear();  // the kinetic problem's progress is its own
+        return any;
     }
-    return result;
+};
+
+template <class Op>
+PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX& kinetic, double dt,
+                double recovery_speed, VecX& lambda, int max_iterations, double tolerance, double stall_factor) {
+    return Sweeps<Op>(op, c, gap, friction, kinetic, dt, recovery_speed, lambda, max_iterations, tolerance, stall_factor)
+        .run();
 }
 
 // W dense: u = u_free + W lambda kept up to date, a column per changed impulse.

@@ -99,7 +99,7 @@ void World::prepare_contacts() {
                     for (int q = 0; q < 4; ++q) {
                         const int node = b.surface.nodes[v][q];
                         // a fixed node of a soft body does not move: it takes no impulse
-                        if (b.surface.weights[v][q] == 0 || (b.kind == BodyKind::Soft && b.fixed[node])) continue;
+                        if (b.surface.weights[v][q] == 0 || (b.kind == BodyKind::Soft && b.soft.fixed[node])) continue;
                         ts->push_back({base + 3 * node, sign * side.weight[k] * b.surface.weights[v][q], false, Vec3::Zero()});
                     }
                 }
@@ -195,17 +195,8 @@ void World::prepare_contacts() {
 // scene the bunny's ~500 solves were ~10 ms on one thread while the other, done with the
 // hand's, waited. Bodies on the iterative or the reused solver take one share (their calls
 // write warm starts and kept columns).
-namespace {
-// The flesh system a body's responses are solved through, or none (rigid bodies)
-DeformableSystem* response_system(Body& b) {
-    if (b.kind == BodyKind::Soft) return b.tool.get();
-    if (b.kind == BodyKind::Hand) return &b.hand->hand.tool;
-    return nullptr;
-}
-}  // namespace
-
 int World::contact_body_parts(int bi) const {
-    const DeformableSystem* system = response_system(*bodies[bi]);
+    const DeformableSystem* system = bodies[bi]->response_system();
     return system && system->solver() == DeformableSolver::Cholesky ? kResponseShares : 1;
 }
 
@@ -295,7 +286,7 @@ void World::ready_contact_body(int bi) {
     // (the hand's with Eq. 12 on top)
     bool units = false;
     if (!cb.row_basis && b.kind == BodyKind::Hand) units = b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
-    if (!cb.row_basis && b.kind == BodyKind::Soft) units = b.tool->response_units(cb.touched, cb.K, b.beside);
+    if (!cb.row_basis && b.kind == BodyKind::Soft) units = b.soft.tool->response_units(cb.touched, cb.K, b.soft.beside);
     if (b.kind == BodyKind::Hand) {
         if (!cb.row_basis && !units) b.hand->hand.prepare_unit_columns(cb.touched);
         if (!handle_terms_apart(bi)) form_handle_terms(bi);
@@ -306,7 +297,7 @@ void World::ready_contact_body(int bi) {
     // columns in the factor's elimination order, each batch's units in one part of the tree
     // (on the 10x bunny the build went from ~11 to ~10.2 ms on one thread)
     build.unit_order.clear();
-    DeformableSystem* system = response_system(b);
+    DeformableSystem* system = b.response_system();
     if (system && system->prepare_concurrent_solves() && !cb.row_basis && build.first == 0) {
         const int base = b.kind == BodyKind::Hand ? 6 : 0;
         std::vector<std::pair<int, int>> keyed;  // (elimination position of the node, column)
@@ -364,7 +355,7 @@ void World::solve_contact_body(int bi, int part, int parts) {
             x.resize(cb.K.rows(), w);
             bool done = false;
             if (b.kind == BodyKind::Hand) done = b.hand->hand.apply_inverse_unit_columns(units, w, cb.touched, x);
-            if (b.kind == BodyKind::Soft) done = b.tool->solve_units(units, w, cb.touched, x.data(), x.rows());
+            if (b.kind == BodyKind::Soft) done = b.soft.tool->solve_units(units, w, cb.touched, x.data(), x.rows());
             if (done) {
                 for (int j = 0; j < w; ++j) cb.K.col(build.unit_order[first + j]) = x.col(j);
                 continue;
@@ -384,8 +375,8 @@ void World::solve_contact_body(int bi, int part, int parts) {
                 b.hand->hand.apply_inverse_many(rhs, x, &cb.touched);
                 cb.K.middleCols(first, w) = x;
                 continue;
-            case BodyKind::Soft: b.tool->solve_response(rhs, x, &build.touched_nodes); break;
-            default: x = Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
+            case BodyKind::Soft: b.soft.tool->solve_response(rhs, x, &build.touched_nodes); break;
+            default: x = Eigen::FullPivLU<Mat6>(b.mesh.system->A).solve(rhs);
         }
         for (size_t k = 0; k < cb.touched.size(); ++k) cb.K.block(k, first, 1, w) = x.block(cb.touched[k], 0, 1, w);
     }
@@ -527,12 +518,12 @@ void World::apply_contact_body(int bi) {
             // exact solve; on the reused one its lagged operator, and the impulses carried into
             // the next free solve, World::solve_free)
             MatX x;
-            b.tool->solve_response(rhs, x);
+            b.soft.tool->solve_response(rhs, x);
             b.v_new += x.col(0);
-            if (b.tool->solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
+            if (b.soft.tool->solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
             break;
         }
-        default: b.v_new += Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
+        default: b.v_new += Eigen::FullPivLU<Mat6>(b.mesh.system->A).solve(rhs);
     }
 }
 
