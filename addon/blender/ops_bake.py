@@ -25,7 +25,7 @@ from ..engine import child as child_process
 from ..engine import devices
 from ..engine import mesh as meshing
 from ..engine import native
-from . import bake_store, runtime, scene_export
+from . import background, bake_store, runtime, scene_export
 from .bake_store import ACTION_PREFIX, KEY_PREFIX, LOG_NAME, MODIFIER_NAME, cache_dir  # noqa: F401 (the API)
 
 START_ERRORS = (scene_export.ExportError, meshing.MeshError, native.NativeError, devices.DeviceError, OSError,
@@ -36,33 +36,16 @@ class BakeError(ValueError):
     """A bake that cannot start; the message names the problem and the fix."""
 
 
-class BakeJob:
+class BakeJob(background.ChildJob):
     """One bake: the exported scene and the child process that simulates it."""
 
     def __init__(self, export: scene_export.Export, fmt: str, argv=None):
         self.export = export
         self.fmt = fmt
         self.result_path = export.folder / "result.npz"
-        self.child = child_process.Child(["bake", export.folder / "scene.json", self.result_path],
-                                         what="The bake's engine process", argv=argv)
-        self.error = None
-        self.summary = None
+        super().__init__(child_process.Child(["bake", export.folder / "scene.json", self.result_path],
+                                             what="The bake's engine process", argv=argv))
         self.unchanged = True  # the previous bake is as it was (false only if a swap broke half-way)
-
-    @property
-    def progress(self) -> float:
-        return self.child.progress
-
-    @property
-    def message(self) -> str:
-        return self.child.message
-
-    def start(self) -> "BakeJob":
-        self.child.start()
-        return self
-
-    def cancel(self) -> None:
-        self.child.cancel()
 
     def run(self, on_progress=None) -> str:
         """Start and wait for the child (a script's bake); returns its final state."""
@@ -70,7 +53,7 @@ class BakeJob:
         return self.child.wait(on_progress=on_progress)
 
     def release(self) -> None:
-        self.child.close()
+        super().release()
         self.export.cleanup()
 
 
@@ -176,11 +159,12 @@ def status_text(job: BakeJob) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-class _BakeOperator:
+class _BakeOperator(background.BackgroundOperator):
     """Runs prepare()'s job: to the end from a script (execute), in the background from the UI
     (invoke: the child streams progress into the panel and the status bar; Esc cancels)."""
 
     bl_options = {"REGISTER"}
+    slot = "bake"
 
     def make_job(self, context) -> BakeJob:
         raise NotImplementedError
@@ -197,7 +181,8 @@ class _BakeOperator:
             job.run(on_progress=lambda fraction, message: wm.progress_update(fraction))
         finally:
             wm.progress_end()
-        return self._end(context, job, poll_job(context, job))
+        self.job = job
+        return self.finish(context, poll_job(context, job))
 
     def invoke(self, context, event):
         try:
@@ -205,44 +190,16 @@ class _BakeOperator:
         except START_ERRORS as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        runtime.state.bake = self.job = job.start()
-        wm = context.window_manager
-        wm.progress_begin(0.0, 1.0)
-        self.timer = wm.event_timer_add(0.1, window=context.window)
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
+        return self.start_modal(context, job.start())
 
-    def modal(self, context, event):
-        if event.type == "ESC":
-            self.job.cancel()
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        context.window_manager.progress_update(self.job.progress)
-        state = poll_job(context, self.job)
-        if state == "RUNNING":
-            context.workspace.status_text_set(status_text(self.job))
-            runtime.redraw()
-            return {"PASS_THROUGH"}
-        self._stop_modal(context)
-        return self._end(context, self.job, state)
+    def step(self, context, job):
+        return poll_job(context, job)
 
-    def _stop_modal(self, context):
-        wm = context.window_manager
-        wm.event_timer_remove(self.timer)
-        wm.progress_end()
-        if context.workspace is not None:
-            context.workspace.status_text_set(None)
-        runtime.redraw()
+    def status(self, job):
+        return status_text(job)
 
-    def cancel(self, context):
-        self.job.cancel()
-        self.job.release()
-        if runtime.state.bake is self.job:
-            runtime.state.bake = None
-        self._stop_modal(context)
-
-    def _end(self, context, job, state):
-        level, message = end_message(job, state)
+    def finish(self, context, state):
+        level, message = end_message(self.job, state)
         self.report({level}, message)
         return {"FINISHED"} if state == "FINISHED" else {"CANCELLED"}
 

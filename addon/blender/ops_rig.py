@@ -13,7 +13,7 @@ import numpy as np
 from ..engine import child as child_process
 from ..engine import mesh as meshing
 from ..engine import native
-from . import meshdata, runtime, scene_export
+from . import background, meshdata, runtime, scene_export
 
 SEED_NAME = "Palm seed"
 
@@ -66,7 +66,7 @@ class HAPTIC_HAND_OT_use_as_hand(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class TetJob:
+class TetJob(background.ChildJob):
     """One tetrahedralization of a mesh in a child process (fTetWild holds Python's lock for
     its whole call, so a thread could neither report progress nor be stopped)."""
 
@@ -77,28 +77,11 @@ class TetJob:
         self.folder = Path(tempfile.mkdtemp(prefix="haptic_hand_tets_"))
         given, self.output = self.folder / "surface.npz", self.folder / "tets.npz"
         np.savez(given, vertices=surface, faces=faces, **options)
-        self.child = child_process.Child(["tetrahedralize", given, self.output], what="Tetrahedralize's process",
-                                         parse_log=True, argv=argv)
-        self.error = None
-        self.summary = None
-
-    @property
-    def progress(self) -> float:
-        return self.child.progress
-
-    @property
-    def message(self) -> str:
-        return self.child.message
-
-    def start(self) -> "TetJob":
-        self.child.start()
-        return self
-
-    def cancel(self) -> None:
-        self.child.cancel()
+        super().__init__(child_process.Child(["tetrahedralize", given, self.output], what="Tetrahedralize's process",
+                                             parse_log=True, argv=argv))
 
     def release(self) -> None:
-        self.child.close()
+        super().release()
         shutil.rmtree(self.folder, ignore_errors=True)
 
 
@@ -172,13 +155,14 @@ def gap_message(gap: np.ndarray) -> str:
             "vertices; they ride along by extrapolation)")
 
 
-class HAPTIC_HAND_OT_tetrahedralize(bpy.types.Operator):
+class HAPTIC_HAND_OT_tetrahedralize(background.BackgroundOperator, bpy.types.Operator):
     """Fill the active mesh (the hand or a soft body) with tetrahedra (pytetwild, in a child
     process: Esc cancels); the tets are kept as their own object, parented to the mesh"""
 
     bl_idname = "haptic_hand.tetrahedralize"
     bl_label = "Tetrahedralize"
     bl_options = {"REGISTER", "UNDO"}
+    slot = "tetrahedralize"
 
     confirmed: bpy.props.BoolProperty(default=False, options={"SKIP_SAVE", "HIDDEN"},
                                       description="Go ahead even above Rig > Confirm above")
@@ -216,47 +200,19 @@ class HAPTIC_HAND_OT_tetrahedralize(bpy.types.Operator):
         except (meshing.MeshError, OSError) as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
-        runtime.state.tetrahedralize = self.job = job
-        wm = context.window_manager
         if self.interactive and context.window is not None:
-            wm.progress_begin(0.0, 1.0)
-            self.timer = wm.event_timer_add(0.1, window=context.window)
-            wm.modal_handler_add(self)
-            return {"RUNNING_MODAL"}
+            return self.start_modal(context, job)
+        runtime.state.tetrahedralize = self.job = job
         job.child.wait()
-        return self._end(poll_tetrahedralize(context, job))
+        return self.finish(context, poll_tetrahedralize(context, job))
 
-    def modal(self, context, event):
-        if event.type == "ESC":
-            self.job.cancel()
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        state = poll_tetrahedralize(context, self.job)
-        if state == "RUNNING":
-            context.window_manager.progress_update(self.job.progress)
-            context.workspace.status_text_set(f"Haptic Hand: tetrahedralizing '{self.job.obj_name}' "
-                                              f"{self.job.progress * 100:.0f}% ({self.job.message}); Esc cancels")
-            runtime.redraw()
-            return {"PASS_THROUGH"}
-        self._stop_modal(context)
-        return self._end(state)
+    def step(self, context, job):
+        return poll_tetrahedralize(context, job)
 
-    def _stop_modal(self, context):
-        wm = context.window_manager
-        wm.event_timer_remove(self.timer)
-        wm.progress_end()
-        if context.workspace is not None:
-            context.workspace.status_text_set(None)
-        runtime.redraw()
+    def status(self, job):
+        return f"Haptic Hand: tetrahedralizing '{job.obj_name}' {job.progress * 100:.0f}% ({job.message}); Esc cancels"
 
-    def cancel(self, context):
-        self.job.cancel()
-        self.job.release()
-        if runtime.state.tetrahedralize is self.job:
-            runtime.state.tetrahedralize = None
-        self._stop_modal(context)
-
-    def _end(self, state):
+    def finish(self, context, state):
         if state == "FINISHED":
             self.report({"INFO"}, self.job.summary)
             return {"FINISHED"}

@@ -6,7 +6,7 @@ from __future__ import annotations
 import bpy
 
 from ..engine import params
-from . import bake_store, meshdata, ops_rig, param_props, runtime, scene_export
+from . import background, bake_store, meshdata, ops_rig, param_props, runtime, scene_export
 
 
 def mib(size: int) -> str:
@@ -70,12 +70,8 @@ class HAPTIC_HAND_PT_rig(_Panel, bpy.types.Panel):
                 over = s.tet_confirm_limit and estimate > s.tet_confirm_limit
                 box.label(text=f"About {estimate} tets", icon="ERROR" if over else "INFO")
         box.prop(s, "tet_confirm_limit")
-        job = runtime.state.tetrahedralize
-        if job is not None:
-            box.progress(factor=job.progress, text=f"{job.progress * 100:.0f}% {job.message}")
-            box.operator("haptic_hand.tetrahedralize_cancel", icon="CANCEL")
-        else:
-            box.operator("haptic_hand.tetrahedralize", icon="MESH_ICOSPHERE")
+        background.draw(box, runtime.state.tetrahedralize, "Tetrahedralizing", "haptic_hand.tetrahedralize_cancel",
+                        "haptic_hand.tetrahedralize", "MESH_ICOSPHERE")
         if s.hand is not None:
             tet_obj = s.hand.haptic_hand.tet_object
             if meshdata.has_tets(tet_obj):
@@ -213,12 +209,8 @@ class HAPTIC_HAND_PT_bake(_Panel, bpy.types.Panel):
         row.prop(s, "bake_frame_end")
         layout.prop(s, "bake_format")
         draw_bake_size(layout, context.scene)
-        job = runtime.state.bake
-        if job is not None:
-            layout.progress(factor=job.progress, text=f"Baking {job.progress * 100:.0f}% ({job.message})")
-            layout.operator("haptic_hand.bake_cancel", icon="CANCEL")
-        else:
-            layout.operator("haptic_hand.bake", icon="RENDER_ANIMATION")
+        background.draw(layout, runtime.state.bake, "Baking", "haptic_hand.bake_cancel", "haptic_hand.bake",
+                        "RENDER_ANIMATION")
         if s.baked:
             layout.label(text=f"Baked {s.baked_range} ({s.baked_format.lower()})", icon="CHECKMARK")
             for name, path in bake_store.missing_caches(context.scene):

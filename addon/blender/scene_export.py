@@ -21,7 +21,6 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..engine import bodies as bodies_module
 from ..engine import mesh as meshing
 from ..engine import native, native_world
 from ..engine import params
