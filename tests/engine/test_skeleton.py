@@ -1,6 +1,7 @@
 """The skeleton of many handles (issue 40; docs/skeleton.md): bone capture and Eq. 3 per bone
 (addon/engine/skeleton.py), the rigged procedural hand, joint layouts and tracking streams
-(addon/engine/tracking.py)."""
+(addon/engine/tracking.py), and the independent reference of one B-bone implicit step
+(reference_skeleton.py) against today's native single-handle step."""
 
 import json
 from pathlib import Path
@@ -8,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import reference_skeleton as ref
 from haptic_hand.engine import mesh, native, tracking
 from haptic_hand.engine import quaternion as quat
 from haptic_hand.engine import skeleton as sk
@@ -309,3 +311,174 @@ def test_retargeting_keeps_the_rigs_bone_lengths(sample_hand):
     assert np.allclose(p[i1], head1 + r @ (coms[i1] - head1), atol=1e-15)
     assert np.allclose(p[i2], tail1 + r @ (coms[i2] - skel.bones[i2].head), atol=1e-15)
     assert np.allclose(p[skel.index("middle_2")], coms[skel.index("middle_2")], atol=1e-15)
+
+
+# --------------------------------------------------------------------------------------------
+# The reference step (tests/engine/reference_skeleton.py)
+# --------------------------------------------------------------------------------------------
+
+
+def perturbed(rig: ref.Rig, rng, angle=0.1) -> ref.State:
+    s = ref.rest_state(rig)
+    b = len(rig.bones)
+    s.x = rig.rest + 1e-3 * rng.standard_normal(rig.rest.shape)
+    s.v = 0.05 * rng.standard_normal(rig.rest.shape)
+    s.bq = np.array([quat.from_rotation_vector(angle * rng.standard_normal(3)) for _ in range(b)])
+    s.bv = 0.05 * rng.standard_normal((b, 3))
+    s.bw = 0.5 * rng.standard_normal((b, 3))
+    return s
+
+
+def coupled_drive(state: ref.State, rng, gains) -> ref.Drive:
+    b = len(state.bx)
+    return ref.Drive(np.full(b, ref.COUPLED), state.bx + 0.01 * rng.standard_normal((b, 3)),
+                     np.array([quat.from_rotation_vector(0.1 * rng.standard_normal(3)) for _ in range(b)]),
+                     0.1 * rng.standard_normal((b, 3)), rng.standard_normal((b, 3)), np.tile(gains, (b, 1)))
+
+
+def test_reference_jacobians_match_finite_differences():
+    """Eq. 11 per spring, rotations as theta: central differences of the forces (Eqs. 4-5)."""
+    rng = np.random.default_rng(1)
+    k, d = 1e4, 10.0
+    xa, va, r = rng.standard_normal((3, 5, 3)) * np.array([0.02, 0.1, 0.02])[:, None, None]
+    bx, bv, bw = rng.standard_normal((3, 3)) * np.array([0.01, 0.1, 2.0])[:, None]
+    bq = quat.from_rotation_vector(rng.standard_normal(3))
+
+    def forces(xa, va, bx, bq, bv, bw):
+        s = ref.springs(k, d, xa, va, r, bx, bq, bv, bw)
+        return s.f_node, s.wrench
+
+    base = ref.springs(k, d, xa, va, r, bx, bq, bv, bw)
+    h = 1e-6
+    for which in range(6):  # node x, node v, bone x, bone theta, bone v, bone omega
+        for c in range(3):
+            e = np.zeros(3)
+            e[c] = h
+
+            def moved(sign):
+                args = [xa, va, bx, bq, bv, bw]
+                if which < 2:
+                    args[which] = args[which] + sign * e  # every node moves: compare summed wrench
+                elif which == 3:
+                    args[3] = quat.multiply(quat.from_rotation_vector(sign * e), bq)
+                else:
+                    args[{2: 2, 4: 4, 5: 5}[which]] = args[{2: 2, 4: 4, 5: 5}[which]] + sign * e
+                return forces(*args)
+
+            (fp, wp), (fm, wm) = moved(1), moved(-1)
+            dfa, dw = (fp - fm) / (2 * h), (wp - wm) / (2 * h)
+            if which == 0:
+                assert np.allclose(dfa, base.dfa_dxa[0] * e / h, atol=1e-4)
+                assert np.allclose(dw, base.dfh_dxa.sum(0)[:, c], rtol=1e-7, atol=1e-4)
+            elif which == 1:
+                assert np.allclose(dfa, base.dfa_dxa[1] * e / h, atol=1e-6)
+                assert np.allclose(dw, base.dfh_dva.sum(0)[:, c], rtol=1e-7, atol=1e-6)
+            else:
+                col = {2: c, 3: 3 + c, 4: c, 5: 3 + c}[which]
+                jac_a = base.dfa_dxh if which in (2, 3) else base.dfa_dvh
+                jac_h = base.dfh_dxh if which in (2, 3) else base.dfh_dvh
+                scale = np.abs(jac_h).max()
+                assert np.allclose(dfa, jac_a[:, :, col], rtol=1e-6, atol=1e-7 * scale)
+                assert np.allclose(dw, jac_h[:, col], rtol=1e-6, atol=1e-7 * scale)
+
+
+def one_bone_rig(**params):
+    nodes, tets = bar()
+    seed, radius = np.array([0.0, 0.0, 0.0]), 0.012
+    base = dict(palm_seed=seed, handle_radius=radius, young_modulus=5e4, poisson_ratio=0.3, density=1000.0,
+                rayleigh_alpha=0.5, rayleigh_beta=0.01, spring_stiffness=1e4, spring_damping=10.0,
+                coupling_stiffness=2e3, coupling_damping=20.0, coupling_angular_stiffness=20.0,
+                coupling_angular_damping=0.2, dt=1.0 / 30.0, gravity=[0.0, 0.0, -9.81])
+    base.update(params)
+    model = native.HandModel(nodes, tets, **base)
+    owner = sk.palm_handle_skeleton(seed, radius).capture(nodes)
+    rig = ref.Rig(nodes, tets, young=base["young_modulus"], poisson=base["poisson_ratio"], density=base["density"],
+                  alpha=base["rayleigh_alpha"], beta=base["rayleigh_beta"], k=base["spring_stiffness"],
+                  d=base["spring_damping"], dt=base["dt"], gravity=np.array(base["gravity"]),
+                  bone_nodes=[np.flatnonzero(owner == 0)])
+    gains = [base[f"coupling_{g}"] for g in ("stiffness", "damping", "angular_stiffness", "angular_damping")]
+    return model, rig, gains
+
+
+def native_and_reference_steps(mode, polar):
+    """One step of today's native single-handle model (Schur, Cholesky) and of the reference's
+    one-bone rig from the same state, where every term of Eq. 7 is active."""
+    model, rig, gains = one_bone_rig()
+    rig.polar = polar
+    assert np.allclose(rig.masses, model.lumped_masses(), rtol=1e-13, atol=0)
+    rng = np.random.default_rng(7)
+    state = perturbed(rig, rng)
+    drive = coupled_drive(state, rng, gains)
+    drive.mode[:] = mode
+    sim = native.HandSimulation(model)
+    sim.set_state(state.x, state.v, state.bx[0], state.bq[0], state.bv[0], state.bw[0])
+    sim.set_device(drive.position[0], drive.quaternion[0], drive.velocity[0], drive.angular_velocity[0],
+                   enabled=mode)  # 0 free, 1 coupled, 2 prescribed: the native codes
+    sim.step()
+    return sim, state, ref.step(rig, state, drive)
+
+
+def step_differences(sim, state, after) -> dict:
+    """Largest relative difference of each part of the native step from the reference's."""
+    def rel(a, b):
+        return np.abs(np.asarray(a) - np.asarray(b)).max() / np.abs(np.asarray(b)).max()
+    h = sim.handle()
+    return {"v": rel(sim.velocities(), after.v), "dx": rel(sim.positions() - state.x, after.x - state.x),
+            "v_h": rel(h.velocity, after.bv[0]), "omega_h": rel(h.angular_velocity, after.bw[0]),
+            "dx_h": rel(h.position - state.bx[0], after.bx[0] - state.bx[0]),
+            "q_h": np.abs(h.quaternion - after.bq[0]).max()}
+
+
+@pytest.mark.parametrize("mode", [ref.FREE, ref.COUPLED, ref.PRESCRIBED])
+def test_reference_one_bone_matches_native_step(mode):
+    """With the element rotations the native engine's polar iteration leaves (its stopping rule,
+    reference_skeleton.polar_rotations_stopped), the reference's one-bone step is today's
+    native step to round-off: every other convention agrees."""
+    diff = step_differences(*native_and_reference_steps(mode, "stopped"))
+    assert max(diff.values()) < 1e-12, diff
+
+
+@pytest.mark.parametrize("mode", [ref.FREE, ref.COUPLED])
+def test_reference_with_exact_rotations_differs_only_by_the_polar_tolerance(mode):
+    """With exact polar rotations (SVD), the native step differs by what its polar iteration's
+    stopping rule leaves: each element's rotation is up to ~1e-9 rad off (a step below 1e-9 rad
+    is not taken), which moves the forces by ~1e-9 relative and, on a free handle of tiny
+    inertia, its angular velocity most (docs/skeleton.md, "The reference")."""
+    diff = step_differences(*native_and_reference_steps(mode, "svd"))
+    assert max(diff.values()) < 1e-8, diff
+
+
+def test_reference_sixteen_bones_schur_equals_monolithic(sample_hand):
+    """docs/skeleton.md's Schur path (forward passes only for S) equals the monolithic solve,
+    16 bones of the procedural rig, every bone coupled and moving."""
+    nodes, tets, masses = sample_hand
+    skel = sk.procedural_hand_skeleton()
+    owner = skel.capture(nodes)
+    rig = ref.Rig(nodes, tets, alpha=0.5, bone_nodes=[np.flatnonzero(owner == b) for b in range(16)])
+    rng = np.random.default_rng(11)
+    state = perturbed(rig, rng)
+    drive = coupled_drive(state, rng, [50.0, 1.0, 0.05, 0.001])
+    drive.mode[3] = ref.PRESCRIBED
+    drive.mode[5] = ref.FREE
+    a, rhs = ref.assemble(rig, state, drive)
+    mono = ref.solve_monolithic(a, rhs)
+    schur = ref.solve_schur(a, rhs, 16)
+    assert np.abs(schur - mono).max() < 1e-10 * np.abs(mono).max()
+    assert np.abs(a @ mono - rhs).max() < 1e-12 * np.abs(rhs).max()
+
+
+def test_ath_is_aht_transposed_but_for_the_damping_turn():
+    """docs/skeleton.md, Section 3: per node, A_th = A_ht^T + dt^2 d [0 | [omega]x [R r]x], so
+    the sparse path needs L^-1 A_ht^T and L^-1 of three angular columns per bone, not twelve."""
+    model, rig, gains = one_bone_rig()
+    rng = np.random.default_rng(3)
+    state = perturbed(rig, rng)
+    a, _ = ref.assemble(rig, state, coupled_drive(state, rng, gains))
+    aht, ath = a[:6, 6:].toarray(), a[6:, :6].toarray()
+    nodes = rig.bones[0].nodes
+    rr = rig.bones[0].r_body @ ref.quat_matrix(state.bq[0]).T
+    turn = np.zeros_like(ath)
+    for i, r in zip(nodes, rr):
+        turn[3 * i:3 * i + 3, 3:] = rig.dt ** 2 * rig.d * ref.skew(state.bw[0]) @ ref.skew(r)
+    assert np.allclose(ath, aht.T + turn, rtol=0, atol=1e-15 * np.abs(ath).max())
+    assert np.abs(turn).max() > 1e-6 * np.abs(ath).max()  # the term is there
