@@ -482,3 +482,22 @@ def test_ath_is_aht_transposed_but_for_the_damping_turn():
         turn[3 * i:3 * i + 3, 3:] = rig.dt ** 2 * rig.d * ref.skew(state.bw[0]) @ ref.skew(r)
     assert np.allclose(ath, aht.T + turn, rtol=0, atol=1e-15 * np.abs(ath).max())
     assert np.abs(turn).max() > 1e-6 * np.abs(ath).max()  # the term is there
+
+
+def test_reference_hanging_two_bone_bar_bones_carry_its_weight():
+    """A bar held still by two bones at its ends (prescribed at rest) settles; then the springs'
+    forces on the bones add up to the flesh's weight (gravity acts on the flesh only)."""
+    nodes, tets = bar()
+    bones = [sk.Bone("a", None, np.array([-0.03, 0, 0]), np.array([-0.015, 0, 0]), 0.012),
+             sk.Bone("b", "a", np.array([0.015, 0, 0]), np.array([0.03, 0, 0]), 0.012)]
+    owner = sk.Skeleton(bones).capture(nodes)
+    rig = ref.Rig(nodes, tets, alpha=2.0, bone_nodes=[np.flatnonzero(owner == b) for b in range(2)])
+    state, drive = ref.rest_state(rig), ref.free_drive(2)
+    drive.mode[:], drive.position[:] = ref.PRESCRIBED, state.bx
+    for _ in range(25):
+        state = ref.step(rig, state, drive)
+    force = sum(ref.springs(rig.k, rig.d, state.x[b.nodes], state.v[b.nodes], b.r_body, state.bx[i], state.bq[i],
+                            state.bv[i], state.bw[i]).wrench[:3] for i, b in enumerate(rig.bones))
+    weight = rig.masses.sum() * rig.gravity
+    assert np.abs(force - weight).max() < 1e-9 * np.linalg.norm(weight)
+    assert np.abs(state.x - rig.rest).max() > 1e-6  # it did sag onto its springs
