@@ -100,15 +100,11 @@ class TrackingStream:
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Every joint's pose at t: linear in position, slerp in orientation, held at the ends."""
-        k = int(np.searchsorted(self.times, t, side="right")) - 1
-        if k < 0:
-            return self.positions[0].copy(), self.quaternions[0].copy()
-        if k >= len(self.times) - 1:
-            return self.positions[-1].copy(), self.quaternions[-1].copy()
-        a = (t - self.times[k]) / (self.times[k + 1] - self.times[k])
-        p = (1 - a) * self.positions[k] + a * self.positions[k + 1]
-        q = np.array([quat.slerp(q0, q1, a) for q0, q1 in zip(self.quaternions[k], self.quaternions[k + 1])])
-        return p, q
+        from .scene import Trajectory  # the scene's device trajectories interpolate the same way
+
+        poses = [Trajectory(self.times, self.positions[:, j], self.quaternions[:, j]).pose(t)
+                 for j in range(len(self.layout.joints))]
+        return np.array([p for p, _ in poses]), np.array([q for _, q in poses])
 
 
 # --------------------------------------------------------------------------------------------
