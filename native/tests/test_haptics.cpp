@@ -20,7 +20,7 @@
 #include "haptic_hand.h"
 #include "haptics/haptic_log.h"
 #include "haptics/session.h"
-#include "haptics/triple_buffer.h"
+#include "common/triple_buffer.h"
 
 // Every allocation of this test program goes through here, so a test can count them.
 // ThreadSanitizer needs its own operator new from the first instant, so its build does not

@@ -5,8 +5,9 @@
 // the feedback sent to the device is the virtual coupling's reaction. Fixed-size maths only:
 // a step never allocates.
 #pragma once
-#include "haptics/coupling_model.h"
 #include "coupling/springs.h"
+#include "device/feedback.h"
+#include "haptics/coupling_model.h"
 #include "rigid/handle.h"
 #include "sim/keyframes.h"
 
@@ -17,11 +18,6 @@ struct VirtualCoupling {
     double damping = 20;               // N s/m
     double angular_stiffness = 20;     // N m/rad
     double angular_damping = 0.2;      // N m s/rad
-};
-
-struct Feedback {
-    Vec3 force = Vec3::Zero();   // N, on the device (the user's hand)
-    Vec3 torque = Vec3::Zero();  // N m
 };
 
 class ProxyHandle {

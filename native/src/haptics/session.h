@@ -18,7 +18,7 @@
 #include "haptics/coupling_model.h"
 #include "haptics/haptic_log.h"
 #include "haptics/proxy.h"
-#include "haptics/triple_buffer.h"
+#include "common/triple_buffer.h"
 
 namespace hh {
 
