@@ -5,6 +5,7 @@ virtual coupling, one implicit step per frame, everything recorded in a result f
 from __future__ import annotations
 
 import json
+import math
 import platform
 import sys
 from pathlib import Path
@@ -56,9 +57,10 @@ def run(scene: scenes.Scene, progress=None) -> dict:
     frames, dt, n = scene.frames, scene.dt, model.n_nodes
     haptics = None
     if scene.data["haptics"]["enabled"]:
-        # the haptic loop in lockstep, in virtual time: its log holds every haptic step
-        steps_per_frame = max(1, round(dt * scene.data["haptics"]["rate"]))
-        haptics = session_module.create(world, hand, scene, log_capacity=frames * steps_per_frame + 1)
+        # the haptic loop in lockstep, in virtual time, a step at every multiple of 1/rate: its
+        # log holds every haptic step
+        steps = math.ceil(frames * dt * scene.data["haptics"]["rate"]) + 2
+        haptics = session_module.create(world, hand, scene, log_capacity=steps)
         session_module.attach_device(haptics, scene, np.array(model.info()["handle_com"]))
 
     positions = np.empty((frames + 1, n, 3))

@@ -48,7 +48,7 @@ def test_at_rest_without_gravity_the_felt_force_is_zero():
     rig = Rig(hand_scene())
     rig.simulated_user([0.0], [[0, 0, 0]])
     log = rig.run(1.0)
-    assert len(log["t"]) == 33 * 30  # one row per haptic step: 33 per 1/30 s frame
+    assert len(log["t"]) == 1000  # one row per haptic step: 1 kHz for 1 s
     assert np.abs(log["force"]).max() < 1e-9
     assert np.abs(log["torque"]).max() < 1e-9
 
@@ -119,7 +119,7 @@ def wall_push(linearized: bool, k_vc: float) -> dict:
 def test_stiffest_coupling_on_a_wall_stays_stable_with_linearization_and_not_without():
     k_max = scenes.MAX_COUPLING_STIFFNESS
     lin = wall_push(True, k_max)
-    per_second = [slice(int(i * 990), int((i + 1) * 990)) for i in range(5)]
+    per_second = [slice(i * 1000, (i + 1) * 1000) for i in range(5)]
     energy = [lin["coupling_energy"][s].max() for s in per_second]
     wobble = [lin["force"][s, 0].std() for s in per_second]
     # bounded energy and no growing oscillation: after the push settles every second is calmer
@@ -216,13 +216,36 @@ def test_device_that_disconnects_stops_with_a_message_and_keeps_what_was_done(ki
     assert np.all(np.isfinite(x))
 
 
+@pytest.mark.parametrize("dt", [1 / 30, 1 / 60, 0.025])
+def test_offline_haptic_steps_land_on_exact_multiples_of_the_period(dt):
+    """The offline haptic clock is the one a 1 kHz device would see, whatever the frame rate:
+    step n at n / rate exactly (the remainder of a frame carried to the next), so every period
+    is 1 ms, and by the end of frame k the steps up to (k + 1) dt have run."""
+    sc = hand_scene()
+    sc.data["dt"] = dt
+    rig = Rig(sc)
+    rig.simulated_user([0.0, 0.5], [[0, 0, 0], [0.01, 0, 0]])
+    rate = sc.data["haptics"]["rate"]
+    counts = []
+    for _ in range(int(round(0.5 / dt))):
+        rig.session.run_offline(1)
+        counts.append(rig.session.status()["haptic_steps"])
+    log = native_session.log_arrays(rig.session.read_log())
+    n = np.arange(1, len(log["t"]) + 1)
+    assert np.abs(log["t"] - n / rate).max() < 1e-12
+    assert np.abs(np.diff(log["t"]) - 1 / rate).max() < 1e-12
+    assert np.abs(log["period"] - 1 / rate).max() < 1e-12
+    frames = np.arange(1, len(counts) + 1)
+    assert np.array_equal(counts, np.floor(frames * dt * rate + 1e-6).astype(int))
+
+
 def test_simulate_writes_the_haptic_log(tmp_path):
     sc = hand_scene(gravity=(0.0, 0.0, -9.81))
     sc.data["frames"] = 12
     result = simulate.run(sc)
     log = result["haptic"]
-    assert len(log["t"]) == 12 * 33
-    assert np.allclose(np.diff(log["t"]), sc.dt / 33)
+    assert len(log["t"]) == 400  # 12 frames of 1/30 s at 1 kHz
+    assert np.allclose(np.diff(log["t"]), 1e-3)
     path = simulate.write(result, tmp_path / "r.npz")
     stored = np.load(path)
     assert np.array_equal(stored["haptic_force"], log["force"])

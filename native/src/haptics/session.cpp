@@ -100,13 +100,26 @@ Session::Session(World& world, int hand, const SessionParams& params)
         surface_offset_.push_back(body->has_surface ? offset : -1);
         if (body->has_surface) offset += body->surface.n_vertices();
     }
-    const int n_h = std::max(1, static_cast<int>(std::lround(world.settings.dt * p_.haptic_rate)));
-    dt_haptic_ = world.settings.dt / n_h;
     t_haptic_ = world.time;
+    set_clock_rate(p_.haptic_rate);
     publish_frame();
 }
 
 Session::~Session() { stop(); }
+
+void Session::set_clock_rate(double rate) {
+    rate_ = rate;
+    dt_haptic_ = 1.0 / rate;
+    clock_origin_ = t_haptic_;
+    clock_steps_ = 0;
+}
+
+double Session::advance_clock() {
+    // from the step count, not by adding periods: step n is at exactly origin + n / rate
+    ++clock_steps_;
+    t_haptic_ = clock_origin_ + static_cast<double>(clock_steps_) / rate_;
+    return t_haptic_;
+}
 
 void Session::set_device(std::unique_ptr<Device> device) {
     if (running()) throw InvalidArgument("stop the session before changing its device");
@@ -259,12 +272,21 @@ void Session::run_offline(int visual_steps) {
     if (running()) throw InvalidArgument("the session is running live: stop it before stepping it offline");
     if (failed()) throw InvalidArgument(std::string("the session has stopped: ") + message_);
     live_ = false;
-    const int n_h = static_cast<int>(std::lround(world_.settings.dt / dt_haptic_));
+    // the haptic clock runs at the session's rate, from where the world is (a live run or steps
+    // of the world without the session may have left it elsewhere)
+    if (rate_ != p_.haptic_rate || world_.time - t_haptic_ > dt_haptic_ || t_haptic_ - world_.time > dt_haptic_) {
+        t_haptic_ = world_.time;
+        set_clock_rate(p_.haptic_rate);
+    }
     for (int k = 0; k < visual_steps; ++k) {
-        for (int i = 0; i < n_h; ++i) {
-            t_haptic_ += dt_haptic_;
-            if (!haptic_step(t_haptic_)) throw InvalidArgument(std::string("the session stopped: ") + message_);
-        }
+        // Every haptic step due by the end of this visual step, at exact multiples of the period:
+        // the rest of a period carries over to the next frame (a 1/30 s frame takes 33 or 34 at
+        // 1 kHz), so the log is what a 1 kHz device sees. 1e-6 of a period absorbs the round-off
+        // of the world's clock, which adds dt every step.
+        const double end = world_.time + world_.settings.dt;
+        const double due = std::floor((end - clock_origin_) * rate_ + 1e-6);
+        while (static_cast<double>(clock_steps_) < due)
+            if (!haptic_step(advance_clock())) throw InvalidArgument(std::string("the session stopped: ") + message_);
         visual_step();
     }
 }
@@ -292,8 +314,7 @@ void Session::haptic_thread() noexcept {
         std::this_thread::sleep_until(next - spin);
         while (clock::now() < next) {
         }
-        t_haptic_ += dt_haptic_;
-        if (!haptic_step(t_haptic_)) break;
+        if (!haptic_step(advance_clock())) break;
     }
 }
 
@@ -323,8 +344,7 @@ void servo_tick(void* user) {
 
 void Session::servo_step() noexcept {
     if (stop_.load(std::memory_order_acquire) || failed()) return;
-    t_haptic_ += dt_haptic_;
-    haptic_step(t_haptic_);
+    haptic_step(advance_clock());
 }
 
 void Session::start() {
@@ -335,10 +355,10 @@ void Session::start() {
     stop_.store(false, std::memory_order_release);
     last_tick_wall_ = -1;
     if (device_->has_servo_loop()) {
-        dt_haptic_ = 1e-3;  // the driver's servo loop runs at 1 kHz
+        set_clock_rate(1000);  // the driver's servo loop runs at 1 kHz
         device_->start_servo(&servo_tick, this);
     } else {
-        dt_haptic_ = 1.0 / p_.haptic_rate;  // live: the wall clock's rate (offline divides the visual step)
+        set_clock_rate(p_.haptic_rate);
         haptic_thread_ = std::thread(&Session::haptic_thread, this);
     }
     visual_thread_ = std::thread(&Session::visual_thread, this);

@@ -107,13 +107,19 @@ private:
     World& world_;
     int hand_;
     SessionParams p_;
-    double dt_haptic_;
+    // the haptic clock: step n of the current rate at clock_origin_ + n / rate_ (s)
+    double rate_ = 1000;  // Hz: the session's, or the device's servo loop's
+    double dt_haptic_ = 1e-3;
+    double clock_origin_ = 0;
+    std::uint64_t clock_steps_ = 0;
+    void set_clock_rate(double rate);  // restarts the count from the present time t_haptic_
+    double advance_clock();            // the next step's time
     std::unique_ptr<Device> device_;
     ExternalDevice* external_ = nullptr;
 
     // haptic side
     ProxyHandle proxy_;
-    double t_haptic_ = 0;        // s: the haptic clock (virtual offline, nominal live)
+    double t_haptic_ = 0;        // s: the haptic clock's present (virtual offline, nominal live)
     double last_tick_wall_ = -1;
     bool live_ = false;
     TripleBuffer<CouplingModel> models_;   // visual -> haptic
