@@ -297,3 +297,41 @@ TEST(haptic_step_never_allocates) {
     CHECK(ok);
     CHECK(!kCountsAllocations || during == 0);
 }
+
+TEST(simulated_arm_follows_a_jump_as_fast_as_an_arm_can_and_a_slow_script_exactly) {
+    // The target jumps 0.5 m in 0.1 ms and turns by 3 rad in the same instant: the end effector
+    // never moves faster than max_speed, turns faster than max_angular_speed, or accelerates
+    // beyond max_pull / mass; it gets there. A slow script's orientation is followed exactly.
+    const double times[3] = {0.0, 0.2, 0.2001};
+    const double positions[9] = {0, 0, 0, 0, 0, 0, 0.5, 0, 0};
+    const double quaternions[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, std::sin(1.5), std::cos(1.5)};
+    hh::ArmParams p;
+    hh::SimulatedArm arm(hh::Keyframes(times, positions, quaternions, 3), p);
+    hh::Pose previous, now;
+    CHECK(arm.read(0.0, previous));
+    double fastest = 0, fastest_turn = 0, hardest = 0;
+    for (int i = 1; i <= 2000; ++i) {
+        const double t = 1e-3 * i;
+        CHECK(arm.read(t, now));
+        fastest = std::max(fastest, (now.position - previous.position).norm() / 1e-3);
+        fastest_turn = std::max(fastest_turn, now.angular_velocity.norm());
+        hardest = std::max(hardest, (now.velocity - previous.velocity).norm() / 1e-3);
+        previous = now;
+    }
+    CHECK(fastest <= p.max_speed * (1 + 1e-12));
+    CHECK(fastest > 0.9 * p.max_speed);  // it does hurry
+    CHECK(fastest_turn <= p.max_angular_speed * (1 + 1e-12));
+    CHECK(hardest <= p.max_pull / p.mass * (1 + 1e-9));
+    CHECK_LT(std::abs(now.position[0] - 0.5), 1e-3);  // settled on the target after 1.8 s
+    CHECK_LT((now.quaternion - hh::Vec4(0, 0, std::sin(1.5), std::cos(1.5))).norm(), 1e-12);
+
+    const double slow_times[2] = {0.0, 1.0};
+    const double slow_positions[6] = {0, 0, 0, 0.01, 0, 0};
+    const double slow_quaternions[8] = {0, 0, 0, 1, std::sin(0.25), 0, 0, std::cos(0.25)};  // 0.5 rad/s
+    const hh::Keyframes slow(slow_times, slow_positions, slow_quaternions, 2);
+    hh::SimulatedArm follower(slow, p);
+    for (int i = 0; i <= 500; ++i) CHECK(follower.read(1e-3 * i, now));
+    const hh::Pose goal = slow.at(0.5);
+    CHECK_LT((now.quaternion - goal.quaternion).norm(), 1e-15);
+    CHECK_LT((now.angular_velocity - goal.angular_velocity).norm(), 1e-15);
+}

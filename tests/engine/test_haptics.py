@@ -239,6 +239,65 @@ def test_offline_haptic_steps_land_on_exact_multiples_of_the_period(dt):
     assert np.array_equal(counts, np.floor(frames * dt * rate + 1e-6).astype(int))
 
 
+def jump_scene(jump: float, frames: int, **haptics) -> scenes.Scene:
+    """The device trajectory jumps `jump` m along x in 0.1 ms at t = 0.2 s (a teleport, a typo)."""
+    sc = hand_scene(gravity=(0.0, 0.0, -9.81), **haptics)
+    sc.data["device"]["trajectory"] = [{"t": 0.0, "position": [0, 0, 0]}, {"t": 0.2, "position": [0, 0, 0]},
+                                       {"t": 0.2001, "position": [jump, 0, 0]}]
+    sc.data["frames"] = frames
+    return sc
+
+
+def test_a_half_metre_jump_of_the_simulated_user_settles_whole_within_max_force():
+    """The simulated arm follows a 0.5 m jump of its target as a person's arm would (at most
+    3 m/s), so the hand is carried over without tearing: no tet inverted from 1 s after the jump,
+    the felt force within max_force, and no warning."""
+    sc = jump_scene(0.5, 45, max_force=20.0)
+    result = simulate.run(sc)
+    log = result["haptic"]
+    felt = np.linalg.norm(log["force"], axis=1)
+    assert felt.max() <= 20.0 * (1 + 1e-12)
+    speed = np.linalg.norm(np.diff(log["device_position"], axis=0), axis=1) / np.diff(log["t"])
+    assert speed.max() <= 3.0 * (1 + 1e-9)
+    assert log["device_position"][-1, 0] - log["device_position"][0, 0] == pytest.approx(0.5, abs=0.01)  # it got there
+    settled = result["time"] >= 1.2
+    assert result["inverted_tets"][settled].max() == 0
+    assert int(result["torn_frame"]) == -1 and int(result["strayed_frame"]) == -1
+    assert "WARNING" not in simulate.summary(result)
+
+
+def test_a_fifty_metre_jump_of_a_playback_device_is_reported_with_its_frame(tmp_path):
+    """A recorded trajectory is replayed as it is: a 50 m jump in it yanks the proxy, and with it
+    the handle, away from the flesh. The result file and the summary say so, with the frame."""
+    sc = jump_scene(0.0, 14)
+    sc.data["hand"]["self_collision"] = False  # the torn hand's self-contacts only cost time here
+    com = np.array(scenes.build_model(sc).info()["handle_com"])
+    path = tmp_path / "jump.csv"
+    rows = [(0.0, *com), (0.2, *com), (0.2001, com[0] + 50.0, com[1], com[2])]
+    path.write_text("t,x,y,z\n" + "\n".join(",".join(repr(float(v)) for v in r) for r in rows) + "\n")
+    sc.data["haptics"]["device"] = f"playback:{path}"
+    result = simulate.run(sc)
+    jump_frame = int(round(0.2 / sc.dt))
+    torn, strayed = int(result["torn_frame"]), int(result["strayed_frame"])
+    assert jump_frame <= strayed <= jump_frame + 1 and jump_frame <= torn <= jump_frame + 2
+    assert result["inverted_tets"][torn] > 0
+    text = simulate.summary(result)
+    assert f"tore at frame {torn}" in text and f"strayed from the handle at frame {strayed}" in text
+    stored = np.load(simulate.write(result, tmp_path / "r.npz"))
+    assert int(stored["strayed_frame"]) == strayed and len(stored["warnings"]) == 2
+
+
+def test_a_virtual_coupling_that_is_not_passive_is_refused_with_the_fix():
+    """Colgate: sampled at T = 1 ms, a 2000 N/m coupling needs at least K T / 2 = 1 N s/m of damping."""
+    rig_scene = hand_scene()
+    world, hand, _, _, _ = simulate.build_world(rig_scene)
+    with pytest.raises(native.InvalidInput, match=r"not passive at 1000 Hz.*at least 1 N s/m.*at most 1000 N/m"):
+        native_session.NativeSession(world, hand, coupling={"stiffness": 2000.0, "damping": 0.5})
+    with pytest.raises(native.InvalidInput, match=r"angular damping 0 .*at least 0.01 N m s/rad"):
+        native_session.NativeSession(world, hand, coupling={"angular_stiffness": 20.0, "angular_damping": 0.0})
+    native_session.NativeSession(world, hand, coupling={"stiffness": 2000.0, "damping": 1.0}).close()  # on the bound
+
+
 def test_simulate_writes_the_haptic_log(tmp_path):
     sc = hand_scene(gravity=(0.0, 0.0, -9.81))
     sc.data["frames"] = 12

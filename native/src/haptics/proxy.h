@@ -20,6 +20,10 @@ struct VirtualCoupling {
     double angular_damping = 0.2;      // N m s/rad
 };
 
+// Throws InvalidArgument, naming the fix, unless the coupling stays passive when sampled at
+// `rate` (Hz): damping >= stiffness x period / 2, linear and angular (Colgate & Schenkel 1997).
+void check_passive(const VirtualCoupling& coupling, double rate);
+
 class ProxyHandle {
 public:
     double mass = 0;

@@ -72,6 +72,7 @@ void check_params(const SessionParams& p) {
         throw InvalidArgument("the force and torque limits must be > 0");
     if (p.log_capacity < 1 || p.log_capacity > (std::size_t(1) << 26))
         throw InvalidArgument("the haptic log capacity must be 1 to 67 million rows");
+    check_passive(p.coupling, p.haptic_rate);
 }
 }  // namespace
 
@@ -355,7 +356,8 @@ void Session::start() {
     stop_.store(false, std::memory_order_release);
     last_tick_wall_ = -1;
     if (device_->has_servo_loop()) {
-        set_clock_rate(1000);  // the driver's servo loop runs at 1 kHz
+        check_passive(p_.coupling, 1000);  // the driver's servo loop runs at 1 kHz
+        set_clock_rate(1000);
         device_->start_servo(&servo_tick, this);
     } else {
         set_clock_rate(p_.haptic_rate);
