@@ -44,6 +44,12 @@ void operator delete(void* p, std::size_t) noexcept { std::free(p); }
 void operator delete(void* p, const std::nothrow_t&) noexcept { std::free(p); }
 #endif
 
+#if defined(__SANITIZE_THREAD__) || defined(__SANITIZE_ADDRESS__)
+constexpr bool kSanitized = true;  // their shadow memory takes faults of its own
+#else
+constexpr bool kSanitized = false;
+#endif
+
 namespace {
 void sleep_s(double s) { std::this_thread::sleep_for(std::chrono::duration<double>(s)); }
 
@@ -170,6 +176,8 @@ TEST(live_session_runs_both_loops_and_stops_cleanly) {
     hh_session_status st;
     CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
     CHECK(st.running == 1 && st.failed == 0);
+    CHECK(hh_session_loop_info(rig.session, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr) ==
+          HH_ERR_INVALID_ARGUMENT);  // the loop reports once it has stopped
     CHECK(hh_session_stop(rig.session) == HH_OK);
     const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
@@ -182,6 +190,16 @@ TEST(live_session_runs_both_loops_and_stops_cleanly) {
     CHECK(hh_session_read_log(rig.session, rows.data(), 1000, &n) == HH_OK);
     CHECK(n == static_cast<int>(st.haptic_steps));
     CHECK(hh_world_step(rig.world, &ws) == HH_OK);  // the world is the caller's again
+    // the loop's own setup: its memory locked (or refused, and counted), pinned when real-time,
+    // and with everything locked and faulted in beforehand, no page fault inside the loop
+    int cpu = -2, isolated = -1;
+    double locked = -1, refused = -1, minor = -1, major = -1;
+    CHECK(hh_session_loop_info(rig.session, &cpu, &isolated, &locked, &refused, &minor, &major) == HH_OK);
+    CHECK(locked + refused >= static_cast<double>(hh::Session::kHapticStackBytes + sizeof(hh::Session)));
+    CHECK(!st.realtime || cpu >= 0);
+    CHECK(major == 0);
+    std::printf("  loop: cpu %d, locked %.0f, refused %.0f, faults %.0f minor %.0f major\n", cpu, locked, refused, minor, major);
+    CHECK(kSanitized || refused > 0 || minor == 0);
 }
 
 TEST(external_device_takes_poses_from_another_thread) {

@@ -1,13 +1,13 @@
 #include "haptics/session.h"
 
-#include <pthread.h>
-#include <sched.h>
 #include <sys/prctl.h>
+#include <time.h>
 
 #include <chrono>
 #include <cmath>
 #include <cstring>
 
+#include "haptics/realtime.h"
 #include "sim/world.h"
 
 namespace hh {
@@ -295,28 +295,40 @@ void Session::run_offline(int visual_steps) {
 void Session::haptic_thread() noexcept {
     // a 1 ms period needs wake-ups far finer than Linux's default 50 us timer slack
     prctl(PR_SET_TIMERSLACK, 1000UL, 0, 0, 0);
-    // Real-time priority when allowed (root or CAP_SYS_NICE): on a loaded machine an ordinary
-    // thread waits behind others for milliseconds. It sleeps 99% of each period, so it cannot
-    // starve the machine; without the permission it runs as an ordinary thread.
-    if (p_.realtime) {
-        sched_param sp{};
-        sp.sched_priority = std::min(80, sched_get_priority_max(SCHED_FIFO));
-        realtime_.store(pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) == 0, std::memory_order_release);
-    }
-    using clock = std::chrono::steady_clock;
-    const auto period = std::chrono::duration_cast<clock::duration>(std::chrono::duration<double>(dt_haptic_));
-    // Sleep to just before the deadline, then spin the last stretch: the kernel's wake-up
-    // latency (tens of microseconds, more on a busy machine) lands inside the spin instead of
-    // on the period. Costs about 8% of a core at 1 kHz.
-    const auto spin = std::chrono::microseconds(80);
-    auto next = clock::now();
+    // Real-time priority when allowed (root, CAP_SYS_NICE or an rtprio limit): on a loaded
+    // machine an ordinary thread waits behind others for milliseconds. It sleeps 90% of each
+    // period, so it cannot starve the machine; without the permission it runs as an ordinary
+    // thread. Then a CPU of its own and its memory locked: what the loop touches is in RAM before
+    // the first deadline, so the loop takes no page fault (docs/haptics.md, "Timing").
+    const MemoryRange ranges[2] = {{this, sizeof *this}, {log_.storage(), log_.storage_bytes()}};
+    double (*const atan2_of)(double, double) = &std::atan2;
+    const void* const code[3] = {reinterpret_cast<const void*>(&check_passive), reinterpret_cast<const void*>(atan2_of),
+                                 reinterpret_cast<const void*>(&clock_nanosleep)};
+    loop_ = set_up_loop_thread(p_.realtime, kHapticPriority, kHapticStackBytes, ranges, 2, code, 3);
+    realtime_.store(loop_.priority, std::memory_order_release);
+    double minor0, major0;
+    thread_page_faults(minor0, major0);
+    // Sleep to just before the deadline (an absolute one: no drift), then spin the last stretch:
+    // the kernel's wake-up latency (tens of microseconds, more on a busy machine) lands inside
+    // the spin instead of on the period. Costs about 8% of a core at 1 kHz.
+    const std::int64_t period = std::llround(dt_haptic_ * 1e9), spin = 80000;  // ns
+    timespec now{};
+    clock_gettime(CLOCK_MONOTONIC, &now);
+    std::int64_t next = now.tv_sec * 1000000000LL + now.tv_nsec;
     while (!stop_.load(std::memory_order_acquire) && !failed()) {
         next += period;
-        std::this_thread::sleep_until(next - spin);
-        while (clock::now() < next) {
-        }
+        const std::int64_t wake = next - spin;
+        const timespec until{static_cast<time_t>(wake / 1000000000LL), static_cast<long>(wake % 1000000000LL)};
+        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &until, nullptr);
+        do clock_gettime(CLOCK_MONOTONIC, &now);
+        while (now.tv_sec * 1000000000LL + now.tv_nsec < next);
         if (!haptic_step(advance_clock())) break;
     }
+    double minor1, major1;
+    thread_page_faults(minor1, major1);
+    loop_minor_faults_ = minor1 - minor0;
+    loop_major_faults_ = major1 - major0;
+    release_loop_memory(loop_, ranges, 2);
 }
 
 void Session::visual_thread() noexcept {

@@ -18,6 +18,7 @@
 #include "haptics/coupling_model.h"
 #include "haptics/haptic_log.h"
 #include "haptics/proxy.h"
+#include "haptics/realtime.h"
 #include "common/triple_buffer.h"
 
 namespace hh {
@@ -61,6 +62,9 @@ struct Frame {
 
 class Session {
 public:
+    static constexpr int kHapticPriority = 80;                   // SCHED_FIFO, below the kernel's own threads (99)
+    static constexpr std::size_t kHapticStackBytes = 128 << 10;  // of the haptic thread, faulted in and locked
+
     Session(World& world, int hand, const SessionParams& params);
     ~Session();
     Session(const Session&) = delete;
@@ -79,6 +83,11 @@ public:
     bool running() const { return running_.load(std::memory_order_acquire); }
     // whether the haptic thread got real-time priority
     bool realtime() const { return realtime_.load(std::memory_order_acquire); }
+    // the last live haptic thread's setup and the page faults (minor, major) in its loop; valid
+    // once stop() has returned
+    const LoopSetup& loop_setup() const { return loop_; }
+    double loop_minor_faults() const { return loop_minor_faults_; }
+    double loop_major_faults() const { return loop_major_faults_; }
     bool failed() const { return failed_.load(std::memory_order_acquire); }
     const char* error() const { return failed() ? message_ : ""; }
 
@@ -133,6 +142,10 @@ private:
     Vec3 previous_v_ = Vec3::Zero(), previous_omega_ = Vec3::Zero();  // the last step's handle velocity
     std::vector<int> surface_offset_;
 
+    // the live haptic thread's own setup and the page faults it took in the loop (its thread
+    // writes them; read them after stop())
+    LoopSetup loop_;
+    double loop_minor_faults_ = 0, loop_major_faults_ = 0;
     std::atomic<bool> running_{false}, stop_{false}, failed_{false}, failing_{false}, realtime_{false};
     std::atomic<std::uint64_t> haptic_steps_{0}, visual_steps_{0};
     char message_[512] = {0};
