@@ -286,7 +286,7 @@ def run_case(scene: scenes.Scene, frames: int) -> dict:
     setup = time.perf_counter() - t0
     info = model.info()
     dt = scene.dt
-    inputs = simulate.ScriptedInputs(scene, world, hand, model, others)
+    inputs = simulate.ScriptedInputs(scene, world, hand, model)
     records = []
     for k in range(frames):
         t = (k + 1) * dt
