@@ -292,10 +292,10 @@ def test_a_virtual_coupling_that_is_not_passive_is_refused_with_the_fix():
     rig_scene = hand_scene()
     world, hand, _, _, _ = simulate.build_world(rig_scene)
     with pytest.raises(native.InvalidInput, match=r"not passive at 1000 Hz.*at least 1 N s/m.*at most 1000 N/m"):
-        native_session.NativeSession(world, hand, coupling={"stiffness": 2000.0, "damping": 0.5})
+        native_session.NativeSession(world, hand, coupling_stiffness=2000.0, coupling_damping=0.5)
     with pytest.raises(native.InvalidInput, match=r"angular damping 0 .*at least 0.01 N m s/rad"):
-        native_session.NativeSession(world, hand, coupling={"angular_stiffness": 20.0, "angular_damping": 0.0})
-    native_session.NativeSession(world, hand, coupling={"stiffness": 2000.0, "damping": 1.0}).close()  # on the bound
+        native_session.NativeSession(world, hand, coupling_angular_stiffness=20.0, coupling_angular_damping=0.0)
+    native_session.NativeSession(world, hand, coupling_stiffness=2000.0, coupling_damping=1.0).close()  # on the bound
 
 
 def test_simulate_writes_the_haptic_log(tmp_path):
