@@ -222,11 +222,12 @@ def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
     return out.value
 
 
-def solver_code(name: str) -> int:
-    """The C code of a solver named as the parameter table names it (solver.name)."""
+def solver_code(name: str, field: str = "solver.name") -> int:
+    """The C code of a solver named as the parameter table names it (the hand's solver.name, or
+    a soft body's bodies[].solver.name, whose choices add auto)."""
     from . import params
 
-    choices = params.by_json("solver.name").choices
+    choices = params.by_json(field).choices
     if name not in choices:
         raise InvalidInput(f"solver '{name}' is unknown: use one of {', '.join(choices)}")
     return choices.index(name)

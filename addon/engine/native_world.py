@@ -122,7 +122,8 @@ class World:
         operator, its columns kept between factorizations: for large soft bodies)."""
         tol = _default(cg_tolerance, "bodies[].solver.cg_tolerance")
         iterations = _default(cg_max_iterations, "bodies[].solver.cg_max_iterations")
-        _check(library().hh_world_set_body_solver(self._handle, body, solver_code(solver), float(tol), int(iterations)))
+        _check(library().hh_world_set_body_solver(self._handle, body, solver_code(solver, "bodies[].solver.name"), float(tol),
+                                                  int(iterations)))
 
     # --- driving ---
     def set_pose(self, body: int, position=None, quaternion=None, velocity=None, angular_velocity=None) -> None:
