@@ -72,6 +72,7 @@ def _lib() -> ctypes.CDLL:
         "hh_session_start": ([vp], i),
         "hh_session_stop": ([vp], i),
         "hh_session_get_status": ([vp, ctypes.POINTER(SessionStatus)], i),
+        "hh_session_loop_info": ([vp, pi, pi, pd, pd, pd, pd], i),
         "hh_session_fetch_frame": ([vp, pi, ctypes.POINTER(SessionFrame)], i),
         "hh_session_frame_surface": ([vp, i, pd, i], i),
         "hh_session_read_log": ([vp, pd, i, pi], i),
@@ -176,6 +177,16 @@ class NativeSession:
                 "visual_steps": int(s.visual_steps), "log_unread": int(s.log_unread),
                 "log_dropped": int(s.log_dropped), "realtime": bool(s.realtime),
                 "message": s.message.decode("utf-8", "replace")}
+
+    def loop_info(self) -> dict:
+        """How the last live haptic thread ran (after stop): the CPU it was pinned to (-1: none)
+        and whether it is isolated, its memory locked and refused (bytes), the page faults in its loop."""
+        cpu, isolated = ctypes.c_int(), ctypes.c_int()
+        locked, refused, minor, major = (ctypes.c_double() for _ in range(4))
+        _check(_lib().hh_session_loop_info(self._handle, ctypes.byref(cpu), ctypes.byref(isolated), ctypes.byref(locked),
+                                           ctypes.byref(refused), ctypes.byref(minor), ctypes.byref(major)))
+        return {"cpu": cpu.value, "cpu_isolated": bool(isolated.value), "locked_bytes": locked.value,
+                "unlocked_bytes": refused.value, "minor_faults": int(minor.value), "major_faults": int(major.value)}
 
     def fetch_frame(self) -> bool:
         """Takes the newest frame (True when it is new); its scalars are in frame_info."""

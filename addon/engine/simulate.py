@@ -5,12 +5,14 @@ virtual coupling, one implicit step per frame, everything recorded in a result f
 from __future__ import annotations
 
 import json
+import math
 import platform
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from . import hand_integrity
 from . import native_world, quaternion
 from . import scene as scenes
 from . import session as session_module
@@ -56,9 +58,10 @@ def run(scene: scenes.Scene, progress=None) -> dict:
     frames, dt, n = scene.frames, scene.dt, model.n_nodes
     haptics = None
     if scene.data["haptics"]["enabled"]:
-        # the haptic loop in lockstep, in virtual time: its log holds every haptic step
-        steps_per_frame = max(1, round(dt * scene.data["haptics"]["rate"]))
-        haptics = session_module.create(world, hand, scene, log_capacity=frames * steps_per_frame + 1)
+        # the haptic loop in lockstep, in virtual time, a step at every multiple of 1/rate: its
+        # log holds every haptic step
+        steps = math.ceil(frames * dt * scene.data["haptics"]["rate"]) + 2
+        haptics = session_module.create(world, hand, scene, log_capacity=steps)
         session_module.attach_device(haptics, scene, np.array(model.info()["handle_com"]))
 
     positions = np.empty((frames + 1, n, 3))
@@ -137,6 +140,12 @@ def run(scene: scenes.Scene, progress=None) -> dict:
         "body_types": np.array([b.spec["type"] for b in others]),
         "machine": np.array(f"{platform.machine()} {platform.processor() or ''} {platform.system()}".strip()),
     })
+    # whether the hand stayed whole: a violent input tears it or pulls the flesh off the handle
+    verdict = hand_integrity.check(positions, scene.nodes, scene.tets, handle_pose, result["time"],
+                                   flesh_deformation(result))
+    result.update({"inverted_tets": verdict["inverted_tets"], "torn_frame": np.array(verdict["torn_frame"]),
+                   "strayed_frame": np.array(verdict["strayed_frame"]),
+                   "warnings": np.array(verdict["warnings"], dtype=str)})
     for b in others:
         key = f"body_{b.name}"
         if b.kind == native_world.PLANE:
@@ -212,4 +221,4 @@ def summary(result: dict) -> str:
         f"{1.0 / vt[:, 3].mean():.0f} Hz",
         f"contacts: up to {int(cs[:, 0].max())} ({int(cs[:, 1].max())} between fingers), deepest into the "
         f"{thickness * 1e3:.1f} mm thickness: {cs[:, 2].max() * 1e3:.3f} mm",
-    ] + haptic)
+    ] + haptic + [str(w) for w in result.get("warnings", [])])

@@ -353,6 +353,12 @@ int hh_session_run_offline(hh_session* session, int visual_steps);
 int hh_session_start(hh_session* session);
 int hh_session_stop(hh_session* session);
 int hh_session_get_status(hh_session* session, hh_session_status* out);
+/* How the last live haptic thread ran, once hh_session_stop has returned (docs/haptics.md,
+ * "Timing"): the CPU it was pinned to (-1: none), whether that CPU is isolated (isolcpus), the
+ * bytes of its memory locked in RAM and those mlock refused, and the page faults (minor, major)
+ * it took inside its loop. Any pointer may be null. */
+int hh_session_loop_info(hh_session* session, int* cpu, int* cpu_isolated, double* locked_bytes,
+                         double* unlocked_bytes, double* minor_faults, double* major_faults);
 /* Takes the newest frame if there is one (out_new = 1) and copies its scalars. */
 int hh_session_fetch_frame(hh_session* session, int* out_new, hh_session_frame* out);
 /* The fetched frame's collision-surface vertices of a body (hand or soft body). */

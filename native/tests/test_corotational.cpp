@@ -302,3 +302,152 @@ TEST(polar_rotation_is_the_rotation_of_the_polar_decomposition) {
         CHECK_LT(std::abs(warm.norm() - 1), 1e-14);
     }
 }
+
+namespace {
+// An SVD independent of the engine's (Eigen's two-sided Jacobi): one-sided Jacobi (Hestenes
+// 1958), plane rotations V from the right until the columns of A = F V are orthogonal; then
+// sigma_i = |a_i| and u_i = a_i / sigma_i (so det U V^T has the sign of det F).
+void hestenes_svd(const Mat3& f, Mat3& u, Vec3& sigma, Mat3& v) {
+    Mat3 a = f;
+    v.setIdentity();
+    for (int sweep = 0; sweep < 60; ++sweep) {
+        double off = 0;
+        for (int p = 0; p < 2; ++p)
+            for (int q = p + 1; q < 3; ++q) {
+                const double alpha = a.col(p).squaredNorm(), beta = a.col(q).squaredNorm(), gamma = a.col(p).dot(a.col(q));
+                if (gamma == 0) continue;
+                off = std::max(off, std::abs(gamma) / std::sqrt(alpha * beta));
+                const double zeta = (beta - alpha) / (2 * gamma);
+                const double t = (zeta >= 0 ? 1.0 : -1.0) / (std::abs(zeta) + std::sqrt(1 + zeta * zeta));
+                const double c = 1 / std::sqrt(1 + t * t), s = c * t;
+                const Vec3 ap = a.col(p), aq = a.col(q), vp = v.col(p), vq = v.col(q);
+                a.col(p) = c * ap - s * aq;
+                a.col(q) = s * ap + c * aq;
+                v.col(p) = c * vp - s * vq;
+                v.col(q) = s * vp + c * vq;
+            }
+        if (off < 1e-15) break;
+    }
+    for (int i = 0; i < 3; ++i) {
+        sigma[i] = a.col(i).norm();
+        u.col(i) = a.col(i) / sigma[i];
+    }
+}
+
+// The proper rotation maximizing trace(R^T F): U V^T, with the direction of the smallest
+// singular value flipped when F is inverted.
+Mat3 reference_rotation(const Mat3& f) {
+    Mat3 u, v;
+    Vec3 sigma;
+    hestenes_svd(f, u, sigma, v);
+    if (f.determinant() < 0) {
+        int k = 0;
+        sigma.minCoeff(&k);
+        u.col(k) = -u.col(k);
+    }
+    return u * v.transpose();
+}
+
+Mat3 random_rotation(std::mt19937& rng) {
+    std::normal_distribution<double> n(0, 1);
+    return quat_to_matrix(Vec4(n(rng), n(rng), n(rng), n(rng)).normalized());
+}
+
+// A large deformation F = R1 diag(s) R2^T, stretches 0.2..3, inverted (one s negative) one
+// time in three, with the rotation well defined: the two singular values that decide it (the
+// pair sums for a proper F, s2 - |s3| for an inverted one) at least 0.05 apart.
+Mat3 random_large_deformation(std::mt19937& rng) {
+    std::uniform_real_distribution<double> u(0, 1);
+    for (;;) {
+        Vec3 s;
+        for (int i = 0; i < 3; ++i) s[i] = 0.2 * std::pow(15.0, u(rng));
+        Vec3 sorted = s;
+        std::sort(sorted.data(), sorted.data() + 3);
+        const bool inverted = u(rng) < 1.0 / 3;
+        if (inverted && sorted[1] - sorted[0] < 0.05) continue;
+        if (inverted) s[std::min_element(s.data(), s.data() + 3) - s.data()] *= -1;
+        return random_rotation(rng) * s.asDiagonal() * random_rotation(rng).transpose();
+    }
+}
+
+// Disjoint tets (each its own four nodes, 1 cm legs) whose deformation gradients are fs.
+TetMesh separate_tets(const std::vector<Mat3>& fs, VecX& x) {
+    TetMesh mesh;
+    mesh.n_nodes = 4 * static_cast<int>(fs.size());
+    mesh.rest = VecX::Zero(3 * mesh.n_nodes);
+    x = VecX::Zero(3 * mesh.n_nodes);
+    for (size_t e = 0; e < fs.size(); ++e) {
+        const Vec3 origin(0.05 * (e % 40), 0.05 * (e / 40), 0);
+        const int n0 = 4 * static_cast<int>(e);
+        for (int a = 0; a < 4; ++a) {
+            const Vec3 leg = a == 0 ? Vec3::Zero() : Vec3(0.01 * Vec3::Unit(a - 1));
+            mesh.rest.segment<3>(3 * (n0 + a)) = origin + leg;
+            x.segment<3>(3 * (n0 + a)) = Vec3(0.3, -0.2, 0.1) + fs[e] * leg;
+        }
+        mesh.tets.emplace_back(n0, n0 + 1, n0 + 2, n0 + 3);
+    }
+    return mesh;
+}
+}  // namespace
+
+TEST(polar_rotation_is_right_for_any_large_deformation_from_any_start) {
+    // Thousands of random large deformations (stretch 0.2..3, a third inverted, every rotation)
+    // and pure rotations up to 180 degrees, each from four starts: the identity, a random
+    // rotation, the answer itself, and the worst: a saddle of trace(R^T F) (the answer turned
+    // by 180 degrees about a singular direction, where the gradient is zero). Through the
+    // element pass at every SIMD level the CPU has (lanes and the scalar tail) and through
+    // polar_rotation itself, against the independent one-sided Jacobi SVD above.
+    std::mt19937 rng(2011);
+    std::normal_distribution<double> n(0, 1);
+    std::vector<Mat3> fs;
+    for (int k = 0; k < 1500; ++k) fs.push_back(random_large_deformation(rng));
+    for (int k = 0; k < 500; ++k) {  // rotated, barely deformed: the hand after a state jump
+        Mat3 noise;
+        for (int i = 0; i < 9; ++i) noise(i) = 0.05 * n(rng);
+        fs.push_back(random_rotation(rng) * (Mat3::Identity() + noise));
+    }
+    fs.push_back(quat_to_matrix(quat_from_rotation_vector(Vec3(M_PI, 0, 0))));  // exactly 180 degrees
+    std::vector<Mat3> expected;
+    for (const Mat3& f : fs) expected.push_back(reference_rotation(f));
+    auto start = [&](size_t e, int kind) -> Vec4 {
+        if (kind == 0) return quat_identity();
+        if (kind == 1) return quat_from_matrix(random_rotation(rng));
+        if (kind == 2) return quat_from_matrix(expected[e]);
+        Mat3 u, v;
+        Vec3 sigma;
+        hestenes_svd(fs[e], u, sigma, v);
+        const Vec3 axis = v.col(static_cast<int>(e % 3));  // turned about a singular direction
+        return quat_from_matrix(expected[e] * quat_to_matrix(quat_from_rotation_vector(M_PI * axis)));
+    };
+    VecX x;
+    const TetMesh mesh = separate_tets(fs, x);
+    const CorotationalElements el = precompute_elements(mesh, flesh);
+    const StiffnessPattern pat = build_stiffness_pattern(mesh);
+    int checked = 0;
+    double worst = 0;
+    for (int kind = 0; kind < 4; ++kind)
+        for (int level = -1; level <= detected_simd_level(); ++level) {  // -1: polar_rotation itself
+            if (level >= 0) simd_level_override() = level;
+            ElementRotations rot;
+            size_rotations(rot, fs.size());
+            for (size_t e = 0; e < fs.size(); ++e) rot.q[e] = start(e, kind);
+            if (level >= 0) {
+                VecX f = VecX::Zero(x.size());
+                SpMat k = pat.matrix;
+                assemble_corotational(mesh, el, x, f, rot, pat, 1.0, k.valuePtr(), 0, fs.size());
+            } else {
+                for (size_t e = 0; e < fs.size(); ++e)
+                    rot.r[e] = polar_rotation(deformation_gradient(mesh, el, static_cast<int>(e), x), rot.q[e]);
+            }
+            for (size_t e = 0; e < fs.size(); ++e) {
+                const double err = (rot.r[e] - expected[e]).cwiseAbs().maxCoeff();
+                worst = std::max(worst, err);
+                CHECK_LT(err, 1e-8);
+                CHECK_LT((quat_to_matrix(rot.q[e]) - rot.r[e]).cwiseAbs().maxCoeff(), 1e-12);  // the warm start kept
+                ++checked;
+            }
+        }
+    simd_level_override() = -1;
+    CHECK(checked >= 4 * 2 * 2001);
+    std::printf("  %d rotations, largest error %.2g\n", checked, worst);
+}

@@ -20,7 +20,7 @@
 #include "haptic_hand.h"
 #include "haptics/haptic_log.h"
 #include "haptics/session.h"
-#include "haptics/triple_buffer.h"
+#include "common/triple_buffer.h"
 
 // Every allocation of this test program goes through here, so a test can count them.
 // ThreadSanitizer needs its own operator new from the first instant, so its build does not
@@ -42,6 +42,12 @@ void* operator new(std::size_t n, const std::nothrow_t&) noexcept {  // std::sta
 void operator delete(void* p) noexcept { std::free(p); }
 void operator delete(void* p, std::size_t) noexcept { std::free(p); }
 void operator delete(void* p, const std::nothrow_t&) noexcept { std::free(p); }
+#endif
+
+#if defined(__SANITIZE_THREAD__) || defined(__SANITIZE_ADDRESS__)
+constexpr bool kSanitized = true;  // their shadow memory takes faults of its own
+#else
+constexpr bool kSanitized = false;
 #endif
 
 namespace {
@@ -170,6 +176,8 @@ TEST(live_session_runs_both_loops_and_stops_cleanly) {
     hh_session_status st;
     CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
     CHECK(st.running == 1 && st.failed == 0);
+    CHECK(hh_session_loop_info(rig.session, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr) ==
+          HH_ERR_INVALID_ARGUMENT);  // the loop reports once it has stopped
     CHECK(hh_session_stop(rig.session) == HH_OK);
     const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
@@ -182,6 +190,16 @@ TEST(live_session_runs_both_loops_and_stops_cleanly) {
     CHECK(hh_session_read_log(rig.session, rows.data(), 1000, &n) == HH_OK);
     CHECK(n == static_cast<int>(st.haptic_steps));
     CHECK(hh_world_step(rig.world, &ws) == HH_OK);  // the world is the caller's again
+    // the loop's own setup: its memory locked (or refused, and counted), pinned when real-time,
+    // and with everything locked and faulted in beforehand, no page fault inside the loop
+    int cpu = -2, isolated = -1;
+    double locked = -1, refused = -1, minor = -1, major = -1;
+    CHECK(hh_session_loop_info(rig.session, &cpu, &isolated, &locked, &refused, &minor, &major) == HH_OK);
+    CHECK(locked + refused >= static_cast<double>(hh::Session::kHapticStackBytes + sizeof(hh::Session)));
+    CHECK(!st.realtime || cpu >= 0);
+    CHECK(major == 0);
+    std::printf("  loop: cpu %d, locked %.0f, refused %.0f, faults %.0f minor %.0f major\n", cpu, locked, refused, minor, major);
+    CHECK(kSanitized || refused > 0 || minor == 0);
 }
 
 TEST(external_device_takes_poses_from_another_thread) {
@@ -296,4 +314,42 @@ TEST(haptic_step_never_allocates) {
     const long during = g_allocations.load() - before;
     CHECK(ok);
     CHECK(!kCountsAllocations || during == 0);
+}
+
+TEST(simulated_arm_follows_a_jump_as_fast_as_an_arm_can_and_a_slow_script_exactly) {
+    // The target jumps 0.5 m in 0.1 ms and turns by 3 rad in the same instant: the end effector
+    // never moves faster than max_speed, turns faster than max_angular_speed, or accelerates
+    // beyond max_pull / mass; it gets there. A slow script's orientation is followed exactly.
+    const double times[3] = {0.0, 0.2, 0.2001};
+    const double positions[9] = {0, 0, 0, 0, 0, 0, 0.5, 0, 0};
+    const double quaternions[12] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, std::sin(1.5), std::cos(1.5)};
+    hh::ArmParams p;
+    hh::SimulatedArm arm(hh::Keyframes(times, positions, quaternions, 3), p);
+    hh::Pose previous, now;
+    CHECK(arm.read(0.0, previous));
+    double fastest = 0, fastest_turn = 0, hardest = 0;
+    for (int i = 1; i <= 2000; ++i) {
+        const double t = 1e-3 * i;
+        CHECK(arm.read(t, now));
+        fastest = std::max(fastest, (now.position - previous.position).norm() / 1e-3);
+        fastest_turn = std::max(fastest_turn, now.angular_velocity.norm());
+        hardest = std::max(hardest, (now.velocity - previous.velocity).norm() / 1e-3);
+        previous = now;
+    }
+    CHECK(fastest <= p.max_speed * (1 + 1e-12));
+    CHECK(fastest > 0.9 * p.max_speed);  // it does hurry
+    CHECK(fastest_turn <= p.max_angular_speed * (1 + 1e-12));
+    CHECK(hardest <= p.max_pull / p.mass * (1 + 1e-9));
+    CHECK_LT(std::abs(now.position[0] - 0.5), 1e-3);  // settled on the target after 1.8 s
+    CHECK_LT((now.quaternion - hh::Vec4(0, 0, std::sin(1.5), std::cos(1.5))).norm(), 1e-12);
+
+    const double slow_times[2] = {0.0, 1.0};
+    const double slow_positions[6] = {0, 0, 0, 0.01, 0, 0};
+    const double slow_quaternions[8] = {0, 0, 0, 1, std::sin(0.25), 0, 0, std::cos(0.25)};  // 0.5 rad/s
+    const hh::Keyframes slow(slow_times, slow_positions, slow_quaternions, 2);
+    hh::SimulatedArm follower(slow, p);
+    for (int i = 0; i <= 500; ++i) CHECK(follower.read(1e-3 * i, now));
+    const hh::Pose goal = slow.at(0.5);
+    CHECK_LT((now.quaternion - goal.quaternion).norm(), 1e-15);
+    CHECK_LT((now.angular_velocity - goal.angular_velocity).norm(), 1e-15);
 }

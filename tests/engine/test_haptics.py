@@ -48,7 +48,7 @@ def test_at_rest_without_gravity_the_felt_force_is_zero():
     rig = Rig(hand_scene())
     rig.simulated_user([0.0], [[0, 0, 0]])
     log = rig.run(1.0)
-    assert len(log["t"]) == 33 * 30  # one row per haptic step: 33 per 1/30 s frame
+    assert len(log["t"]) == 1000  # one row per haptic step: 1 kHz for 1 s
     assert np.abs(log["force"]).max() < 1e-9
     assert np.abs(log["torque"]).max() < 1e-9
 
@@ -119,7 +119,7 @@ def wall_push(linearized: bool, k_vc: float) -> dict:
 def test_stiffest_coupling_on_a_wall_stays_stable_with_linearization_and_not_without():
     k_max = 3e4  # docs/haptics.md: the stiffest coupling the haptic loop is tested stable at (refused above, natively)
     lin = wall_push(True, k_max)
-    per_second = [slice(int(i * 990), int((i + 1) * 990)) for i in range(5)]
+    per_second = [slice(i * 1000, (i + 1) * 1000) for i in range(5)]
     energy = [lin["coupling_energy"][s].max() for s in per_second]
     wobble = [lin["force"][s, 0].std() for s in per_second]
     # bounded energy and no growing oscillation: after the push settles every second is calmer
@@ -216,13 +216,95 @@ def test_device_that_disconnects_stops_with_a_message_and_keeps_what_was_done(ki
     assert np.all(np.isfinite(x))
 
 
+@pytest.mark.parametrize("dt", [1 / 30, 1 / 60, 0.025])
+def test_offline_haptic_steps_land_on_exact_multiples_of_the_period(dt):
+    """The offline haptic clock is the one a 1 kHz device would see, whatever the frame rate:
+    step n at n / rate exactly (the remainder of a frame carried to the next), so every period
+    is 1 ms, and by the end of frame k the steps up to (k + 1) dt have run."""
+    sc = hand_scene()
+    sc.data["dt"] = dt
+    rig = Rig(sc)
+    rig.simulated_user([0.0, 0.5], [[0, 0, 0], [0.01, 0, 0]])
+    rate = sc.data["haptics"]["rate"]
+    counts = []
+    for _ in range(int(round(0.5 / dt))):
+        rig.session.run_offline(1)
+        counts.append(rig.session.status()["haptic_steps"])
+    log = native_session.log_arrays(rig.session.read_log())
+    n = np.arange(1, len(log["t"]) + 1)
+    assert np.abs(log["t"] - n / rate).max() < 1e-12
+    assert np.abs(np.diff(log["t"]) - 1 / rate).max() < 1e-12
+    assert np.abs(log["period"] - 1 / rate).max() < 1e-12
+    frames = np.arange(1, len(counts) + 1)
+    assert np.array_equal(counts, np.floor(frames * dt * rate + 1e-6).astype(int))
+
+
+def jump_scene(jump: float, frames: int, **haptics) -> scenes.Scene:
+    """The device trajectory jumps `jump` m along x in 0.1 ms at t = 0.2 s (a teleport, a typo)."""
+    sc = hand_scene(gravity=(0.0, 0.0, -9.81), **haptics)
+    sc.data["device"]["trajectory"] = [{"t": 0.0, "position": [0, 0, 0]}, {"t": 0.2, "position": [0, 0, 0]},
+                                       {"t": 0.2001, "position": [jump, 0, 0]}]
+    sc.data["frames"] = frames
+    return sc
+
+
+def test_a_half_metre_jump_of_the_simulated_user_settles_whole_within_max_force():
+    """The simulated arm follows a 0.5 m jump of its target as a person's arm would (at most
+    3 m/s), so the hand is carried over without tearing: no tet inverted from 1 s after the jump,
+    the felt force within max_force, and no warning."""
+    sc = jump_scene(0.5, 45, max_force=20.0)
+    result = simulate.run(sc)
+    log = result["haptic"]
+    felt = np.linalg.norm(log["force"], axis=1)
+    assert felt.max() <= 20.0 * (1 + 1e-12)
+    speed = np.linalg.norm(np.diff(log["device_position"], axis=0), axis=1) / np.diff(log["t"])
+    assert speed.max() <= 3.0 * (1 + 1e-9)
+    assert log["device_position"][-1, 0] - log["device_position"][0, 0] == pytest.approx(0.5, abs=0.01)  # it got there
+    settled = result["time"] >= 1.2
+    assert result["inverted_tets"][settled].max() == 0
+    assert int(result["torn_frame"]) == -1 and int(result["strayed_frame"]) == -1
+    assert "WARNING" not in simulate.summary(result)
+
+
+def test_a_fifty_metre_jump_of_a_playback_device_is_reported_with_its_frame(tmp_path):
+    """A recorded trajectory is replayed as it is: a 50 m jump in it yanks the proxy, and with it
+    the handle, away from the flesh. The result file and the summary say so, with the frame."""
+    sc = jump_scene(0.0, 14)
+    sc.data["hand"]["self_collision"] = False  # the torn hand's self-contacts only cost time here
+    com = np.array(scenes.build_model(sc).info()["handle_com"])
+    path = tmp_path / "jump.csv"
+    rows = [(0.0, *com), (0.2, *com), (0.2001, com[0] + 50.0, com[1], com[2])]
+    path.write_text("t,x,y,z\n" + "\n".join(",".join(repr(float(v)) for v in r) for r in rows) + "\n")
+    sc.data["haptics"]["device"] = f"playback:{path}"
+    result = simulate.run(sc)
+    jump_frame = int(round(0.2 / sc.dt))
+    torn, strayed = int(result["torn_frame"]), int(result["strayed_frame"])
+    assert jump_frame <= strayed <= jump_frame + 1 and jump_frame <= torn <= jump_frame + 2
+    assert result["inverted_tets"][torn] > 0
+    text = simulate.summary(result)
+    assert f"tore at frame {torn}" in text and f"strayed from the handle at frame {strayed}" in text
+    stored = np.load(simulate.write(result, tmp_path / "r.npz"))
+    assert int(stored["strayed_frame"]) == strayed and len(stored["warnings"]) == 2
+
+
+def test_a_virtual_coupling_that_is_not_passive_is_refused_with_the_fix():
+    """Colgate: sampled at T = 1 ms, a 2000 N/m coupling needs at least K T / 2 = 1 N s/m of damping."""
+    rig_scene = hand_scene()
+    world, hand, _, _, _ = simulate.build_world(rig_scene)
+    with pytest.raises(native.InvalidInput, match=r"not passive at 1000 Hz.*at least 1 N s/m.*at most 1000 N/m"):
+        native_session.NativeSession(world, hand, coupling_stiffness=2000.0, coupling_damping=0.5)
+    with pytest.raises(native.InvalidInput, match=r"angular damping 0 .*at least 0.01 N m s/rad"):
+        native_session.NativeSession(world, hand, coupling_angular_stiffness=20.0, coupling_angular_damping=0.0)
+    native_session.NativeSession(world, hand, coupling_stiffness=2000.0, coupling_damping=1.0).close()  # on the bound
+
+
 def test_simulate_writes_the_haptic_log(tmp_path):
     sc = hand_scene(gravity=(0.0, 0.0, -9.81))
     sc.data["frames"] = 12
     result = simulate.run(sc)
     log = result["haptic"]
-    assert len(log["t"]) == 12 * 33
-    assert np.allclose(np.diff(log["t"]), sc.dt / 33)
+    assert len(log["t"]) == 400  # 12 frames of 1/30 s at 1 kHz
+    assert np.allclose(np.diff(log["t"]), 1e-3)
     path = simulate.write(result, tmp_path / "r.npz")
     stored = np.load(path)
     assert np.array_equal(stored["haptic_force"], log["force"])

@@ -210,6 +210,22 @@ int hh_session_get_status(hh_session* session, hh_session_status* out) {
     });
 }
 
+int hh_session_loop_info(hh_session* session, int* cpu, int* cpu_isolated, double* locked_bytes,
+                         double* unlocked_bytes, double* minor_faults, double* major_faults) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        require_stopped(s);
+        const hh::LoopSetup& l = s.s.loop_setup();
+        if (cpu) *cpu = l.cpu;
+        if (cpu_isolated) *cpu_isolated = l.cpu_isolated ? 1 : 0;
+        if (locked_bytes) *locked_bytes = l.locked_bytes;
+        if (unlocked_bytes) *unlocked_bytes = l.unlocked_bytes;
+        if (minor_faults) *minor_faults = s.s.loop_minor_faults();
+        if (major_faults) *major_faults = s.s.loop_major_faults();
+        return HH_OK;
+    });
+}
+
 int hh_session_fetch_frame(hh_session* session, int* out_new, hh_session_frame* out) {
     return guard([&] {
         hh_session& s = session_of(session);

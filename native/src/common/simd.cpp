@@ -1,7 +1,6 @@
 #include "common/simd.h"
 
 #include <algorithm>
-#include <cstdlib>
 
 namespace hh {
 
@@ -13,11 +12,9 @@ int& simd_level_override() {
 int detected_simd_level() {
 #if defined(__GNUC__) && defined(__x86_64__)
     static const int level = []() {
-        if (std::getenv("HH_NO_SIMD")) return 0;
         const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
         const bool avx512 = avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
-        if (avx512 && !std::getenv("HH_NO_AVX512")) return 2;
-        return avx2 ? 1 : 0;
+        return avx512 ? 2 : avx2 ? 1 : 0;
     }();
     return level;
 #else

@@ -6,7 +6,7 @@
 #pragma once
 #include <cstdio>
 
-#include "haptics/proxy.h"
+#include "device/feedback.h"
 #include "sim/keyframes.h"
 
 namespace hh {

@@ -4,7 +4,7 @@
 // difference of the last two poses over the haptic time between them.
 #pragma once
 #include "device/device.h"
-#include "haptics/triple_buffer.h"
+#include "common/triple_buffer.h"
 
 namespace hh {
 

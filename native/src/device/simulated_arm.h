@@ -2,7 +2,10 @@
 // spring and damper pulling it toward a scripted target trajectory (Hogan's impedance view of
 // the arm), and pushed by the force the device displays. So the feedback changes the motion
 // as it would with a person holding the stylus: pushing into a wall, the hand stops short of
-// the target and the arm's spring holds the force. Orientation follows the script exactly.
+// the target and the arm's spring holds the force. The arm is a person's: its pull, its speed
+// and its turning rate are bounded, so a script that jumps (a teleport, a typo in a keyframe)
+// is followed as fast as a hand could, never in one step. Orientation follows the script
+// exactly while it turns slower than the arm can.
 #pragma once
 #include "device/device.h"
 
@@ -13,6 +16,10 @@ struct ArmParams {
     double stiffness = 300;   // N/m: arm's grip on its intended position
     double damping = 20;      // N s/m
     double fail_at = 1e300;   // s: from this time on the device reports a disconnection (tests)
+    // A person's limits (internal constants, not yet in the parameter table):
+    double max_speed = 3.0;           // m/s: a fast reach of the hand
+    double max_pull = 100.0;          // N: the arm's own force on the end effector
+    double max_angular_speed = 10.0;  // rad/s: a fast turn of the wrist
 };
 
 class SimulatedArm : public Device {
@@ -23,11 +30,14 @@ public:
     void command(const Feedback& fb) noexcept override { force_ = fb.force; }
 
 private:
+    void move_toward(const Pose& goal, double dt) noexcept;
+    void turn_toward(const Pose& goal, double dt) noexcept;
     Keyframes target_;
     ArmParams p_;
     bool started_ = false;
     double t_ = 0;
-    Vec3 x_ = Vec3::Zero(), v_ = Vec3::Zero(), force_ = Vec3::Zero();
+    Pose pose_;  // the end effector
+    Vec3 force_ = Vec3::Zero();
 };
 
 }  // namespace hh

@@ -106,41 +106,42 @@ inline Mat3 rotation_of(const Vec4& q) {
 }
 }  // namespace
 
+Mat3 polar_rotation_svd(const Mat3& f, Vec4& q) {
+    if (!f.allFinite()) return rotation_of(q);  // the step rejects non-finite states itself
+    Eigen::JacobiSVD<Mat3> svd(f, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Mat3 u = svd.matrixU();
+    const Mat3 v = svd.matrixV();
+    // Kabsch: the maximizer over proper rotations flips the smallest singular direction when
+    // U V^T is a reflection (det F < 0, an inverted element: McAdams et al. 2011)
+    if ((u * v.transpose()).determinant() < 0) u.col(2) = -u.col(2);
+    const Mat3 r = u * v.transpose();
+    q = quat_from_matrix(r);
+    return r;
+}
+
 Mat3 polar_rotation(const Mat3& f, Vec4& q) {
-    if (f.determinant() <= 0) {
-        Eigen::JacobiSVD<Mat3> svd(f, Eigen::ComputeFullU | Eigen::ComputeFullV);
-        Mat3 u = svd.matrixU();
-        const Mat3 v = svd.matrixV();
-        if ((u * v.transpose()).determinant() < 0) u.col(2) = -u.col(2);
-        const Mat3 r = u * v.transpose();
-        q = quat_from_matrix(r);
-        return r;
-    }
     Mat3 r = rotation_of(q);
-    for (int iter = 0; iter < 50; ++iter) {
-        // Ascent on trace(R^T F) over rotations R <- exp(omega) R: the gradient is
+    for (int iter = 0; iter < kPolarNewtonSteps; ++iter) {
+        // Newton ascent on trace(R^T F) over rotations R <- exp(omega) R: the gradient is
         // sum_i r_i x f_i (Mueller et al. 2016); with M = F R^T the Hessian is
-        // trace(M) I - sym(M). Newton steps converge quadratically near the polar rotation;
-        // where the Hessian is not positive definite we take Mueller's scaled step instead.
+        // H = trace(M) I - sym(M), solved by its adjugate.
         const Vec3 torque = r.col(0).cross(f.col(0)) + r.col(1).cross(f.col(1)) + r.col(2).cross(f.col(2));
         const Mat3 m = f * r.transpose();
         const double tr = m.trace();
-        // H = tr I - sym(M), solved by its adjugate when positive definite (leading minors)
         const double h00 = tr - m(0, 0), h11 = tr - m(1, 1), h22 = tr - m(2, 2);
         const double h01 = -0.5 * (m(0, 1) + m(1, 0)), h02 = -0.5 * (m(0, 2) + m(2, 0)), h12 = -0.5 * (m(1, 2) + m(2, 1));
         const double c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
         const double det = h00 * c00 + h01 * c01 + h02 * c02;
-        Vec3 omega;
-        if (h00 > 0 && h00 * h11 - h01 * h01 > 0 && det > 0) {
-            const double c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
-            omega = Vec3(c00 * torque[0] + c01 * torque[1] + c02 * torque[2], c01 * torque[0] + c11 * torque[1] + c12 * torque[2],
-                         c02 * torque[0] + c12 * torque[1] + c22 * torque[2]) /
-                    det;
-        } else {
-            omega = torque / (std::abs(tr) + 1e-300);
-        }
+        const double c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
+        // The guard: the maximum is the only critical point where H is positive definite
+        // (leading minors), so Newton may go on only there; elsewhere (a warm start far from
+        // the answer, a saddle, a degenerate F) the SVD decides.
+        if (!(h00 > 0 && c22 > 0 && det > 0)) break;
+        const Vec3 omega = Vec3(c00 * torque[0] + c01 * torque[1] + c02 * torque[2],
+                                c01 * torque[0] + c11 * torque[1] + c12 * torque[2],
+                                c02 * torque[0] + c12 * torque[1] + c22 * torque[2]) / det;
         const double angle2 = omega.squaredNorm();
-        if (!(angle2 > 1e-18)) break;  // step below 1e-9 rad: quadratic convergence leaves ~1e-18
+        if (angle2 <= kPolarConverged) return r;  // step below 1e-9 rad: quadratic convergence leaves ~1e-18
         Vec4 dq;  // exp(omega) as a quaternion; a series for the small steps of a warm start
         if (angle2 < 1e-4) {
             const double s = 0.5 - angle2 / 48.0 + angle2 * angle2 / 3840.0;
@@ -153,7 +154,7 @@ Mat3 polar_rotation(const Mat3& f, Vec4& q) {
         q.normalize();
         r = rotation_of(q);
     }
-    return r;
+    return polar_rotation_svd(f, q);  // not converged at a maximum within the steps allowed
 }
 
 double add_elastic_forces(const TetMesh& mesh, const CorotationalElements& elements,

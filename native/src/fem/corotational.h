@@ -48,11 +48,19 @@ struct ElementRotations {
 // Deformation gradient F = Ds Bm of element e.
 Mat3 deformation_gradient(const TetMesh& mesh, const CorotationalElements& elements, int e, const VecX& x);
 
-// Rotation of the polar decomposition of F: the rotation R maximizing trace(R^T F), found
-// by the iteration of Mueller, Bender, Chentanez & Macklin 2016 from the guess q (updated in
-// place). For an inverted element (det F <= 0) the rotation comes from the SVD with the
-// smallest singular direction flipped, so R stays proper and pushes the element back out.
+// Rotation of the polar decomposition of F, for any F: the proper rotation R maximizing
+// trace(R^T F). For an inverted element (det F < 0) that is the SVD's U V^T with the smallest
+// singular direction flipped (McAdams et al. 2011), so R stays proper and pushes the element
+// back out. Newton's iteration of Mueller, Bender, Chentanez & Macklin 2016 from the guess q
+// (updated in place), guarded: a result is kept only where it converged at a maximum (positive
+// definite Hessian) within kPolarNewtonSteps; otherwise the SVD gives it (polar_rotation_svd).
 Mat3 polar_rotation(const Mat3& f, Vec4& q);
+// The same from the SVD alone (q receives it); a non-finite F leaves q as it was.
+Mat3 polar_rotation_svd(const Mat3& f, Vec4& q);
+// Newton steps polar_rotation allows before the SVD: a warm start converges in one or two.
+constexpr int kPolarNewtonSteps = 8;
+// Converged when the Newton step's squared angle is below this (a step under 1e-9 rad).
+constexpr double kPolarConverged = 1e-18;
 
 // Adds the elastic forces of all elements to f and returns the elastic energy. rotations,
 // if non-null, supplies warm starts (when sized for the mesh) and receives the rotations.

@@ -78,14 +78,15 @@ __attribute__((always_inline)) inline void element_batch(const TetMesh& mesh, co
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) f[i][j] = ds[i][0] * bm[0][j] + ds[i][1] * bm[1][j] + ds[i][2] * bm[2][j];
 
-    // polar_rotation: Newton ascent on trace(R^T F) from the warm start q (see corotational.cpp)
-    const V det_f = f[0][0] * (f[1][1] * f[2][2] - f[1][2] * f[2][1]) - f[0][1] * (f[1][0] * f[2][2] - f[1][2] * f[2][0]) +
-                    f[0][2] * (f[1][0] * f[2][1] - f[1][1] * f[2][0]);
-    const M inverted = !(det_f > 0);  // and NaN: the scalar path below, as polar_rotation does
-    M active = !inverted;
+    // polar_rotation: guarded Newton ascent on trace(R^T F) from the warm start q (see
+    // corotational.cpp). Every lane runs until it converges at a maximum or leaves the region
+    // where the Hessian is positive definite; those that leave it, or do not converge within
+    // the steps allowed, get the SVD, one lane at a time.
+    M active = M{} == 0;  // all lanes
+    M to_svd = M{};
     V r[3][3];
     rotation_of(q, r);
-    for (int iter = 0; iter < 50 && any<L>(active); ++iter) {
+    for (int iter = 0; iter < kPolarNewtonSteps && any<L>(active); ++iter) {
         V torque[3];
         torque[0] = (r[1][0] * f[2][0] - r[2][0] * f[1][0]) + (r[1][1] * f[2][1] - r[2][1] * f[1][1]) + (r[1][2] * f[2][2] - r[2][2] * f[1][2]);
         torque[1] = (r[2][0] * f[0][0] - r[0][0] * f[2][0]) + (r[2][1] * f[0][1] - r[0][1] * f[2][1]) + (r[2][2] * f[0][2] - r[0][2] * f[2][2]);
@@ -99,16 +100,16 @@ __attribute__((always_inline)) inline void element_batch(const TetMesh& mesh, co
         const V c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
         const V det = h00 * c00 + h01 * c01 + h02 * c02;
         const V c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
-        const M pd = (h00 > 0) & (c22 > 0) & (det > 0);
-        const V abs_tr = tr < 0 ? -tr : tr;
-        const V fallback = abs_tr + 1e-300;
+        const M pd = (h00 > 0) & (c22 > 0) & (det > 0);  // false for NaN too
+        to_svd = to_svd | (active & ~pd);
+        active = active & pd;
         const V safe_det = pd ? det : V{} + 1.0;
         V omega[3];
-        omega[0] = pd ? (c00 * torque[0] + c01 * torque[1] + c02 * torque[2]) / safe_det : torque[0] / fallback;
-        omega[1] = pd ? (c01 * torque[0] + c11 * torque[1] + c12 * torque[2]) / safe_det : torque[1] / fallback;
-        omega[2] = pd ? (c02 * torque[0] + c12 * torque[1] + c22 * torque[2]) / safe_det : torque[2] / fallback;
+        omega[0] = (c00 * torque[0] + c01 * torque[1] + c02 * torque[2]) / safe_det;
+        omega[1] = (c01 * torque[0] + c11 * torque[1] + c12 * torque[2]) / safe_det;
+        omega[2] = (c02 * torque[0] + c12 * torque[1] + c22 * torque[2]) / safe_det;
         const V angle2 = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2];
-        active = active & (angle2 > 1e-18);
+        active = active & (angle2 > kPolarConverged);
         if (!any<L>(active)) break;
         // exp(omega) as a quaternion: the series for small steps, sin/cos per lane otherwise
         const V s = 0.5 - angle2 / 48.0 + angle2 * angle2 / 3840.0;
@@ -132,14 +133,15 @@ __attribute__((always_inline)) inline void element_batch(const TetMesh& mesh, co
         for (int i = 0; i < 3; ++i)
             for (int j = 0; j < 3; ++j) r[i][j] = active ? rn[i][j] : r[i][j];
     }
+    to_svd = to_svd | active;  // still moving after the steps allowed
     for (int l = 0; l < L; ++l) {
         const size_t e = e0 + l;
-        if (inverted[l]) {  // the SVD path of polar_rotation, one lane
+        if (to_svd[l]) {
             Mat3 fl;
             for (int i = 0; i < 3; ++i)
                 for (int j = 0; j < 3; ++j) fl(i, j) = f[i][j][l];
             Vec4 ql(q[0][l], q[1][l], q[2][l], q[3][l]);
-            const Mat3 rl = polar_rotation(fl, ql);
+            const Mat3 rl = polar_rotation_svd(fl, ql);
             for (int k = 0; k < 4; ++k) q[k][l] = ql[k];
             for (int i = 0; i < 3; ++i)
                 for (int j = 0; j < 3; ++j) r[i][j][l] = rl(i, j);

@@ -24,6 +24,9 @@ class HapticLog {
 public:
     explicit HapticLog(std::size_t capacity = 1) : rows_(std::max<std::size_t>(capacity, 1)) {}
     std::size_t capacity() const { return rows_.size(); }
+    // the ring's storage, for the haptic thread to lock in memory
+    const void* storage() const { return rows_.data(); }
+    std::size_t storage_bytes() const { return rows_.size() * sizeof(LogRow); }
 
     void push(const LogRow& row) {  // producer
         const std::uint64_t w = written_.load(std::memory_order_relaxed);

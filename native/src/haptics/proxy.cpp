@@ -2,7 +2,39 @@
 
 #include "rigid/quaternion.h"
 
+#include <cmath>
+#include <cstdio>
+#include <string>
+
 namespace hh {
+
+namespace {
+std::string number(double v) {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.4g", v);
+    return buf;
+}
+}  // namespace
+
+void check_passive(const VirtualCoupling& c, double rate) {
+    // Colgate & Schenkel 1997: a spring K sampled with period T stays passive when the damping
+    // beside it is at least K T / 2 (what a zero-order hold adds per period)
+    const double period = 1.0 / rate;
+    auto check = [&](double k, double b, const char* what, const char* units_k, const char* units_b) {
+        const double needed = 0.5 * k * period;
+        if (b >= needed) return;
+        std::string fix = "raise the " + std::string(what) + " damping to at least " + number(needed) + " " + units_b;
+        if (b > 0) {
+            fix += ", lower the " + std::string(what) + " stiffness to at most " + number(2 * b / period) + " " + units_k;
+            if (k / (2 * b) <= 10000) fix += ", or raise the haptic rate to at least " + number(std::ceil(k / (2 * b))) + " Hz";
+        }
+        throw InvalidArgument("the virtual coupling is not passive at " + number(rate) + " Hz: its " + what + " damping " +
+                              number(b) + " " + units_b + " is below stiffness x period / 2 = " + number(needed) + " " +
+                              units_b + " (Colgate's bound), so the device would gain energy from it: " + fix);
+    };
+    check(c.stiffness, c.damping, "linear", "N/m", "N s/m");
+    check(c.angular_stiffness, c.angular_damping, "angular", "N m/rad", "N m s/rad");
+}
 
 Vec6 coupling_on_proxy(const HandleState& proxy, const Pose& device, const VirtualCoupling& c) {
     Vec6 w;

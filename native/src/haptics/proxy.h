@@ -5,8 +5,9 @@
 // the feedback sent to the device is the virtual coupling's reaction. Fixed-size maths only:
 // a step never allocates.
 #pragma once
-#include "haptics/coupling_model.h"
 #include "coupling/springs.h"
+#include "device/feedback.h"
+#include "haptics/coupling_model.h"
 #include "rigid/handle.h"
 #include "sim/keyframes.h"
 
@@ -19,10 +20,9 @@ struct VirtualCoupling {
     double angular_damping = 0.2;      // N m s/rad
 };
 
-struct Feedback {
-    Vec3 force = Vec3::Zero();   // N, on the device (the user's hand)
-    Vec3 torque = Vec3::Zero();  // N m
-};
+// Throws InvalidArgument, naming the fix, unless the coupling stays passive when sampled at
+// `rate` (Hz): damping >= stiffness x period / 2, linear and angular (Colgate & Schenkel 1997).
+void check_passive(const VirtualCoupling& coupling, double rate);
 
 class ProxyHandle {
 public:

@@ -1,13 +1,13 @@
 #include "haptics/session.h"
 
-#include <pthread.h>
-#include <sched.h>
 #include <sys/prctl.h>
+#include <time.h>
 
 #include <chrono>
 #include <cmath>
 #include <cstring>
 
+#include "haptics/realtime.h"
 #include "sim/world.h"
 
 namespace hh {
@@ -72,6 +72,7 @@ void check_params(const SessionParams& p) {
         throw InvalidArgument("the force and torque limits must be > 0");
     if (p.log_capacity < 1 || p.log_capacity > (std::size_t(1) << 26))
         throw InvalidArgument("the haptic log capacity must be 1 to 67 million rows");
+    check_passive(p.coupling, p.haptic_rate);
 }
 }  // namespace
 
@@ -100,13 +101,26 @@ Session::Session(World& world, int hand, const SessionParams& params)
         surface_offset_.push_back(body->has_surface ? offset : -1);
         if (body->has_surface) offset += body->surface.n_vertices();
     }
-    const int n_h = std::max(1, static_cast<int>(std::lround(world.settings.dt * p_.haptic_rate)));
-    dt_haptic_ = world.settings.dt / n_h;
     t_haptic_ = world.time;
+    set_clock_rate(p_.haptic_rate);
     publish_frame();
 }
 
 Session::~Session() { stop(); }
+
+void Session::set_clock_rate(double rate) {
+    rate_ = rate;
+    dt_haptic_ = 1.0 / rate;
+    clock_origin_ = t_haptic_;
+    clock_steps_ = 0;
+}
+
+double Session::advance_clock() {
+    // from the step count, not by adding periods: step n is at exactly origin + n / rate
+    ++clock_steps_;
+    t_haptic_ = clock_origin_ + static_cast<double>(clock_steps_) / rate_;
+    return t_haptic_;
+}
 
 void Session::set_device(std::unique_ptr<Device> device) {
     if (running()) throw InvalidArgument("stop the session before changing its device");
@@ -259,12 +273,21 @@ void Session::run_offline(int visual_steps) {
     if (running()) throw InvalidArgument("the session is running live: stop it before stepping it offline");
     if (failed()) throw InvalidArgument(std::string("the session has stopped: ") + message_);
     live_ = false;
-    const int n_h = static_cast<int>(std::lround(world_.settings.dt / dt_haptic_));
+    // the haptic clock runs at the session's rate, from where the world is (a live run or steps
+    // of the world without the session may have left it elsewhere)
+    if (rate_ != p_.haptic_rate || world_.time - t_haptic_ > dt_haptic_ || t_haptic_ - world_.time > dt_haptic_) {
+        t_haptic_ = world_.time;
+        set_clock_rate(p_.haptic_rate);
+    }
     for (int k = 0; k < visual_steps; ++k) {
-        for (int i = 0; i < n_h; ++i) {
-            t_haptic_ += dt_haptic_;
-            if (!haptic_step(t_haptic_)) throw InvalidArgument(std::string("the session stopped: ") + message_);
-        }
+        // Every haptic step due by the end of this visual step, at exact multiples of the period:
+        // the rest of a period carries over to the next frame (a 1/30 s frame takes 33 or 34 at
+        // 1 kHz), so the log is what a 1 kHz device sees. 1e-6 of a period absorbs the round-off
+        // of the world's clock, which adds dt every step.
+        const double end = world_.time + world_.settings.dt;
+        const double due = std::floor((end - clock_origin_) * rate_ + 1e-6);
+        while (static_cast<double>(clock_steps_) < due)
+            if (!haptic_step(advance_clock())) throw InvalidArgument(std::string("the session stopped: ") + message_);
         visual_step();
     }
 }
@@ -272,29 +295,40 @@ void Session::run_offline(int visual_steps) {
 void Session::haptic_thread() noexcept {
     // a 1 ms period needs wake-ups far finer than Linux's default 50 us timer slack
     prctl(PR_SET_TIMERSLACK, 1000UL, 0, 0, 0);
-    // Real-time priority when allowed (root or CAP_SYS_NICE): on a loaded machine an ordinary
-    // thread waits behind others for milliseconds. It sleeps 99% of each period, so it cannot
-    // starve the machine; without the permission it runs as an ordinary thread.
-    if (p_.realtime) {
-        sched_param sp{};
-        sp.sched_priority = std::min(80, sched_get_priority_max(SCHED_FIFO));
-        realtime_.store(pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) == 0, std::memory_order_release);
-    }
-    using clock = std::chrono::steady_clock;
-    const auto period = std::chrono::duration_cast<clock::duration>(std::chrono::duration<double>(dt_haptic_));
-    // Sleep to just before the deadline, then spin the last stretch: the kernel's wake-up
-    // latency (tens of microseconds, more on a busy machine) lands inside the spin instead of
-    // on the period. Costs about 8% of a core at 1 kHz.
-    const auto spin = std::chrono::microseconds(80);
-    auto next = clock::now();
+    // Real-time priority when allowed (root, CAP_SYS_NICE or an rtprio limit): on a loaded
+    // machine an ordinary thread waits behind others for milliseconds. It sleeps 90% of each
+    // period, so it cannot starve the machine; without the permission it runs as an ordinary
+    // thread. Then a CPU of its own and its memory locked: what the loop touches is in RAM before
+    // the first deadline, so the loop takes no page fault (docs/haptics.md, "Timing").
+    const MemoryRange ranges[2] = {{this, sizeof *this}, {log_.storage(), log_.storage_bytes()}};
+    double (*const atan2_of)(double, double) = &std::atan2;
+    const void* const code[3] = {reinterpret_cast<const void*>(&check_passive), reinterpret_cast<const void*>(atan2_of),
+                                 reinterpret_cast<const void*>(&clock_nanosleep)};
+    loop_ = set_up_loop_thread(p_.realtime, kHapticPriority, kHapticStackBytes, ranges, 2, code, 3);
+    realtime_.store(loop_.priority, std::memory_order_release);
+    double minor0, major0;
+    thread_page_faults(minor0, major0);
+    // Sleep to just before the deadline (an absolute one: no drift), then spin the last stretch:
+    // the kernel's wake-up latency (tens of microseconds, more on a busy machine) lands inside
+    // the spin instead of on the period. Costs about 8% of a core at 1 kHz.
+    const std::int64_t period = std::llround(dt_haptic_ * 1e9), spin = 80000;  // ns
+    timespec now{};
+    clock_gettime(CLOCK_MONOTONIC, &now);
+    std::int64_t next = now.tv_sec * 1000000000LL + now.tv_nsec;
     while (!stop_.load(std::memory_order_acquire) && !failed()) {
         next += period;
-        std::this_thread::sleep_until(next - spin);
-        while (clock::now() < next) {
-        }
-        t_haptic_ += dt_haptic_;
-        if (!haptic_step(t_haptic_)) break;
+        const std::int64_t wake = next - spin;
+        const timespec until{static_cast<time_t>(wake / 1000000000LL), static_cast<long>(wake % 1000000000LL)};
+        clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &until, nullptr);
+        do clock_gettime(CLOCK_MONOTONIC, &now);
+        while (now.tv_sec * 1000000000LL + now.tv_nsec < next);
+        if (!haptic_step(advance_clock())) break;
     }
+    double minor1, major1;
+    thread_page_faults(minor1, major1);
+    loop_minor_faults_ = minor1 - minor0;
+    loop_major_faults_ = major1 - major0;
+    release_loop_memory(loop_, ranges, 2);
 }
 
 void Session::visual_thread() noexcept {
@@ -323,8 +357,7 @@ void servo_tick(void* user) {
 
 void Session::servo_step() noexcept {
     if (stop_.load(std::memory_order_acquire) || failed()) return;
-    t_haptic_ += dt_haptic_;
-    haptic_step(t_haptic_);
+    haptic_step(advance_clock());
 }
 
 void Session::start() {
@@ -335,10 +368,11 @@ void Session::start() {
     stop_.store(false, std::memory_order_release);
     last_tick_wall_ = -1;
     if (device_->has_servo_loop()) {
-        dt_haptic_ = 1e-3;  // the driver's servo loop runs at 1 kHz
+        check_passive(p_.coupling, 1000);  // the driver's servo loop runs at 1 kHz
+        set_clock_rate(1000);
         device_->start_servo(&servo_tick, this);
     } else {
-        dt_haptic_ = 1.0 / p_.haptic_rate;  // live: the wall clock's rate (offline divides the visual step)
+        set_clock_rate(p_.haptic_rate);
         haptic_thread_ = std::thread(&Session::haptic_thread, this);
     }
     visual_thread_ = std::thread(&Session::visual_thread, this);

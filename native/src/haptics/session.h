@@ -18,7 +18,8 @@
 #include "haptics/coupling_model.h"
 #include "haptics/haptic_log.h"
 #include "haptics/proxy.h"
-#include "haptics/triple_buffer.h"
+#include "haptics/realtime.h"
+#include "common/triple_buffer.h"
 
 namespace hh {
 
@@ -61,6 +62,9 @@ struct Frame {
 
 class Session {
 public:
+    static constexpr int kHapticPriority = 80;                   // SCHED_FIFO, below the kernel's own threads (99)
+    static constexpr std::size_t kHapticStackBytes = 128 << 10;  // of the haptic thread, faulted in and locked
+
     Session(World& world, int hand, const SessionParams& params);
     ~Session();
     Session(const Session&) = delete;
@@ -79,6 +83,11 @@ public:
     bool running() const { return running_.load(std::memory_order_acquire); }
     // whether the haptic thread got real-time priority
     bool realtime() const { return realtime_.load(std::memory_order_acquire); }
+    // the last live haptic thread's setup and the page faults (minor, major) in its loop; valid
+    // once stop() has returned
+    const LoopSetup& loop_setup() const { return loop_; }
+    double loop_minor_faults() const { return loop_minor_faults_; }
+    double loop_major_faults() const { return loop_major_faults_; }
     bool failed() const { return failed_.load(std::memory_order_acquire); }
     const char* error() const { return failed() ? message_ : ""; }
 
@@ -107,13 +116,19 @@ private:
     World& world_;
     int hand_;
     SessionParams p_;
-    double dt_haptic_;
+    // the haptic clock: step n of the current rate at clock_origin_ + n / rate_ (s)
+    double rate_ = 1000;  // Hz: the session's, or the device's servo loop's
+    double dt_haptic_ = 1e-3;
+    double clock_origin_ = 0;
+    std::uint64_t clock_steps_ = 0;
+    void set_clock_rate(double rate);  // restarts the count from the present time t_haptic_
+    double advance_clock();            // the next step's time
     std::unique_ptr<Device> device_;
     ExternalDevice* external_ = nullptr;
 
     // haptic side
     ProxyHandle proxy_;
-    double t_haptic_ = 0;        // s: the haptic clock (virtual offline, nominal live)
+    double t_haptic_ = 0;        // s: the haptic clock's present (virtual offline, nominal live)
     double last_tick_wall_ = -1;
     bool live_ = false;
     TripleBuffer<CouplingModel> models_;   // visual -> haptic
@@ -127,6 +142,10 @@ private:
     Vec3 previous_v_ = Vec3::Zero(), previous_omega_ = Vec3::Zero();  // the last step's handle velocity
     std::vector<int> surface_offset_;
 
+    // the live haptic thread's own setup and the page faults it took in the loop (its thread
+    // writes them; read them after stop())
+    LoopSetup loop_;
+    double loop_minor_faults_ = 0, loop_major_faults_ = 0;
     std::atomic<bool> running_{false}, stop_{false}, failed_{false}, failing_{false}, realtime_{false};
     std::atomic<std::uint64_t> haptic_steps_{0}, visual_steps_{0};
     char message_[512] = {0};
