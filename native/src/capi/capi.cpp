@@ -292,15 +292,16 @@ int hh_coupling_response(const hh_model* model, const hh_data* data, const doubl
         hh::Vec6 vh;
         for (int i = 0; i < 6; ++i) vh[i] = handle_velocity[i];
         require(vh.allFinite(), "handle velocity must be finite");
-        // Eq. 12 with the handle velocity prescribed
+        // Eq. 12 with the handle velocity prescribed (relative to the step's frame, as solved)
+        const hh::Vec6 relative = vh - w->frame.handle_velocity();
         w->tool.r = w->hand.r.tail(3 * m.mesh.n_nodes);
         for (size_t j = 0; j < m.handle.nodes.size(); ++j)
-            w->tool.r.segment<3>(3 * m.handle.nodes[j]) -= w->coupling.ath[j] * vh;
+            w->tool.r.segment<3>(3 * m.handle.nodes[j]) -= w->coupling.ath[j] * relative;
         w->tool.solve();
         hh::VecX s(6 + 3 * m.mesh.n_nodes);
-        s.head<6>() = vh;
+        s.head<6>() = relative;
         s.tail(3 * m.mesh.n_nodes) = w->tool.s;
-        hh::integrate(m, *w, s);
+        hh::integrate(m, *w, hh::step_velocities(m, *w, s));
         hh::Vec3 f, t;
         hh::coupling_wrench(m, *w, f, t);
         for (int i = 0; i < 3; ++i) {

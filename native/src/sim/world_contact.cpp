@@ -142,6 +142,13 @@ void World::prepare_contacts() {
     for (int c = 0; c < nc; ++c) {
         const Contact& k = contacts[c];
         gap[c] = k.distance - settings.contact_thickness;
+        // A hand's side ends its step beyond x + dt v by its step frame's turn (sim/step_frame.h)
+        for (int s = 0; s < 2; ++s) {
+            const ContactSide& side = s == 0 ? k.a : k.b;
+            const Body& b = *bodies[side.body];
+            if (b.kind == BodyKind::Hand && side.count > 0)
+                gap[c] += (s == 0 ? 1.0 : -1.0) * k.normal.dot(turn_remainder(b.hand->frame, side.point(b.surface)));
+        }
         friction[c] = std::sqrt(bodies[k.a.body]->friction * bodies[k.b.body]->friction);
         kinetic[c] = std::sqrt(bodies[k.a.body]->kinetic_friction * bodies[k.b.body]->kinetic_friction);
         // kinematic bodies' motion enters as a known relative velocity
