@@ -73,6 +73,7 @@ void World::prepare_contacts() {
     contact_bodies.clear();
     contact_lambda.resize(0);
     contact_friction.resize(0);
+    contact_velocity.resize(0);
     if (nc == 0) return;
     const int rows = cs.rows = 3 * nc;
     auto direction = [&](int row) -> const Vec3& { return contact_direction(contacts, row); };
@@ -340,7 +341,8 @@ void World::form_handle_terms(int bi) {
     if (b.kind != BodyKind::Hand || !b.hand->device.prescribed) return;
     ContactBody& cb = contact_bodies.at(bi);
     MatX at_touched;
-    b.hand->hand.handle_columns(cb.touched, b.hand->coupling.aht, at_touched);
+    // (Aht at the handle's end-of-step pose, where the model differentiates the springs' wrench)
+    b.hand->hand.handle_columns(cb.touched, b.hand->end_aht, at_touched);
     cb.handle_terms = cb.G * at_touched;
 }
 
@@ -576,6 +578,17 @@ void World::finish_contacts() {
     }
     contact_lambda = lambda;
     contact_friction = cs.friction;
+    // the relative velocities the step leaves at its contacts: the free ones (every group's
+    // u_free) changed by each body's response to the impulses (the coupling model's sliding ones)
+    contact_velocity = cs.u_free;
+    for (const auto& e : contact_bodies) {
+        const ContactBody& cb = e.second;
+        const Body& b = *bodies[e.first];
+        VecX v_touched(cb.touched.size());
+        for (size_t k = 0; k < cb.touched.size(); ++k) v_touched[k] = b.v_new[cb.touched[k]];
+        const VecX change = cb.G * v_touched - cs.u_body.at(e.first);
+        for (size_t l = 0; l < cb.rows.size(); ++l) contact_velocity[cb.rows[l]] += change[l];
+    }
 }
 
 // The step's contact solve, for HH_CONTACT_TRACE: called once the step has summed its parts' times
