@@ -1,5 +1,6 @@
 // The C ABI: every entry point runs its body through guard(), which turns any exception into
 // a status code and a thread-local message, so nothing thrown ever reaches Blender.
+#include <cmath>
 #include <cstring>
 #include <memory>
 #include <new>
