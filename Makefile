@@ -8,7 +8,7 @@ LIB := $(BUILD)/libhaptic_hand.so
 NATIVE_SOURCES := $(shell find native -name '*.cpp' -o -name '*.h' -o -name CMakeLists.txt)
 OUT := out
 
-.PHONY: all deps venv native test test-native test-python test-sanitize test-tsan demo bench clean addon
+.PHONY: all deps venv native test test-native test-python test-sanitize test-tsan demo bench clean addon docs
 all: native
 
 deps: $(BUILD)/.deps
@@ -62,6 +62,11 @@ demo: native venv
 # `$(PY) scripts/build_addon.py --no-wheels` makes a small one without them).
 addon: native venv
 	$(PY) scripts/build_addon.py --out $(OUT)
+
+# The parameter table of docs/scene_format.md, written from the library's table (a test fails
+# until it matches).
+docs: native venv
+	$(PY) scripts/param_docs.py
 
 bench: native venv
 	$(PY) bench/bench_step.py

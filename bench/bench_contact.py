@@ -40,7 +40,7 @@ def child(scene_name: str, frames: int) -> None:
 
     sc = scenes.load(SCENES / f"{scene_name}.json")
     world, hand, model, others, _ = simulate.build_world(sc)
-    inputs = simulate.ScriptedInputs(sc, world, hand, model, others)
+    inputs = simulate.ScriptedInputs(sc, world, hand, model)
     n = min(frames, int(sc.data.get("frames", frames))) if frames > 0 else int(sc.data["frames"])
     out = []
     for k in range(n):

@@ -59,7 +59,7 @@ def build_case(case: str):
     letters = {ch: bv.letter_10x_mesh(ch, False) for ch in "HAPTIC"} if scale == "10x" and bunny is None else None
     scene, _, _ = bv.prepare_scene(scene_name, scale, hand, letters, bunny)
     world, hand_id, model, others, _ = simulate.build_world(scene)
-    return scene, world, hand_id, others, simulate.ScriptedInputs(scene, world, hand_id, model, others)
+    return scene, world, hand_id, others, simulate.ScriptedInputs(scene, world, hand_id, model)
 
 
 def child(case: str, frames: int) -> None:

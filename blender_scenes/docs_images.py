@@ -48,7 +48,7 @@ def rig_picture(out: pathlib.Path, work: pathlib.Path) -> None:
     scene.display.shading.xray_alpha = 0.4
     # the handle sphere
     bpy.ops.mesh.primitive_uv_sphere_add(radius=s.handle_radius, location=s.seed.matrix_world.translation,
-                                         segments=32, ring_count=16)
+                                         segments=32, ring_count=16)  # handle_radius is in the scene's units
     sphere = bpy.context.active_object
     sphere.color = (0.2, 0.85, 0.3, 1.0)
     cam = scene.camera

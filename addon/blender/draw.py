@@ -50,10 +50,10 @@ def arrow_lines(origin, vector, head: float = 0.25) -> np.ndarray:
 
 def overlay_lines(data: dict) -> dict:
     """Coloured line sets of an overlay: {"handle": ..., "force": ..., "device": ..., "proxy": ...}."""
-    from .meshdata import rotation_from_xyzs
+    from ..engine.quaternion import to_matrix
 
     out = {"handle": sphere_lines(data["handle_position"], data["radius"],
-                                  rotation_from_xyzs(data["handle_quaternion"]))}
+                                  to_matrix(data["handle_quaternion"]))}
     out["force"] = arrow_lines(data["handle_position"], np.asarray(data["force"]) * data["force_scale"])
     for name in ("device", "proxy"):
         p = np.asarray(data[f"{name}_position"], dtype=float)

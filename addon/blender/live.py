@@ -18,6 +18,7 @@ import bpy
 
 from ..engine import mesh as meshing
 from ..engine import native, native_world
+from ..engine.session import LiveSession
 from ..engine import scene as scenes
 from . import draw, meshdata, scene_export
 
@@ -57,15 +58,6 @@ def device_name(s) -> str:
     return DEVICES[s.device]
 
 
-def _session_class():
-    try:
-        from ..engine import session
-    except ImportError as e:
-        raise LiveError("Live sessions need haptic_hand.engine.session, which this build lacks "
-                        f"({e}): update the add-on, or bake instead") from None
-    return session.LiveSession
-
-
 def start(context, session_factory=None) -> LiveState:
     """Export the scene, start a session and remember the meshes it will move. Raises
     LiveError / ExportError with the fix; on error nothing is left running or changed."""
@@ -76,7 +68,7 @@ def start(context, session_factory=None) -> LiveState:
     device = device_name(s)
     export = scene_export.export(context, bscene.frame_start, max(bscene.frame_end, bscene.frame_start + 1))
     try:
-        return _start(context, export, device, session_factory or _session_class())
+        return _start(context, export, device, session_factory or LiveSession)
     except Exception:
         export.cleanup()
         raise
@@ -85,7 +77,6 @@ def start(context, session_factory=None) -> LiveState:
 def _start(context, export, device, factory) -> LiveState:
     bscene = context.scene
     s = bscene.haptic_hand
-    export.scene.data["dt"] = float(s.time_step)
     deformed = [("hand", export.hand, export.hand_rest_matrix)]
     deformed += [(b.name, b.obj, b.rest_matrix) for b in export.bodies if b.role == "SOFT"]
     for name, obj, _ in deformed:
@@ -93,7 +84,7 @@ def _start(context, export, device, factory) -> LiveState:
             raise LiveError(f"'{obj.name}' is driven by a bake (shape keys or a Mesh Cache): press Free Bake "
                             "before a live session")
     try:
-        session = factory(export.scene, device=device, haptic_rate=float(s.haptic_rate))
+        session = factory(export.scene, device=device)
     except (scenes.SceneError, meshing.MeshError, native.NativeError, ValueError, OSError) as e:
         raise LiveError(f"The live session could not start: {e}") from None
     state = LiveState(session, export)
@@ -161,7 +152,7 @@ def update(context, state: LiveState) -> bool:
         "device_position": np.asarray(frame.device_position) / scale,
         "proxy_position": np.asarray(frame.proxy_position) / scale,
         "force": np.asarray(frame.force), "force_scale": draw.FORCE_SCALE / scale,
-        "radius": context.scene.haptic_hand.handle_radius / scale,
+        "radius": context.scene.haptic_hand.handle_radius_si / scale,
     }
     return True
 

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..engine import quaternion
+
 TETS_KEY = "haptic_tets"
 
 
@@ -50,12 +52,6 @@ def triangles(mesh) -> np.ndarray:
 def world_vertices(obj, scene) -> np.ndarray:
     """Vertices of obj's mesh (no modifiers, no shape keys) in metres, world space."""
     return transform(matrix(obj), local_vertices(obj.data)) * unit_scale(scene)
-
-
-def to_local(obj, scene, points_m: np.ndarray, rest_matrix: np.ndarray | None = None) -> np.ndarray:
-    """World positions in metres to obj's local coordinates (float64)."""
-    m = matrix(obj) if rest_matrix is None else rest_matrix
-    return transform(np.linalg.inv(m), np.asarray(points_m) / unit_scale(scene))
 
 
 def write_positions(mesh, local: np.ndarray) -> None:
@@ -116,19 +112,10 @@ def quaternion_xyzs(obj_matrix: np.ndarray) -> np.ndarray:
     return np.array([q.x, q.y, q.z, q.w])
 
 
-def rotation_from_xyzs(q) -> np.ndarray:
-    x, y, z, s = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - s * z), 2 * (x * z + s * y)],
-        [2 * (x * y + s * z), 1 - 2 * (x * x + z * z), 2 * (y * z - s * x)],
-        [2 * (x * z - s * y), 2 * (y * z + s * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
 def rigid_matrix(rest_matrix: np.ndarray, rest_centre_m: np.ndarray, pose: np.ndarray, scale: float) -> np.ndarray:
     """World matrix of a rigid body whose centre moved from rest_centre (m) to pose[:3] (m) and
     turned by pose[3:] (x, y, z, s) from its rest orientation."""
-    r = rotation_from_xyzs(pose[3:])
+    r = quaternion.to_matrix(pose[3:])
     move = np.eye(4)
     move[:3, :3] = r
     move[:3, 3] = (pose[:3] - r @ rest_centre_m) / scale

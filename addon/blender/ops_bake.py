@@ -104,7 +104,7 @@ def prepare(context) -> BakeJob:
     if s.device == "PLAYBACK":
         try:
             path = bpy.path.abspath(s.device_file)
-            if "haptics" in export.scene.data and export.scene.data["haptics"]["enabled"]:
+            if export.scene.data["haptics"]["enabled"]:
                 if not path or not Path(path).is_file():
                     raise BakeError(f"The recording '{path}' does not exist: choose a recording in Haptic Hand > "
                                     "Device")

@@ -26,7 +26,7 @@ def captured_count(scene) -> int:
         nodes, _ = scene_export.hand_tets_world(scene)
         if s.seed is None:
             return -1
-        return native.count_captured(nodes, scene_export.seed_world(scene), s.handle_radius)
+        return native.count_captured(nodes, scene_export.seed_world(scene), s.handle_radius_si)
     except (scene_export.ExportError, native.NativeError):
         return -1
 
@@ -39,7 +39,7 @@ def update_captured(scene) -> None:
     seed = s.seed
     if seed is not None:
         world_scale = max(float(np.mean(seed.matrix_world.to_scale())), 1e-12)
-        seed.empty_display_size = s.handle_radius / meshdata.unit_scale(scene) / world_scale
+        seed.empty_display_size = s.handle_radius_si / meshdata.unit_scale(scene) / world_scale
 
 
 class HAPTIC_HAND_OT_use_as_hand(bpy.types.Operator):
@@ -80,6 +80,7 @@ class HAPTIC_HAND_OT_tetrahedralize(bpy.types.Operator):
         scene = context.scene
         s = scene.haptic_hand
         obj = context.active_object
+        o = obj.haptic_hand  # each mesh has its own tetrahedralize settings
         scale = meshdata.unit_scale(scene)
         m = meshdata.matrix(obj)
         surface = meshdata.world_vertices(obj, scene)
@@ -88,7 +89,7 @@ class HAPTIC_HAND_OT_tetrahedralize(bpy.types.Operator):
         wm.progress_begin(0.0, 1.0)
         try:
             nodes, tets = meshing.tetrahedralize(
-                surface, faces, edge_length_fac=s.edge_length_fac, coarsen=s.coarsen, epsilon=s.epsilon,
+                surface, faces, edge_length_fac=o.edge_length_fac, coarsen=o.coarsen, epsilon=o.epsilon,
                 progress=lambda fraction, message: wm.progress_update(0.9 * fraction))
             tet_index, weights = meshing.embed_points(nodes, tets, surface)
         except meshing.MeshError as e:

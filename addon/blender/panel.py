@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import bpy
 
-from . import meshdata, ops_rig
+from ..engine import params
+from . import meshdata, ops_rig, param_props, scene_export
 
 
 class _Panel:
@@ -43,10 +44,13 @@ class HAPTIC_HAND_PT_rig(_Panel, bpy.types.Panel):
         row.operator("haptic_hand.use_as_hand", text="", icon="EYEDROPPER")
         box = layout.box()
         box.label(text="Tetrahedralize (active mesh)")
-        row = box.row(align=True)
-        row.prop(s, "edge_length_fac")
-        row.prop(s, "epsilon")
-        box.prop(s, "coarsen")
+        obj = context.active_object
+        if obj is not None and obj.type == "MESH" and not obj.haptic_hand.is_tet_mesh:
+            o = obj.haptic_hand
+            row = box.row(align=True)
+            row.prop(o, "edge_length_fac")
+            row.prop(o, "epsilon")
+            box.prop(o, "coarsen")
         box.operator("haptic_hand.tetrahedralize", icon="MESH_ICOSPHERE")
         if s.hand is not None:
             tet_obj = s.hand.haptic_hand.tet_object
@@ -66,6 +70,26 @@ class HAPTIC_HAND_PT_rig(_Panel, bpy.types.Panel):
         layout.operator("haptic_hand.check_rig", icon="CHECKMARK")
 
 
+def draw_rows(layout, settings, sections: tuple, advanced: bool, body_type: str | None = None,
+              skip: tuple = ("handle_radius",)) -> None:
+    """The parameter table's rows of these top-level sections (scene file keys), as kept on
+    `settings`; advanced=True draws the rows marked advanced instead of the others."""
+    for p in param_props.selected(params.UI_SCENE if body_type is None else params.UI_OBJECT, body_type):
+        if p.keys[0] not in sections or bool(p.flags & params.UI_ADVANCED) != advanced or p.name in skip:
+            continue
+        if p.nullable and p.kind in params.NUMERIC_KINDS:
+            row = layout.row(align=True)
+            row.prop(settings, f"use_{p.name}", text="")
+            sub = row.row(align=True)
+            sub.active = getattr(settings, f"use_{p.name}")
+            sub.prop(settings, p.name)
+        else:
+            layout.prop(settings, p.name)
+
+
+SCENE_SECTIONS = ("material", "springs", "coupling", "contact", "hand", "solver")
+
+
 class HAPTIC_HAND_PT_material(_Panel, bpy.types.Panel):
     bl_label = "Material and Contact"
     bl_parent_id = "HAPTIC_HAND_PT_main"
@@ -74,15 +98,22 @@ class HAPTIC_HAND_PT_material(_Panel, bpy.types.Panel):
     def draw(self, context):
         s = context.scene.haptic_hand
         col = self.layout.column(align=True)
-        for name in ("young_modulus", "poisson_ratio", "density", "rayleigh_beta"):
-            col.prop(s, name)
-        col.separator()
-        for name in ("spring_stiffness", "spring_damping", "coupling_stiffness", "coupling_damping",
-                     "angular_stiffness", "angular_damping"):
-            col.prop(s, name)
-        col.separator()
-        for name in ("time_step", "contact_thickness", "friction", "self_collision", "world_threads"):
-            col.prop(s, name)
+        for section in SCENE_SECTIONS:
+            draw_rows(col, s, (section,), advanced=False)
+            col.separator()
+
+
+class HAPTIC_HAND_PT_advanced(_Panel, bpy.types.Panel):
+    bl_label = "Advanced"
+    bl_parent_id = "HAPTIC_HAND_PT_material"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        s = context.scene.haptic_hand
+        col = self.layout.column(align=True)
+        for section in SCENE_SECTIONS + ("haptics",):
+            draw_rows(col, s, (section,), advanced=True)
+            col.separator()
 
 
 class HAPTIC_HAND_PT_bodies(_Panel, bpy.types.Panel):
@@ -100,14 +131,12 @@ class HAPTIC_HAND_PT_bodies(_Panel, bpy.types.Panel):
             o = obj.haptic_hand
             box = layout.box()
             box.label(text=f"{obj.name}: {o.role.lower()}")
-            if o.role == "SOFT":
-                for name in ("young_modulus", "poisson_ratio", "density", "rayleigh_beta", "fix_bottom", "reuse_factor"):
-                    box.prop(o, name)
-                if not meshdata.has_tets(o.tet_object):
-                    box.label(text="Needs tets: Rig > Tetrahedralize", icon="ERROR")
-            elif o.role == "RIGID":
-                box.prop(o, "density")
-            box.prop(o, "friction")
+            body_type = scene_export.BODY_TYPES[o.role]
+            sections = ("material", "density", "friction", "kinetic_friction", "fixed", "solver")
+            draw_rows(box, o, sections, advanced=False, body_type=body_type)
+            draw_rows(box, o, sections, advanced=True, body_type=body_type)
+            if o.role == "SOFT" and not meshdata.has_tets(o.tet_object):
+                box.label(text="Needs tets: Rig > Tetrahedralize", icon="ERROR")
         marked = [o for o in context.scene.objects if o.haptic_hand.role not in ("NONE", "HAND")]
         for o in marked:
             layout.label(text=f"{o.name}: {o.haptic_hand.role.lower()}", icon="OBJECT_DATA")
@@ -126,6 +155,7 @@ class HAPTIC_HAND_PT_device(_Panel, bpy.types.Panel):
         elif s.device == "HID":
             layout.prop(s, "hid_device")
         layout.prop(s, "target")
+        draw_rows(layout, s, ("haptics", "device"), advanced=False)
 
 
 class HAPTIC_HAND_PT_live(_Panel, bpy.types.Panel):
@@ -163,7 +193,8 @@ class HAPTIC_HAND_PT_bake(_Panel, bpy.types.Panel):
             layout.operator("haptic_hand.free_bake", icon="TRASH")
 
 
-classes = (HAPTIC_HAND_PT_main, HAPTIC_HAND_PT_rig, HAPTIC_HAND_PT_material, HAPTIC_HAND_PT_bodies,
+classes = (HAPTIC_HAND_PT_main, HAPTIC_HAND_PT_rig, HAPTIC_HAND_PT_material, HAPTIC_HAND_PT_advanced,
+           HAPTIC_HAND_PT_bodies,
            HAPTIC_HAND_PT_device, HAPTIC_HAND_PT_live, HAPTIC_HAND_PT_bake)
 
 

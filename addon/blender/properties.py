@@ -1,9 +1,10 @@
-"""Settings the add-on keeps in the .blend: `Scene.haptic_hand` (the rig, material, device,
-live session and bake) and `Object.haptic_hand` (what role an object plays).
+"""Settings the add-on keeps in the .blend: `Scene.haptic_hand` (the rig, device, live session
+and bake, and the scene-wide parameters) and `Object.haptic_hand` (what role an object plays,
+and its own parameters: material, friction, solver, tetrahedralize settings).
 
-Units: lengths in the scene's units (the engine works in metres: scene_export converts with
-`unit_settings.scale_length`); the handle radius and contact thickness are in metres, as in
-the engine's scene files.
+The simulation's parameters come from the parameter table (param_props): their defaults,
+limits, units and tooltips are the engine's. Lengths are shown in the scene's units and stored
+in metres.
 """
 
 from __future__ import annotations
@@ -11,6 +12,9 @@ from __future__ import annotations
 import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, PointerProperty,
                        StringProperty)
+
+from ..engine import params
+from . import param_props
 
 ROLES = [
     ("NONE", "None", "Not part of the simulation"),
@@ -70,112 +74,110 @@ def _radius_changed(self, context):
     ops_rig.update_captured(context.scene)
 
 
+def _frame_range_accessors(which: str):
+    """Bake Start / End: the scene's frame range until the user sets one of their own."""
+    stored = f"stored_bake_frame_{which}"
+
+    def get(self):
+        if self.bake_range_set:
+            return getattr(self, stored)
+        scene = self.id_data
+        return scene.frame_start if which == "start" else scene.frame_end
+
+    def set(self, value):
+        if not self.bake_range_set:  # keep the other end where it is shown now
+            other = "end" if which == "start" else "start"
+            setattr(self, f"stored_bake_frame_{other}", getattr(self, f"bake_frame_{other}"))
+            self.bake_range_set = True
+        setattr(self, stored, value)
+
+    return get, set
+
+
 class HapticObjectSettings(bpy.types.PropertyGroup):
-    role: EnumProperty(name="Role", items=ROLES, default="NONE")
+    """What an object is to the simulation; its material, friction, solver and tetrahedralize
+    settings come from the parameter table (param_props)."""
+
+    role: EnumProperty(name="Role", items=ROLES, default="NONE",
+                       description="What this object is in the simulation")
     tet_object: PointerProperty(name="Tet mesh", type=bpy.types.Object,
                                 description="This object's tetrahedral mesh (made by Tetrahedralize)")
     is_tet_mesh: BoolProperty(name="Is a tet mesh", default=False,
                               description="Set on tet-mesh objects made by Tetrahedralize")
-    young_modulus: FloatProperty(name="Young's modulus", default=2e4, min=1.0, soft_max=1e7, unit="NONE",
-                                 description="Stiffness of a soft body (Pa)")
-    poisson_ratio: FloatProperty(name="Poisson ratio", default=0.35, min=0.0, max=0.49)
-    density: FloatProperty(name="Density", default=400.0, min=1e-3, description="kg/m^3")
-    rayleigh_beta: FloatProperty(name="Damping (β)", default=0.02, min=0.0, precision=4,
-                                 description="Stiffness-proportional Rayleigh damping of a soft body (s)")
-    friction: FloatProperty(name="Friction", default=0.6, min=0.0, soft_max=2.0,
-                            description="Coulomb coefficient of this body's surface")
-    fix_bottom: BoolProperty(name="Fix bottom", default=False,
-                             description="Hold the soft body's lowest nodes still")
-    reuse_factor: BoolProperty(name="Reuse factor", default=False,
-                               description="Large soft bodies: solve on an earlier step's factor (CG to 1e-6) and keep "
-                                           "its contact responses between factorizations, instead of factoring the "
-                                           "body every step")
     # bake bookkeeping (set by the bake, cleared by Free Bake)
-    baked: BoolProperty(default=False, options={"HIDDEN"})
-    bake_made_basis: BoolProperty(default=False, options={"HIDDEN"})
-    previous_action: PointerProperty(type=bpy.types.Action, options={"HIDDEN"})
-    rest_matrix: FloatVectorProperty(size=16, options={"HIDDEN"})
-    rest_rotation_mode: StringProperty(default="XYZ", options={"HIDDEN"})
+    baked: BoolProperty(default=False, options={"HIDDEN"}, description="This object holds baked motion")
+    bake_made_basis: BoolProperty(default=False, options={"HIDDEN"},
+                                  description="The bake added this object's Basis shape key")
+    previous_action: PointerProperty(type=bpy.types.Action, options={"HIDDEN"},
+                                     description="The action the object had before the bake")
+    rest_matrix: FloatVectorProperty(size=16, options={"HIDDEN"}, description="World matrix before the bake")
+    rest_rotation_mode: StringProperty(default="XYZ", options={"HIDDEN"},
+                                       description="Rotation mode before the bake")
 
 
 class HapticSceneSettings(bpy.types.PropertyGroup):
+    """The rig, the device, the live session and the bake; the simulation's parameters come from
+    the parameter table (param_props)."""
+
     # --- rig ---
     hand: PointerProperty(name="Hand", type=bpy.types.Object, poll=_is_mesh,
                           description="The hand's render mesh (closed, manifold)")
     seed: PointerProperty(name="Palm seed", type=bpy.types.Object, poll=_is_empty,
                           description="Empty at the palm: the rigid handle captures the tet nodes within "
-                                      "the radius around it")
-    handle_radius: FloatProperty(name="Handle radius", default=0.03, min=1e-4, soft_max=0.2, precision=4,
-                                 update=_radius_changed, description="Radius of the handle sphere (m)")
+                                      "the radius around it (scene file: hand.palm_seed)")
     captured_nodes: IntProperty(name="Captured nodes", default=0, min=0,
                                 description="Tet nodes inside the handle sphere (updated when the radius "
                                             "changes)")
-    edge_length_fac: FloatProperty(name="Edge length", default=0.1, min=0.01, max=1.0,
-                                   description="Target tet edge length as a fraction of the bounding-box "
-                                               "diagonal (smaller: more tets)")
-    epsilon: FloatProperty(name="Envelope", default=0.002, min=1e-4, max=0.05, precision=4,
-                           description="How far the tet boundary may stray from the surface, relative to "
-                                       "the diagonal (smaller: closer fit, more tets)")
-    coarsen: BoolProperty(name="Coarsen", default=True,
-                          description="Coarsen the tet mesh as far as the quality allows")
-    # --- material and springs ---
-    young_modulus: FloatProperty(name="Young's modulus", default=5e4, min=1.0, soft_max=1e7,
-                                 description="Stiffness of the flesh (Pa)")
-    poisson_ratio: FloatProperty(name="Poisson ratio", default=0.3, min=0.0, max=0.49)
-    density: FloatProperty(name="Density", default=1000.0, min=1e-3, description="kg/m^3")
-    rayleigh_beta: FloatProperty(name="Damping (β)", default=0.01, min=0.0, precision=4,
-                                 description="Stiffness-proportional Rayleigh damping (s)")
-    spring_stiffness: FloatProperty(name="Spring stiffness", default=1e4, min=1e-3,
-                                    description="Handle-to-flesh springs (N/m)")
-    spring_damping: FloatProperty(name="Spring damping", default=10.0, min=0.0, description="N s/m")
-    coupling_stiffness: FloatProperty(name="Coupling stiffness", default=5e3, min=1e-3,
-                                      description="Virtual coupling between the device and the handle (N/m)")
-    coupling_damping: FloatProperty(name="Coupling damping", default=50.0, min=0.0, description="N s/m")
-    angular_stiffness: FloatProperty(name="Angular stiffness", default=50.0, min=0.0, description="N m/rad")
-    angular_damping: FloatProperty(name="Angular damping", default=0.5, min=0.0, description="N m s/rad")
-    time_step: FloatProperty(name="Time step", default=1.0 / 30.0, min=1e-4, max=0.1, precision=4,
-                             description="Visual-loop step of a live session (s); bakes step once per frame")
-    contact_thickness: FloatProperty(name="Contact thickness", default=1e-3, min=1e-5, precision=4,
-                                     description="Gap kept between surfaces (m)")
-    friction: FloatProperty(name="Hand friction", default=0.5, min=0.0, soft_max=2.0)
-    self_collision: BoolProperty(name="Self collision", default=True, description="Fingers collide")
-    world_threads: IntProperty(name="Simulation threads", default=2, min=1, max=2,
-                               description="Threads of each visual-loop step: 2 runs collision detection and the "
-                                           "other bodies beside the hand's solve (same results as 1); the haptic "
-                                           "loop has its own thread either way")
     # --- device ---
-    device: EnumProperty(name="Device", items=DEVICES, default="SIMULATED")
+    device: EnumProperty(name="Device", items=DEVICES, default="SIMULATED",
+                         description="What moves the hand: a simulated user, a recording, a haptic device, a "
+                                     "SpaceMouse, or the target empty (scene file: haptics.device)")
     device_file: StringProperty(name="Recording", subtype="FILE_PATH",
-                                description="Haptic log (.npz) to play back")
-    hid_device: EnumProperty(name="HID device", items=_hid_items)
-    haptic_loop: BoolProperty(name="Haptic loop in bakes", default=True,
-                              description="Bakes run the haptic loop (proxy handle, simulated arm) in lockstep "
-                                          "and log every haptic step; off: the device drives the handle directly")
-    haptic_rate: FloatProperty(name="Haptic rate", default=1000.0, min=100.0, max=10000.0,
-                               description="Haptic-loop rate (Hz)")
+                                description="Haptic log (.npz) or CSV of device poses to play back")
+    hid_device: EnumProperty(name="HID device", items=_hid_items,
+                             description="Which 6-DoF HID device drives the hand")
     target: PointerProperty(name="Target", type=bpy.types.Object, poll=_is_empty,
                             description="Empty that stands for the device: its motion since the first "
-                                        "frame moves the handle")
+                                        "frame moves the handle (scene file: device.trajectory)")
     # --- live session (state shown by the panel) ---
-    live_running: BoolProperty(default=False, options={"SKIP_SAVE"})
-    live_stop: BoolProperty(default=False, options={"SKIP_SAVE"})
+    live_running: BoolProperty(default=False, options={"SKIP_SAVE"}, description="A live session runs")
+    live_stop: BoolProperty(default=False, options={"SKIP_SAVE"}, description="The live session was asked to stop")
     # --- bake ---
-    bake_format: EnumProperty(name="Format", items=BAKE_FORMATS, default="KEYS")
-    bake_frame_start: IntProperty(name="Start", default=1, min=0)
-    bake_frame_end: IntProperty(name="End", default=60, min=1)
-    bake_running: BoolProperty(default=False, options={"SKIP_SAVE"})
-    bake_progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"})
-    bake_cancel: BoolProperty(default=False, options={"SKIP_SAVE"})
+    bake_format: EnumProperty(name="Format", items=BAKE_FORMATS, default="KEYS",
+                              description="How the bake stores the motion")
+    bake_range_set: BoolProperty(default=False, options={"HIDDEN"},
+                                 description="The bake has a frame range of its own (else the scene's)")
+    stored_bake_frame_start: IntProperty(default=1, options={"HIDDEN"}, description="The bake's own start frame")
+    stored_bake_frame_end: IntProperty(default=250, options={"HIDDEN"}, description="The bake's own end frame")
+    bake_frame_start: IntProperty(name="Start", min=0, get=_frame_range_accessors("start")[0],
+                                  set=_frame_range_accessors("start")[1],
+                                  description="First frame of the bake (the scene's start until you change it)")
+    bake_frame_end: IntProperty(name="End", min=1, get=_frame_range_accessors("end")[0],
+                                set=_frame_range_accessors("end")[1],
+                                description="Last frame of the bake (the scene's end until you change it)")
+    bake_running: BoolProperty(default=False, options={"SKIP_SAVE"}, description="A bake runs")
+    bake_progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR", options={"SKIP_SAVE"},
+                                 description="How far the bake is")
+    bake_cancel: BoolProperty(default=False, options={"SKIP_SAVE"}, description="The bake was asked to stop")
     baked: BoolProperty(default=False, description="A bake is stored in this scene")
-    baked_format: StringProperty(default="")
-    baked_range: StringProperty(default="")
-    bake_log: StringProperty(name="Haptic log", default="", description="Where the last bake saved its haptic log (relative to the .blend)")
+    baked_format: StringProperty(default="", description="The stored bake's format")
+    baked_range: StringProperty(default="", description="The stored bake's frames")
+    bake_log: StringProperty(name="Haptic log", default="",
+                             description="Where the last bake saved its haptic log (relative to the .blend)")
+
+
+def _add_table_properties() -> None:
+    """The parameter table's rows as properties of the two settings blocks."""
+    HapticSceneSettings.__annotations__.update(
+        param_props.annotations(params.UI_SCENE, updates={"handle_radius": _radius_changed}))
+    HapticObjectSettings.__annotations__.update(param_props.annotations(params.UI_OBJECT))
 
 
 classes = (HapticObjectSettings, HapticSceneSettings)
 
 
 def register():
+    _add_table_properties()
     for cls in classes:
         bpy.utils.register_class(cls)
     bpy.types.Object.haptic_hand = PointerProperty(type=HapticObjectSettings)

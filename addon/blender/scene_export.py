@@ -18,13 +18,39 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import bpy
 import numpy as np
 
 from ..engine import bodies as bodies_module
 from ..engine import mesh as meshing
 from ..engine import native, native_world
+from ..engine import params
 from ..engine import scene as scenes
-from . import meshdata
+from . import meshdata, param_props
+
+# Blender's roles as the scene file's body types
+BODY_TYPES = {"SOFT": "soft", "RIGID": "rigid", "MOVING": "kinematic", "STATIC": "static", "PLANE": "plane"}
+# Blender's device menu as the scene file's haptics.device (PLAYBACK and HID add their source)
+DEVICE_NAMES = {"SIMULATED": "simulated", "PLAYBACK": "playback", "OPENHAPTICS": "openhaptics", "HID": "hid",
+                "TARGET": "external"}
+
+
+def device_to_scene(s) -> str:
+    """haptics.device from the Device menu (a playback's recording as an absolute path)."""
+    name = DEVICE_NAMES[s.device]
+    if s.device == "PLAYBACK" and s.device_file:
+        return f"{name}:{bpy.path.abspath(s.device_file)}"
+    if s.device == "HID" and s.hid_device not in ("", "NONE"):
+        return f"{name}:{s.hid_device}"
+    return name
+
+
+def device_from_scene(s, name: str) -> None:
+    """The Device menu from haptics.device."""
+    kind, _, arg = name.partition(":")
+    s.device = {v: k for k, v in DEVICE_NAMES.items()}[kind]
+    if kind == "playback":
+        s.device_file = arg
 
 
 class ExportError(ValueError):
@@ -114,13 +140,10 @@ def check_seed(scene, nodes, tets) -> np.ndarray:
         raise ExportError(
             f"The palm seed '{s.seed.name}' is outside the hand's tet mesh (about {max(gap, 0) * 1000:.0f} mm out): "
             "move it inside the palm, or press Place Seed to snap it in")
-    count = native.count_captured(nodes, seed, s.handle_radius)
-    if count < 4:
-        raise ExportError(f"The handle sphere (radius {s.handle_radius * 1000:.1f} mm) captures {count} tet nodes; "
-                          "a rigid handle needs at least 4: increase Handle radius or move the seed")
-    if count >= len(nodes):
-        raise ExportError(f"The handle sphere (radius {s.handle_radius * 1000:.1f} mm) captures all {count} tet "
-                          "nodes, leaving no flesh: decrease Handle radius")
+    try:
+        native.check_handle(nodes, seed, s.handle_radius_si)
+    except native.InvalidInput as e:
+        raise ExportError(f"The palm seed '{s.seed.name}': {e} (Haptic Hand > Rig > Handle radius)") from None
     return seed
 
 
@@ -198,23 +221,14 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
         raise ExportError(f"The hand '{hand.name}': {e}") from None
     seed = check_seed(bscene, nodes, tets)
 
-    data = {
-        "format": scenes.FORMAT,
-        "hand": {"mesh": _write_obj(folder, "hand", surface, faces),
-                 "tets": _write_tets(folder, "hand", nodes, tets),
-                 "palm_seed": seed.tolist(), "handle_radius": s.handle_radius, "friction": s.friction,
-                 "self_collision": s.self_collision},
-        "material": {"young_modulus": s.young_modulus, "poisson_ratio": s.poisson_ratio, "density": s.density,
-                     "rayleigh_alpha": 0.0, "rayleigh_beta": s.rayleigh_beta},
-        "springs": {"stiffness": s.spring_stiffness, "damping": s.spring_damping},
-        "coupling": {"stiffness": s.coupling_stiffness, "damping": s.coupling_damping,
-                     "angular_stiffness": s.angular_stiffness, "angular_damping": s.angular_damping},
-        "contact": {"thickness": s.contact_thickness, "threads": s.world_threads},
-        "dt": 1.0 / rate,
-        "frames": f1 - f0,
-        "gravity": list(bscene.gravity) if bscene.use_gravity else [0.0, 0.0, 0.0],
-        "bodies": [],
-    }
+    data = {"format": scenes.format_name(), "bodies": []}
+    param_props.to_scene(s, data, params.UI_SCENE)
+    param_props.to_scene(hand.haptic_hand, data, params.UI_OBJECT, prefix="hand.")
+    data["hand"].update(mesh=_write_obj(folder, "hand", surface, faces), tets=_write_tets(folder, "hand", nodes, tets),
+                        palm_seed=seed.tolist())
+    data.update(dt=1.0 / rate, frames=f1 - f0,
+                gravity=[param_props.decimal(g) for g in bscene.gravity] if bscene.use_gravity else [0.0, 0.0, 0.0])
+    data["haptics"]["device"] = device_to_scene(s)
     links, moving = [], []
     for obj, role in _objects_with_roles(bscene):
         o = obj.haptic_hand
@@ -222,8 +236,9 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
         if role == "PLANE":
             m = link.rest_matrix
             normal = m[:3, 2] / np.linalg.norm(m[:3, 2])
-            data["bodies"].append({"name": obj.name, "type": "plane", "point": (m[:3, 3] * scale).tolist(),
-                                   "normal": normal.tolist(), "friction": o.friction})
+            spec = {"name": obj.name, "type": "plane", "point": (m[:3, 3] * scale).tolist(), "normal": normal.tolist()}
+            param_props.to_scene(o, spec, params.UI_OBJECT, body_type="plane")
+            data["bodies"].append(spec)
             links.append(link)
             continue
         if obj.type != "MESH":
@@ -232,7 +247,8 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
         v, f = meshdata.world_vertices(obj, bscene), meshdata.triangles(obj.data)
         if len(f) == 0:
             raise ExportError(f"'{obj.name}' has no faces: give it a closed mesh or set its role to None")
-        spec = {"name": obj.name, "mesh": _write_obj(folder, obj.name, v, f), "friction": o.friction}
+        spec = {"name": obj.name, "type": BODY_TYPES[role], "mesh": _write_obj(folder, obj.name, v, f)}
+        param_props.to_scene(o, spec, params.UI_OBJECT, body_type=spec["type"])
         if role == "SOFT":
             if obj.data.shape_keys is not None and not o.baked:
                 raise ExportError(f"The soft body '{obj.name}' has shape keys: remove or apply them first")
@@ -240,18 +256,8 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
                 raise ExportError(f"The soft body '{obj.name}' has no tet mesh: select it and press Tetrahedralize")
             bn, bt = meshdata.read_tets(o.tet_object)
             bn = meshdata.transform(meshdata.matrix(o.tet_object), bn) * scale
-            spec.update(type="soft", tets=_write_tets(folder, obj.name, bn, bt),
-                        material={"young_modulus": o.young_modulus, "poisson_ratio": o.poisson_ratio,
-                                  "density": o.density, "rayleigh_alpha": 0.0, "rayleigh_beta": o.rayleigh_beta},
-                        fixed="bottom" if o.fix_bottom else None)
-            if o.reuse_factor:
-                spec["solver"] = {**bodies_module.DEFAULTS["solver"], "name": "reused_cholesky"}
-        elif role == "RIGID":
-            spec.update(type="rigid", density=o.density)
-        elif role == "STATIC":
-            spec.update(type="static")
+            spec["tets"] = _write_tets(folder, obj.name, bn, bt)
         elif role == "MOVING":
-            spec.update(type="kinematic")
             moving.append((spec, link, _kinematic_centre(v, f)))
         data["bodies"].append(spec)
         links.append(link)
@@ -279,9 +285,7 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
                                "quaternion": meshdata.quaternion_xyzs(rel).tolist()})
     else:
         trajectory.append({"t": 0.0, "position": [0.0, 0.0, 0.0], "quaternion": [0.0, 0.0, 0.0, 1.0]})
-    data["device"] = {"enabled": True, "frame": "handle_rest", "trajectory": trajectory}
-    if "haptics" in scenes.DEFAULTS:  # engines with a haptic loop
-        data["haptics"] = {"enabled": bool(s.haptic_loop), "rate": float(s.haptic_rate), "device": "simulated"}
+    data["device"].update(frame="handle_rest", trajectory=trajectory)
     for (spec, link, c0), mats in zip(moving, moving_m):
         points = []
         for t, m in zip(times, mats):

@@ -14,8 +14,9 @@ import bpy
 import numpy as np
 
 from ..engine import bodies as bodies_module
+from ..engine import params
 from ..engine import scene as scenes
-from . import meshdata, ops_rig, scene_export
+from . import meshdata, ops_rig, param_props, scene_export
 
 
 class ImportError_(ValueError):
@@ -75,29 +76,20 @@ def build(context, path, frame_start: int = 1) -> dict:
     bscene.render.fps = int(round(rate))
     bscene.render.fps_base = round(rate) / rate
     bscene.frame_start, bscene.frame_end = frame_start, frame_start + scene.frames
-    s.bake_frame_start, s.bake_frame_end = frame_start, frame_start + scene.frames
     bscene.use_gravity = True
     bscene.gravity = data["gravity"]
-    hand, m, sp, c = data["hand"], data["material"], data["springs"], data["coupling"]
-    s.young_modulus, s.poisson_ratio, s.density = m["young_modulus"], m["poisson_ratio"], m["density"]
-    s.rayleigh_beta = m["rayleigh_beta"]
-    s.spring_stiffness, s.spring_damping = sp["stiffness"], sp["damping"]
-    s.coupling_stiffness, s.coupling_damping = c["stiffness"], c["damping"]
-    s.angular_stiffness, s.angular_damping = c["angular_stiffness"], c["angular_damping"]
-    s.contact_thickness, s.friction, s.self_collision = data["contact"]["thickness"], hand["friction"], \
-        hand["self_collision"]
-    s.world_threads = data["contact"]["threads"]
-    t = hand["tetrahedralize"]
-    s.edge_length_fac, s.coarsen, s.epsilon = t["edge_length_fac"], t["coarsen"], t["epsilon"]
-    s.time_step = scene.dt
-    if "haptics" in data:
-        s.haptic_loop, s.haptic_rate = bool(data["haptics"]["enabled"]), float(data["haptics"]["rate"])
+    try:
+        param_props.from_scene(s, data, params.UI_SCENE)
+    except ValueError as e:
+        raise ImportError_(str(e)) from None
+    scene_export.device_from_scene(s, data["haptics"]["device"])
 
     scenes.load_hand_geometry(scene)
     objects = {}
     hand_obj = _link(context, bpy.data.objects.new("Hand", meshdata.new_mesh("Hand", scene.surface_vertices,
                                                                             scene.surface_faces)))
     hand_obj.haptic_hand.role = "HAND"
+    param_props.from_scene(hand_obj.haptic_hand, data, params.UI_OBJECT, prefix="hand.")
     ops_rig.make_tet_object(context, hand_obj, scene.nodes, scene.tets)
     s.hand = hand_obj
     seed = _link(context, bpy.data.objects.new(ops_rig.SEED_NAME, None))
@@ -105,7 +97,6 @@ def build(context, path, frame_start: int = 1) -> dict:
     seed.parent = hand_obj
     seed.location = scene.palm_seed()
     s.seed = seed
-    s.handle_radius = hand["handle_radius"]
     objects.update(hand=hand_obj, seed=seed)
 
     target = _link(context, bpy.data.objects.new("Device target", None))
@@ -113,7 +104,6 @@ def build(context, path, frame_start: int = 1) -> dict:
     target.empty_display_size = 0.03
     _keyed_motion(target, scene.palm_seed(), data["device"]["trajectory"], rate, frame_start)
     s.target = target
-    s.device = "SIMULATED"
     objects["target"] = target
 
     for spec in scene.bodies:
@@ -138,7 +128,7 @@ def _add_body(context, spec: dict, rate: float, frame_start: int):
         obj.rotation_quaternion = mathutils.Vector((0, 0, 1)).rotation_difference(mathutils.Vector(normal))
         obj.location = spec["point"]
         obj.haptic_hand.role = "PLANE"
-        obj.haptic_hand.friction = spec["friction"]
+        param_props.from_scene(obj.haptic_hand, spec, params.UI_OBJECT, body_type=kind)
         return obj
     body = bodies_module.prepare(spec)
     position = np.asarray(spec["position"], dtype=float)
@@ -148,22 +138,15 @@ def _add_body(context, spec: dict, rate: float, frame_start: int):
     obj = _link(context, bpy.data.objects.new(name, meshdata.new_mesh(name, body.vertices - position, body.faces)))
     obj.location = position
     o = obj.haptic_hand
-    o.friction = spec["friction"]
+    o.role = {v: k for k, v in scene_export.BODY_TYPES.items()}[kind]
+    try:
+        param_props.from_scene(o, spec, params.UI_OBJECT, body_type=kind)
+    except ValueError as e:
+        raise ImportError_(f"body '{name}': {e}") from None
     if kind == "soft":
-        o.role = "SOFT"
-        mat = spec["material"]
-        o.young_modulus, o.poisson_ratio, o.density = mat["young_modulus"], mat["poisson_ratio"], mat["density"]
-        o.rayleigh_beta = mat["rayleigh_beta"]
-        o.fix_bottom = spec["fixed"] == "bottom"
-        o.reuse_factor = spec["solver"]["name"] == "reused_cholesky"
         ops_rig.make_tet_object(context, obj, body.nodes - position, body.tets)
     elif kind == "kinematic":
-        o.role = "MOVING"
         _keyed_motion(obj, position, spec["trajectory"] or [{"t": 0.0}], rate, frame_start)
-    elif kind == "rigid":
-        o.role, o.density = "RIGID", spec["density"]
-    else:
-        o.role = "STATIC"
     return obj
 
 

@@ -8,6 +8,7 @@ procedural shape's own coarse tets, or from pytetwild; their surface is embedded
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -15,33 +16,9 @@ import numpy as np
 
 from . import mesh as meshing
 from . import native_world as W
-from . import shapes
+from . import params, shapes
 
 TYPES = {"soft": W.SOFT, "rigid": W.RIGID, "kinematic": W.KINEMATIC, "static": W.STATIC, "plane": W.PLANE}
-
-DEFAULTS = {
-    "name": None,
-    "type": None,
-    "mesh": None,
-    "size": [0.1, 0.1, 0.1],
-    "cells": [4, 4, 4],
-    "tets": None,
-    "tetrahedralize": {"edge_length_fac": 0.2, "coarsen": True, "epsilon": 0.004},
-    "position": [0.0, 0.0, 0.0],
-    "material": {"young_modulus": 5e4, "poisson_ratio": 0.3, "density": 1000.0,
-                 "rayleigh_alpha": 0.0, "rayleigh_beta": 0.01},
-    "density": 1000.0,
-    "friction": 0.5,
-    "kinetic_friction": None,  # None: the same as friction (static)
-    "fixed": None,
-    "point": [0.0, 0.0, 0.0],
-    "normal": [0.0, 0.0, 1.0],
-    "trajectory": [],
-    # soft bodies: "cholesky" (factored every step) or "reused_cholesky" with its CG tolerance
-    # (an earlier step's factor, kept with its contact response columns: for large soft bodies)
-    "solver": {"name": "cholesky", "cg_tolerance": 1e-6, "cg_max_iterations": 5000},
-}
-
 
 class BodyError(ValueError):
     """A body description that cannot be used; the message names the body, field and fix."""
@@ -64,53 +41,49 @@ class PreparedBody:
         return self.spec["name"]
 
 
-def _merge(defaults: dict, given: dict, where: str) -> dict:
-    out = dict(defaults)
-    for key, value in given.items():
-        if key not in defaults:
-            raise BodyError(f"unknown field '{where}{key}'; known fields: {', '.join(defaults)}")
-        out[key] = _merge(defaults[key], value, f"{where}{key}.") if isinstance(defaults[key], dict) and isinstance(value, dict) else value
-    return out
+def defaults() -> dict:
+    """A body's defaults (a fresh copy), from the parameter table."""
+    return params.defaults(body=True)
 
 
 def parse(specs: list, base_dir: Path) -> list[dict]:
+    from .scene import SceneError, _merge, check_fields
+
     if not isinstance(specs, list):
         raise BodyError("'bodies' must be a list of body descriptions")
     out, names = [], set()
     for i, given in enumerate(specs):
         if not isinstance(given, dict):
             raise BodyError(f"bodies[{i}] must be an object")
-        spec = _merge(DEFAULTS, given, f"bodies[{i}].")
+        label = f"bodies[{i}]" + (f" ('{given['name']}')" if isinstance(given.get("name"), str) else "")
+        try:
+            spec = _merge(defaults(), given, f"{label}.")
+            if spec["type"] not in TYPES:
+                raise BodyError(f"{label} has type {json.dumps(spec['type'])}: use one of {', '.join(TYPES)}")
+            check_fields(spec, body=True, where=lambda p: f"{label}.{p.json[len(params.BODY):]}")
+        except SceneError as e:
+            raise BodyError(str(e)) from None
         spec["name"] = spec["name"] or f"body{i}"
         if spec["name"] in names:
             raise BodyError(f"two bodies are named '{spec['name']}': give each a unique name")
         names.add(spec["name"])
-        if spec["type"] not in TYPES:
-            raise BodyError(f"body '{spec['name']}' has type {spec['type']!r}: use one of {', '.join(TYPES)}")
         if spec["type"] != "plane" and spec["mesh"] is None:
             raise BodyError(f"body '{spec['name']}' needs a 'mesh' (procedural:bunny, procedural:letter:H, box, "
                             "or an .obj path)")
-        friction = spec["friction"]
-        if not isinstance(friction, (int, float)) or not np.isfinite(friction) or friction < 0:
-            raise BodyError(f"body '{spec['name']}': friction = {friction!r} must be zero or positive")
-        solver = spec["solver"]
-        if not isinstance(solver, dict):
-            raise BodyError(f"body '{spec['name']}': solver = {solver!r} must be an object, e.g. "
-                            '{"name": "reused_cholesky", "cg_tolerance": 1e-6}')
-        if solver["name"] not in W.SOFT_SOLVERS:
-            raise BodyError(f"body '{spec['name']}': solver.name = {solver['name']!r}: use {' or '.join(W.SOFT_SOLVERS)}")
-        tol = solver["cg_tolerance"]
-        if not isinstance(tol, (int, float)) or not np.isfinite(tol) or not 0 < tol < 1:
-            raise BodyError(f"body '{spec['name']}': solver.cg_tolerance = {tol!r} must be in (0, 1), e.g. 1e-6")
-        iterations = solver["cg_max_iterations"]
-        if not isinstance(iterations, int) or isinstance(iterations, bool) or iterations < 1:
-            raise BodyError(f"body '{spec['name']}': solver.cg_max_iterations = {iterations!r} must be a positive "
-                            "integer, e.g. 5000")
-        if solver != DEFAULTS["solver"] and spec["type"] != "soft":
-            raise BodyError(f"body '{spec['name']}': only soft bodies take a solver (this one is {spec['type']})")
+        _refuse_fields_of_other_types(spec, given)
         spec["_base_dir"] = str(base_dir)
         out.append(spec)
     return out
+
+
+def _refuse_fields_of_other_types(spec: dict, given: dict) -> None:
+    """A field given for a body type that never reads it (a solver for a rigid body) is a mistake
+    the user should hear about."""
+    for p in params.table():
+        if p.body and not p.applies_to(spec["type"]) and p.keys[0] in given and params.get(spec, p) != p.default:
+            kinds = [t for t in TYPES if p.applies_to(t)]
+            raise BodyError(f"body '{spec['name']}': only {' and '.join(kinds)} bodies take '{p.keys[0]}' "
+                            f"(this one is {spec['type']}): remove it")
 
 
 def _surface(spec: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -186,9 +159,7 @@ def add_to_world(world: W.World, body: PreparedBody) -> int:
         body.index = world.add_soft_body(body.nodes, body.tets, sn, sw, body.faces, fixed_nodes=fixed_nodes(body),
                                          friction=friction, **m)
         solver = spec["solver"]
-        if solver["name"] != "cholesky":
-            world.set_body_solver(body.index, solver["name"], float(solver["cg_tolerance"]),
-                                  int(solver["cg_max_iterations"]))
+        world.set_body_solver(body.index, solver["name"], solver["cg_tolerance"], solver["cg_max_iterations"])
     else:
         body.index = world.add_mesh_body(body.kind, body.vertices, body.faces, density=float(spec["density"]),
                                          friction=friction)

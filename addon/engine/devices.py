@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene import quat_multiply
+from . import quaternion
 
 SPACEMOUSE_VENDORS = (0x046D, 0x256F)  # Logitech (older 3Dconnexion devices), 3Dconnexion
 SPACEMOUSE_FULL_SCALE = 350.0           # a full deflection reports about +-350 on each axis
@@ -149,12 +149,6 @@ def decode_spacemouse_report(report: bytes | list[int], state: SpaceMouseState) 
 SPACEMOUSE_TO_SCENE = np.diag([1.0, -1.0, -1.0])
 
 
-def _quat_from_rotation_vector(theta: np.ndarray) -> np.ndarray:
-    angle = float(np.linalg.norm(theta))
-    k = 0.5 - angle * angle / 48.0 if angle < 1e-8 else math.sin(0.5 * angle) / angle
-    return np.concatenate([k * theta, [math.cos(0.5 * angle)]])
-
-
 class SpaceMouseIntegrator:
     """A rate-controlled pose: the axes are velocities (full deflection = max_speed m/s and
     max_rate rad/s), integrated over the time between updates."""
@@ -168,7 +162,7 @@ class SpaceMouseIntegrator:
         v = self.max_speed * (SPACEMOUSE_TO_SCENE @ state.translation)
         w = self.max_rate * (SPACEMOUSE_TO_SCENE @ state.rotation)
         self.position = self.position + dt * v
-        q = quat_multiply(_quat_from_rotation_vector(dt * w), self.quaternion)
+        q = quaternion.multiply(quaternion.from_rotation_vector(dt * w), self.quaternion)
         self.quaternion = q / np.linalg.norm(q)
         return self.position.copy(), self.quaternion.copy()
 

@@ -71,13 +71,13 @@ def _rounded_box_distance(p, centre, half_extents, rounding):
     return outside + inside - rounding
 
 
-def _capsule_distance(p, a, b, radius):
+def capsule_distance(p, a, b, radius):
     ab = b - a
     t = np.clip(((p - a) @ ab) / (ab @ ab), 0.0, 1.0)
     return np.linalg.norm(p - (a + t[..., None] * ab), axis=-1) - radius
 
 
-def _smooth_union(d1, d2, k):
+def smooth_union(d1, d2, k):
     # Polynomial smooth minimum: a fillet of width about k where the two shapes meet.
     h = np.maximum(k - np.abs(d1 - d2), 0.0) / k
     return np.minimum(d1, d2) - h * h * k / 4.0
@@ -105,7 +105,7 @@ def _hand_distance(p):
     # between fingers stay open.
     return np.min(
         [
-            _smooth_union(palm, _capsule_distance(p, a, b, r), k)
+            smooth_union(palm, capsule_distance(p, a, b, r), k)
             for a, b, r, k in _finger_segments()
         ],
         axis=0,
@@ -149,13 +149,13 @@ def procedural_hand(resolution: float = 0.004):
 
     V = np.asarray(contour.points, dtype=np.float64)
     F = np.asarray(contour.faces, dtype=np.int64).reshape(-1, 4)[:, 1:]
-    V, F = _clean_surface(V, F)
+    V, F = clean_surface(V, F)
     if surface_volume(V, F) < 0.0:
         F = F[:, ::-1]
     return V, F.astype(np.int32)
 
 
-def _clean_surface(V, F):
+def clean_surface(V, F):
     """Merge coincident vertices, drop triangles with repeated vertices, compact indices."""
     V, inverse = np.unique(V, axis=0, return_inverse=True)
     F = inverse.reshape(-1)[F]
@@ -509,7 +509,7 @@ def _first_per_owner(owners, order_key, count):
     return chosen
 
 
-def _closest_point_on_triangles(p, a, b, c):
+def closest_point_on_triangles(p, a, b, c):
     """Closest point to p[i] on triangle (a[i], b[i], c[i]), after Ericson, Real-Time
     Collision Detection, 5.1.5: find the Voronoi region of p (vertex, edge or face)."""
 
@@ -603,7 +603,7 @@ def embed_points(nodes, tets, points):
 
         def distances(owners, face_ids):
             a, b, c = (triangles[face_ids, i] for i in range(3))
-            closest = _closest_point_on_triangles(outside[owners], a, b, c)
+            closest = closest_point_on_triangles(outside[owners], a, b, c)
             return np.linalg.norm(outside[owners] - closest, axis=1)
 
         owners, face_ids = face_spheres.nearest(outside, _NEAREST_CANDIDATES)

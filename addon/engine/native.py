@@ -16,8 +16,7 @@ import numpy as np
 HH_OK = 0
 HH_ERR_INVALID_ARGUMENT = -1
 HH_ERR_NUMERICAL = -2
-SOLVERS = {"cholesky": 0, "cg": 1, "reused_cholesky": 2}
-API_VERSION = 1
+API_VERSION = 2
 
 _HERE = Path(__file__).resolve().parent
 LIBRARY_NAME = "libhaptic_hand.so"
@@ -33,30 +32,6 @@ class InvalidInput(NativeError, ValueError):
 
 class NumericalFailure(NativeError):
     """A solve failed or produced non-finite values."""
-
-
-class Params(ctypes.Structure):
-    _fields_ = [
-        ("struct_size", ctypes.c_int),
-        ("young_modulus", ctypes.c_double),
-        ("poisson_ratio", ctypes.c_double),
-        ("density", ctypes.c_double),
-        ("rayleigh_alpha", ctypes.c_double),
-        ("rayleigh_beta", ctypes.c_double),
-        ("palm_seed", ctypes.c_double * 3),
-        ("handle_radius", ctypes.c_double),
-        ("spring_stiffness", ctypes.c_double),
-        ("spring_damping", ctypes.c_double),
-        ("coupling_stiffness", ctypes.c_double),
-        ("coupling_damping", ctypes.c_double),
-        ("coupling_angular_stiffness", ctypes.c_double),
-        ("coupling_angular_damping", ctypes.c_double),
-        ("gravity", ctypes.c_double * 3),
-        ("dt", ctypes.c_double),
-        ("solver", ctypes.c_int),
-        ("cg_tolerance", ctypes.c_double),
-        ("cg_max_iterations", ctypes.c_int),
-    ]
 
 
 class ModelInfo(ctypes.Structure):
@@ -85,31 +60,6 @@ class StepStats(ctypes.Structure):
 
     def as_dict(self) -> dict:
         return {name: getattr(self, name) for name, _ in self._fields_}
-
-
-class WorldParams(ctypes.Structure):
-    _fields_ = [
-        ("struct_size", ctypes.c_int),
-        ("dt", ctypes.c_double),
-        ("gravity", ctypes.c_double * 3),
-        ("contact_thickness", ctypes.c_double),
-        ("contact_patch", ctypes.c_double),
-        ("max_iterations", ctypes.c_int),
-        ("tolerance", ctypes.c_double),
-        ("stall_factor", ctypes.c_double),
-        ("threads", ctypes.c_int),
-    ]
-
-
-class Material(ctypes.Structure):
-    _fields_ = [
-        ("struct_size", ctypes.c_int),
-        ("young_modulus", ctypes.c_double),
-        ("poisson_ratio", ctypes.c_double),
-        ("density", ctypes.c_double),
-        ("rayleigh_alpha", ctypes.c_double),
-        ("rayleigh_beta", ctypes.c_double),
-    ]
 
 
 class WorldStats(ctypes.Structure):
@@ -172,14 +122,19 @@ def _declare(lib: ctypes.CDLL) -> None:
     sig = {
         "hh_last_error": ([], ctypes.c_char_p),
         "hh_api_version": ([], i),
-        "hh_default_params": ([ctypes.POINTER(Params)], None),
-        "hh_model_create": ([pd, i, pi, i, ctypes.POINTER(Params), ctypes.POINTER(vp)], i),
+        "hh_param_count": ([], i),
+        "hh_param_info_get": ([i, vp], i),
+        "hh_struct_size": ([i, pi], i),
+        "hh_param_check": ([ctypes.c_char_p, pd, i], i),
+        "hh_default_params": ([vp], None),
+        "hh_model_create": ([pd, i, pi, i, vp, ctypes.POINTER(vp)], i),
         "hh_model_free": ([vp], None),
         "hh_model_info_get": ([vp, ctypes.POINTER(ModelInfo)], i),
         "hh_model_handle_nodes": ([vp, pi, i], i),
         "hh_model_lumped_masses": ([vp, pd, i], i),
-        "hh_model_params": ([vp, ctypes.POINTER(Params)], i),
+        "hh_model_params": ([vp, vp], i),
         "hh_count_captured": ([pd, i, pd, d, pi], i),
+        "hh_check_handle": ([pd, i, pd, d, pi], i),
         "hh_data_create": ([vp, ctypes.POINTER(vp)], i),
         "hh_data_free": ([vp], None),
         "hh_data_reset": ([vp, vp], i),
@@ -197,12 +152,12 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hh_energies": ([vp, vp, pd, pd, pd], i),
         "hh_linear_momentum": ([vp, vp, pd], i),
         # worlds (scenes with contact)
-        "hh_default_world_params": ([ctypes.POINTER(WorldParams)], None),
-        "hh_default_material": ([ctypes.POINTER(Material)], None),
-        "hh_world_create": ([ctypes.POINTER(WorldParams), ctypes.POINTER(vp)], i),
+        "hh_default_world_params": ([vp], None),
+        "hh_default_material": ([vp], None),
+        "hh_world_create": ([vp, ctypes.POINTER(vp)], i),
         "hh_world_free": ([vp], None),
         "hh_world_add_hand": ([vp, vp, pi, pd, i, pi, i, d, i, pi], i),
-        "hh_world_add_soft_body": ([vp, pd, i, pi, i, ctypes.POINTER(Material), pi, i, pi, pd, i, pi, i, d, pi], i),
+        "hh_world_add_soft_body": ([vp, pd, i, pi, i, vp, pi, i, pi, pd, i, pi, i, d, pi], i),
         "hh_world_add_mesh_body": ([vp, i, pd, i, pi, i, d, d, pi], i),
         "hh_world_add_plane": ([vp, pd, pd, d, pi], i),
         "hh_world_set_pose": ([vp, i, pd, pd, pd, pd], i),
@@ -252,46 +207,11 @@ def _ptr(a: np.ndarray | None, ctype=ctypes.c_double):
     return None if a is None else a.ctypes.data_as(ctypes.POINTER(ctype))
 
 
-PARAM_NAMES = [name for name, _ in Params._fields_ if name != "struct_size"]
-
-
 def default_params() -> dict:
-    """The engine's defaults as a dict (solver as its name)."""
-    p = Params()
-    library().hh_default_params(ctypes.byref(p))
-    return _params_to_dict(p)
+    """The hand rig's defaults as {C field name: value} (the solver as its index)."""
+    from . import params
 
-
-def _params_to_dict(p: Params) -> dict:
-    out = {}
-    for name in PARAM_NAMES:
-        value = getattr(p, name)
-        out[name] = list(value) if isinstance(value, ctypes.Array) else value
-    out["solver"] = {v: k for k, v in SOLVERS.items()}[p.solver]
-    return out
-
-
-def _params_from_dict(values: dict) -> Params:
-    p = Params()
-    library().hh_default_params(ctypes.byref(p))
-    for name, value in values.items():
-        if name not in PARAM_NAMES:
-            raise InvalidInput(f"unknown parameter '{name}'; known parameters: {', '.join(PARAM_NAMES)}")
-        if name == "solver":
-            if value not in SOLVERS:
-                raise InvalidInput(f"solver '{value}' is unknown: use one of {', '.join(SOLVERS)}")
-            value = SOLVERS[value]
-        if name in ("palm_seed", "gravity"):
-            v = np.asarray(value, dtype=np.float64)
-            if v.shape != (3,):
-                raise InvalidInput(f"{name} must have 3 components, got {v.shape}")
-            value = (ctypes.c_double * 3)(*v)
-        elif name in ("solver", "cg_max_iterations"):
-            value = int(value)
-        else:
-            value = float(value)
-        setattr(p, name, value)
-    return p
+    return params.struct_values(params.new_struct(params.STRUCT_PARAMS))
 
 
 def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
@@ -300,6 +220,35 @@ def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
     s = _f64(seed, (3,), "palm_seed")
     out = ctypes.c_int()
     _check(library().hh_count_captured(_ptr(x), x.shape[0], _ptr(s), float(radius), ctypes.byref(out)))
+    return out.value
+
+
+def solver_code(name: str, field: str = "solver.name") -> int:
+    """The C code of a solver named as the parameter table names it (the hand's solver.name, or
+    a soft body's bodies[].solver.name, whose choices add auto)."""
+    from . import params
+
+    choices = params.by_json(field).choices
+    if name not in choices:
+        raise InvalidInput(f"solver '{name}' is unknown: use one of {', '.join(choices)}")
+    return choices.index(name)
+
+
+def _solver_index(values: dict) -> dict:
+    """The hand's parameters with the solver given by name turned into its C code."""
+    out = dict(values)
+    if isinstance(out.get("solver"), str):
+        out["solver"] = solver_code(out["solver"])
+    return out
+
+
+def check_handle(nodes: np.ndarray, seed, radius: float) -> int:
+    """The nodes a handle sphere captures; InvalidInput (the model's own message) when it would
+    hold fewer than 4 nodes or all of them."""
+    x = _f64(nodes)
+    s = _f64(seed, (3,), "palm_seed")
+    out = ctypes.c_int()
+    _check(library().hh_check_handle(_ptr(x), x.shape[0], _ptr(s), float(radius), ctypes.byref(out)))
     return out.value
 
 
@@ -321,7 +270,9 @@ class HandModel:
         self.tets = np.ascontiguousarray(tets, dtype=np.int32)
         if self.tets.ndim != 2 or self.tets.shape[1] != 4:
             raise InvalidInput(f"tets must be an (m, 4) array, got shape {self.tets.shape}")
-        p = _params_from_dict(params)
+        from . import params as table
+
+        p = table.new_struct(table.STRUCT_PARAMS, _solver_index(params))
         handle = ctypes.c_void_p()
         _check(
             library().hh_model_create(
@@ -367,14 +318,22 @@ class HandModel:
         return out
 
     def params(self) -> dict:
-        p = Params()
-        _check(library().hh_model_params(self._handle, ctypes.byref(p)))
-        return _params_to_dict(p)
+        """The model's parameters as {C field name: value}, the solver by name."""
+        from . import params as table
 
-    def set_solver(self, solver: str, cg_tolerance: float = 1e-8, cg_max_iterations: int = 5000) -> None:
-        if solver not in SOLVERS:
-            raise InvalidInput(f"solver '{solver}' is unknown: use one of {', '.join(SOLVERS)}")
-        _check(library().hh_set_solver(self._handle, SOLVERS[solver], cg_tolerance, cg_max_iterations))
+        p = table.structure(table.STRUCT_PARAMS)()
+        _check(library().hh_model_params(self._handle, ctypes.byref(p)))
+        out = table.struct_values(p)
+        out["solver"] = table.by_json("solver.name").choices[out["solver"]]
+        return out
+
+    def set_solver(self, solver: str, cg_tolerance: float | None = None, cg_max_iterations: int | None = None) -> None:
+        """The hand's solver by name; a tolerance or iteration cap left out takes the table's default."""
+        from . import params as table
+
+        tol = table.by_json("solver.cg_tolerance").default if cg_tolerance is None else cg_tolerance
+        cap = table.by_json("solver.cg_max_iterations").default if cg_max_iterations is None else cg_max_iterations
+        _check(library().hh_set_solver(self._handle, solver_code(solver), float(tol), int(cap)))
 
 
 class HandSimulation:

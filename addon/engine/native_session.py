@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from . import params as table
 from .native import _check, _f64, _ptr, library
 from .native_world import World
 
@@ -19,22 +20,6 @@ LOG_FIELDS = {
     "proxy_position": slice(10, 13), "proxy_quaternion": slice(13, 17),
     "force": slice(17, 20), "torque": slice(20, 23),
 }
-
-
-class SessionParams(ctypes.Structure):
-    _fields_ = [
-        ("struct_size", ctypes.c_int),
-        ("haptic_rate", ctypes.c_double),
-        ("coupling_stiffness", ctypes.c_double),
-        ("coupling_damping", ctypes.c_double),
-        ("coupling_angular_stiffness", ctypes.c_double),
-        ("coupling_angular_damping", ctypes.c_double),
-        ("max_force", ctypes.c_double),
-        ("max_torque", ctypes.c_double),
-        ("linearized", ctypes.c_int),
-        ("log_capacity", ctypes.c_int),
-        ("realtime", ctypes.c_int),
-    ]
 
 
 class SessionStatus(ctypes.Structure):
@@ -75,8 +60,8 @@ def _lib() -> ctypes.CDLL:
     d, i = ctypes.c_double, ctypes.c_int
     pd, pi, vp = ctypes.POINTER(d), ctypes.POINTER(i), ctypes.c_void_p
     sig = {
-        "hh_default_session_params": ([ctypes.POINTER(SessionParams)], None),
-        "hh_session_create": ([vp, i, ctypes.POINTER(SessionParams), ctypes.POINTER(vp)], i),
+        "hh_session_create": ([vp, i, vp, ctypes.POINTER(vp)], i),
+        "hh_session_params_check": ([vp], i),
         "hh_session_free": ([vp], None),
         "hh_session_device_simulated": ([vp, pd, pd, pd, i, d, d, d, d], i),
         "hh_session_device_playback": ([vp, pd, pd, pd, i, d], i),
@@ -119,25 +104,20 @@ def log_arrays(rows: np.ndarray) -> dict:
     return out
 
 
+def check_params(**params) -> None:
+    """The checks a session's creation makes on its parameters (C names), without a world."""
+    p = table.new_struct(table.STRUCT_SESSION_PARAMS, params)
+    _check(_lib().hh_session_params_check(ctypes.byref(p)))
+
+
 class NativeSession:
     """hh_session: owns the loops around a World (kept alive by this object)."""
 
-    def __init__(self, world: World, hand: int, haptic_rate: float = 1000.0, coupling: dict | None = None,
-                 max_force: float = 1e9, max_torque: float = 1e9, linearized: bool = True,
-                 log_capacity: int = 1 << 16):
+    def __init__(self, world: World, hand: int, **params):
+        """params: fields of hh_session_params by C name (haptic_rate, coupling_stiffness,
+        max_force, linearized, log_capacity, ...); the others take the table's defaults."""
         lib = _lib()
-        p = SessionParams()
-        lib.hh_default_session_params(ctypes.byref(p))
-        p.haptic_rate = float(haptic_rate)
-        c = coupling or {}
-        p.coupling_stiffness = float(c.get("stiffness", p.coupling_stiffness))
-        p.coupling_damping = float(c.get("damping", p.coupling_damping))
-        p.coupling_angular_stiffness = float(c.get("angular_stiffness", p.coupling_angular_stiffness))
-        p.coupling_angular_damping = float(c.get("angular_damping", p.coupling_angular_damping))
-        p.max_force = float(max_force)
-        p.max_torque = float(max_torque)
-        p.linearized = 1 if linearized else 0
-        p.log_capacity = int(log_capacity)
+        p = table.new_struct(table.STRUCT_SESSION_PARAMS, params)
         handle = ctypes.c_void_p()
         _check(lib.hh_session_create(world._handle, int(hand), ctypes.byref(p), ctypes.byref(handle)))
         self._handle = handle

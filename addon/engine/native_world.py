@@ -7,11 +7,10 @@ import ctypes
 
 import numpy as np
 
-from .native import SOLVERS, HandModel, InvalidInput, Material, StepStats, WorldParams, WorldStats, _check, _f64, _ptr, library
+from . import params as table
+from .native import HandModel, InvalidInput, StepStats, WorldStats, _check, _f64, _ptr, library, solver_code
 
 HAND, SOFT, RIGID, KINEMATIC, STATIC, PLANE = range(6)
-# the solvers a soft body takes (conjugate gradient would solve every contact response on its own)
-SOFT_SOLVERS = ("cholesky", "reused_cholesky")
 KIND_NAMES = {HAND: "hand", SOFT: "soft", RIGID: "rigid", KINEMATIC: "kinematic", STATIC: "static", PLANE: "plane"}
 
 
@@ -20,6 +19,15 @@ def _i32(a, shape_tail: int, name: str) -> np.ndarray:
     if out.ndim != 2 or out.shape[1] != shape_tail:
         raise InvalidInput(f"{name} must be an (n, {shape_tail}) integer array, got shape {out.shape}")
     return out
+
+
+def _default(value, json_path: str):
+    """value, or the table's default of that scene field when None."""
+    return table.by_json(json_path).default if value is None else value
+
+
+def _friction(value) -> float:
+    return float(_default(value, "bodies[].friction"))
 
 
 def vertex_surface(n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
@@ -39,23 +47,14 @@ def embedded_surface(tets: np.ndarray, tet_index: np.ndarray, weights: np.ndarra
 class World:
     """hh_world: bodies stepped together with contact. Body indices are returned by add_*."""
 
-    def __init__(self, dt: float = 1 / 30, gravity=(0.0, 0.0, -9.81), contact_thickness: float = 1e-3,
-                 contact_patch: float = 4e-3, max_iterations: int = 300, tolerance: float = 1e-5,
-                 threads: int = 2, stall_factor: float = 4.0):
-        p = WorldParams()
-        library().hh_default_world_params(ctypes.byref(p))
-        p.dt = float(dt)
-        p.gravity = (ctypes.c_double * 3)(*_f64(gravity, (3,), "gravity"))
-        p.contact_thickness = float(contact_thickness)
-        p.contact_patch = float(contact_patch)
-        p.max_iterations = int(max_iterations)
-        p.tolerance = float(tolerance)
-        p.stall_factor = float(stall_factor)
-        p.threads = int(threads)
+    def __init__(self, **params):
+        """params: fields of hh_world_params by C name (dt, gravity, contact_thickness, ...);
+        the others take the table's defaults."""
+        p = table.new_struct(table.STRUCT_WORLD_PARAMS, params)
         handle = ctypes.c_void_p()
         _check(library().hh_world_create(ctypes.byref(p), ctypes.byref(handle)))
         self._handle = handle
-        self.dt = float(dt)
+        self.dt = float(p.dt)
         self.last_stats = WorldStats()
 
     def __del__(self):
@@ -64,8 +63,11 @@ class World:
             self._handle = None
 
     # --- building ---
-    def add_hand(self, model: HandModel, surface_nodes, surface_weights, faces, friction=0.5,
-                 self_collision=True) -> int:
+    def add_hand(self, model: HandModel, surface_nodes, surface_weights, faces, friction=None,
+                 self_collision=None) -> int:
+        """friction, self_collision: None takes the table's default."""
+        friction = _default(friction, "hand.friction")
+        self_collision = _default(self_collision, "hand.self_collision")
         n4 = _i32(surface_nodes, 4, "surface_nodes")
         w4 = _f64(surface_weights, (len(n4), 4), "surface_weights")
         f3 = _i32(faces, 3, "faces")
@@ -75,38 +77,37 @@ class World:
                                            ctypes.byref(out)))
         return out.value
 
-    def add_soft_body(self, nodes, tets, surface_nodes, surface_weights, faces, young_modulus=5e4,
-                      poisson_ratio=0.3, density=1000.0, rayleigh_alpha=0.0, rayleigh_beta=0.01,
-                      fixed_nodes=(), friction=0.5) -> int:
+    def add_soft_body(self, nodes, tets, surface_nodes, surface_weights, faces, fixed_nodes=(), friction=None,
+                      **material) -> int:
+        """material: fields of hh_material by C name (young_modulus, ...); the others and the
+        friction take the table's defaults."""
         x = _f64(nodes)
         t = _i32(tets, 4, "tets")
         n4 = _i32(surface_nodes, 4, "surface_nodes")
         w4 = _f64(surface_weights, (len(n4), 4), "surface_weights")
         f3 = _i32(faces, 3, "faces")
         fixed = np.ascontiguousarray(fixed_nodes, dtype=np.int32).reshape(-1)
-        m = Material()
-        library().hh_default_material(ctypes.byref(m))
-        m.young_modulus, m.poisson_ratio, m.density = float(young_modulus), float(poisson_ratio), float(density)
-        m.rayleigh_alpha, m.rayleigh_beta = float(rayleigh_alpha), float(rayleigh_beta)
+        m = table.new_struct(table.STRUCT_MATERIAL, material)
         out = ctypes.c_int()
         _check(library().hh_world_add_soft_body(
             self._handle, _ptr(x), len(x), _ptr(t, ctypes.c_int), len(t), ctypes.byref(m),
             _ptr(fixed, ctypes.c_int) if len(fixed) else None, len(fixed), _ptr(n4, ctypes.c_int), _ptr(w4), len(n4),
-            _ptr(f3, ctypes.c_int), len(f3), float(friction), ctypes.byref(out)))
+            _ptr(f3, ctypes.c_int), len(f3), _friction(friction), ctypes.byref(out)))
         return out.value
 
-    def add_mesh_body(self, kind: int, vertices, faces, density=1000.0, friction=0.5) -> int:
+    def add_mesh_body(self, kind: int, vertices, faces, density=None, friction=None) -> int:
+        density = _default(density, "bodies[].density")
         v = _f64(vertices)
         f3 = _i32(faces, 3, "faces")
         out = ctypes.c_int()
         _check(library().hh_world_add_mesh_body(self._handle, int(kind), _ptr(v), len(v), _ptr(f3, ctypes.c_int),
-                                                len(f3), float(density), float(friction), ctypes.byref(out)))
+                                                len(f3), float(density), _friction(friction), ctypes.byref(out)))
         return out.value
 
-    def add_plane(self, point, normal, friction=0.5) -> int:
+    def add_plane(self, point, normal, friction=None) -> int:
         p, n = _f64(point, (3,), "plane point"), _f64(normal, (3,), "plane normal")
         out = ctypes.c_int()
-        _check(library().hh_world_add_plane(self._handle, _ptr(p), _ptr(n), float(friction), ctypes.byref(out)))
+        _check(library().hh_world_add_plane(self._handle, _ptr(p), _ptr(n), _friction(friction), ctypes.byref(out)))
         return out.value
 
     def set_friction(self, body: int, static: float, kinetic: float | None = None) -> None:
@@ -114,14 +115,15 @@ class World:
         _check(library().hh_world_set_friction(self._handle, body, float(static),
                                                float(static if kinetic is None else kinetic)))
 
-    def set_body_solver(self, body: int, solver: str, cg_tolerance: float = 1e-6, cg_max_iterations: int = 5000) -> None:
+    def set_body_solver(self, body: int, solver: str, cg_tolerance: float | None = None,
+                        cg_max_iterations: int | None = None) -> None:
         """A soft body's solver: "cholesky" (factored every step, the default) or
         "reused_cholesky" (an earlier step's factor preconditions CG and is the contact response
         operator, its columns kept between factorizations: for large soft bodies)."""
-        if solver not in SOFT_SOLVERS:
-            raise InvalidInput(f"a soft body's solver '{solver}' is unknown: use {' or '.join(SOFT_SOLVERS)}")
-        _check(library().hh_world_set_body_solver(self._handle, body, SOLVERS[solver], float(cg_tolerance),
-                                                  int(cg_max_iterations)))
+        tol = _default(cg_tolerance, "bodies[].solver.cg_tolerance")
+        iterations = _default(cg_max_iterations, "bodies[].solver.cg_max_iterations")
+        _check(library().hh_world_set_body_solver(self._handle, body, solver_code(solver, "bodies[].solver.name"), float(tol),
+                                                  int(iterations)))
 
     # --- driving ---
     def set_pose(self, body: int, position=None, quaternion=None, velocity=None, angular_velocity=None) -> None:

@@ -49,7 +49,8 @@ def hand_plot(result: dict, path: Path | str, frame: int | None = None) -> Path:
     import matplotlib.pyplot as plt
 
     from .mesh import interpolate_embedded
-    from .simulate import flesh_deformation, rotation_matrix
+    from .quaternion import to_matrix
+    from .simulate import flesh_deformation
 
     if frame is None:
         frame = int(np.argmax(flesh_deformation(result)))
@@ -68,7 +69,7 @@ def hand_plot(result: dict, path: Path | str, frame: int | None = None) -> Path:
                                            result[f"{key}_surface_tet_index"], result[f"{key}_surface_weights"])
             elif kind != "plane":
                 pose = result[f"{key}_pose"][k]
-                pts = pose[:3] + result[f"{key}_local_vertices"] @ rotation_matrix(pose[3:]).T
+                pts = pose[:3] + result[f"{key}_local_vertices"] @ to_matrix(pose[3:]).T
             else:
                 continue
             ax.plot_trisurf(pts[:, 0], pts[:, 1], pts[:, 2], triangles=result[f"{key}_faces"], color="#9db4d8",

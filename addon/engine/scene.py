@@ -9,61 +9,33 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from . import bodies as bodies_module
 from . import mesh as meshing
-from . import native
+from . import native, params, quaternion
 
-FORMAT = "haptic_hand.scene/1"
-
+DEVICES = ("simulated", "playback", "openhaptics", "hid", "external")
 
 class SceneError(ValueError):
     """A scene file that cannot be used; the message names the field and the fix."""
 
 
-DEFAULTS = {
-    "format": FORMAT,
-    "hand": {
-        "mesh": "procedural",
-        "tets": None,
-        "tetrahedralize": {"edge_length_fac": 0.1, "coarsen": False, "epsilon": 1e-3},
-        "palm_seed": None,
-        "handle_radius": 0.03,
-        "friction": 0.5,
-        "kinetic_friction": None,
-        "self_collision": True,
-    },
-    "contact": {"thickness": 1e-3, "patch": 4e-3, "max_iterations": 300, "tolerance": 1e-5, "stall_factor": 4.0,
-                "threads": 2},
-    "bodies": [],
-    "material": {"young_modulus": 5e4, "poisson_ratio": 0.3, "density": 1000.0,
-                 "rayleigh_alpha": 0.0, "rayleigh_beta": 0.01},
-    "springs": {"stiffness": 1e4, "damping": 10.0},
-    "coupling": {"stiffness": 2e3, "damping": 20.0, "angular_stiffness": 20.0, "angular_damping": 0.2},
-    "dt": 1.0 / 30.0,
-    "frames": 60,
-    "gravity": [0.0, 0.0, -9.81],
-    "solver": {"name": "cholesky", "cg_tolerance": 1e-8, "cg_max_iterations": 5000},
-    "device": {"enabled": True, "frame": "handle_rest", "trajectory": [
-        {"t": 0.0, "position": [0.0, 0.0, 0.0], "quaternion": [0.0, 0.0, 0.0, 1.0]}]},
-    # haptic rendering (docs/haptics.md): off, the device trajectory drives the handle through
-    # the virtual coupling directly; on, a haptic loop runs a proxy handle between visual steps
-    "haptics": {
-        "enabled": False,
-        "rate": 1000.0,          # Hz
-        "linearized": True,      # False: feedback from the last visual-loop handle only
-        "device": "simulated",   # simulated | playback:<file> | openhaptics | hid | external
-        "arm": {"mass": 1.0, "stiffness": 300.0, "damping": 20.0},  # the simulated user's arm
-        "max_force": 1e9, "max_torque": 1e9,
-        "fail_at": None,         # s: the device reports a disconnection then (tests)
-        "openhaptics": {"library": None, "workspace_scale": 1.0},
-    },
-}
+@lru_cache(maxsize=None)
+def _defaults() -> str:
+    return json.dumps(params.defaults())
 
-MAX_COUPLING_STIFFNESS = 3e4  # N/m: the stiffest virtual coupling the haptic loop is tested at
+
+def defaults() -> dict:
+    """The scene's defaults (a fresh copy), from the parameter table."""
+    return json.loads(_defaults())
+
+
+def format_name() -> str:
+    return json.loads(params.by_json("format").text)
 
 
 def _merge(defaults: dict, given: dict, where: str) -> dict:
@@ -73,6 +45,9 @@ def _merge(defaults: dict, given: dict, where: str) -> dict:
             raise SceneError(f"unknown field '{where}{key}'; known fields here: {', '.join(defaults)}")
         if isinstance(defaults[key], dict) and isinstance(value, dict):
             out[key] = _merge(defaults[key], value, f"{where}{key}.")
+        elif isinstance(defaults[key], dict):
+            raise SceneError(f"{where}{key} = {json.dumps(value)} is invalid: it must be an object with the fields "
+                             f"{', '.join(defaults[key])}")
         else:
             out[key] = value
     return out
@@ -94,42 +69,13 @@ class Trajectory:
             return self.positions[-1].copy(), self.quaternions[-1].copy()
         a = (t - self.times[k]) / (self.times[k + 1] - self.times[k])
         p = (1 - a) * self.positions[k] + a * self.positions[k + 1]
-        return p, slerp(self.quaternions[k], self.quaternions[k + 1], a)
+        return p, quaternion.slerp(self.quaternions[k], self.quaternions[k + 1], a)
 
     def velocity(self, t: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Linear and angular velocity over [t - dt, t] (the step that ends at t)."""
         p1, q1 = self.pose(t)
         p0, q0 = self.pose(t - dt)
-        return (p1 - p0) / dt, rotation_vector(quat_multiply(q1, quat_conjugate(q0))) / dt
-
-
-def quat_multiply(a, b):
-    av, aw, bv, bw = a[:3], a[3], b[:3], b[3]
-    return np.concatenate([aw * bv + bw * av + np.cross(av, bv), [aw * bw - av @ bv]])
-
-
-def quat_conjugate(q):
-    return np.array([-q[0], -q[1], -q[2], q[3]])
-
-
-def rotation_vector(q):
-    q = q if q[3] >= 0 else -q
-    vn = np.linalg.norm(q[:3])
-    if vn < 1e-12:
-        return 2.0 * q[:3]
-    return 2.0 * math.atan2(vn, q[3]) / vn * q[:3]
-
-
-def slerp(q0, q1, a):
-    if q0 @ q1 < 0:
-        q1 = -q1
-    cos = min(1.0, float(q0 @ q1))
-    angle = math.acos(cos)
-    if angle < 1e-9:
-        q = (1 - a) * q0 + a * q1
-    else:
-        q = (math.sin((1 - a) * angle) * q0 + math.sin(a * angle) * q1) / math.sin(angle)
-    return q / np.linalg.norm(q)
+        return (p1 - p0) / dt, quaternion.rotation_vector(quaternion.multiply(q1, quaternion.conjugate(q0))) / dt
 
 
 def body_trajectory(spec: dict, start: np.ndarray) -> Trajectory:
@@ -171,19 +117,21 @@ class Scene:
         return _vector(seed, 3, "hand.palm_seed")
 
     def engine_params(self) -> dict:
-        d = self.data
-        m, s, c, solver = d["material"], d["springs"], d["coupling"], d["solver"]
-        return {
-            "young_modulus": m["young_modulus"], "poisson_ratio": m["poisson_ratio"],
-            "density": m["density"], "rayleigh_alpha": m["rayleigh_alpha"], "rayleigh_beta": m["rayleigh_beta"],
-            "palm_seed": self.palm_seed(), "handle_radius": d["hand"]["handle_radius"],
-            "spring_stiffness": s["stiffness"], "spring_damping": s["damping"],
-            "coupling_stiffness": c["stiffness"], "coupling_damping": c["damping"],
-            "coupling_angular_stiffness": c["angular_stiffness"], "coupling_angular_damping": c["angular_damping"],
-            "gravity": _vector(d["gravity"], 3, "gravity"), "dt": d["dt"],
-            "solver": solver["name"], "cg_tolerance": solver["cg_tolerance"],
-            "cg_max_iterations": solver["cg_max_iterations"],
-        }
+        """The hand rig's parameters (hh_params) by C name, from the scene."""
+        out = self.struct_values(params.STRUCT_PARAMS)
+        out["palm_seed"] = self.palm_seed()
+        return out
+
+    def struct_values(self, struct_id: int) -> dict:
+        """The fields of a C parameter struct by C name, from the scene (enums as indices)."""
+        out = {}
+        for p in params.structure(struct_id).rows:
+            if p.flags & params.INTERNAL:
+                continue
+            value = params.get(self.data, p)
+            if value is not None:
+                out[p.name] = [float(v) for v in value] if p.count > 1 else p.to_number(value)
+        return out
 
     def trajectory(self, handle_rest_com: np.ndarray) -> Trajectory:
         dev = self.data["device"]
@@ -217,55 +165,55 @@ def _vector(value, n: int, name: str) -> np.ndarray:
     return v
 
 
-def _positive(value, name: str, integer: bool = False) -> None:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
-    if not ok or (integer and int(value) != value):
-        kind = "a positive integer" if integer else "a positive number"
-        raise SceneError(f"{name} = {value!r} is invalid: it must be {kind}")
+def __getattr__(name: str):
+    if name == "FORMAT":  # the format's name, from the table
+        return format_name()
+    raise AttributeError(name)
+
+
+def check_fields(data: dict, body: bool = False, where=None) -> None:
+    """Every table field of a scene (or of one body, body=True) against its JSON type and range;
+    `where` turns a field's path into the name the message gives."""
+    for p in params.table():
+        if p.body == body and not p.flags & params.INTERNAL:
+            try:
+                params.check(p, params.get(data, p), where(p) if where else None)
+            except params.ParamError as e:
+                raise SceneError(str(e)) from None
+
+
+def _check_haptics(scene: "Scene") -> None:
+    """The haptic loop's settings as the library checks them when a session starts."""
+    from . import native_session
+
+    values = scene.struct_values(params.STRUCT_SESSION_PARAMS)
+    try:
+        native_session.check_params(**values)
+    except native.InvalidInput as e:
+        raise SceneError(str(e)) from None
 
 
 def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     if not isinstance(data, dict):
         raise SceneError("a scene is a JSON object")
-    merged = _merge(DEFAULTS, data, "")
-    if merged["format"] != FORMAT:
-        raise SceneError(f"format '{merged['format']}' is not supported: this version reads '{FORMAT}'")
-    _positive(merged["dt"], "dt")
-    _positive(merged["frames"], "frames", integer=True)
-    _positive(merged["hand"]["handle_radius"], "hand.handle_radius")
-    for key in ("thickness", "patch", "tolerance"):
-        _positive(merged["contact"][key], f"contact.{key}")
-    _positive(merged["contact"]["max_iterations"], "contact.max_iterations", integer=True)
-    stall = merged["contact"]["stall_factor"]
-    if not (isinstance(stall, (int, float)) and not isinstance(stall, bool) and math.isfinite(stall)
-            and (stall == 0 or stall >= 1)):
-        raise SceneError(f"contact.stall_factor = {stall!r} is invalid: use 0 (the sweeps go on to contact.tolerance "
-                         "or contact.max_iterations) or a factor of at least 1 (default 4: they may end once within "
-                         "4x the tolerance and no longer on course to reach it)")
-    if isinstance(merged["contact"]["threads"], bool) or merged["contact"]["threads"] not in (1, 2):
-        raise SceneError(f"contact.threads = {merged['contact']['threads']!r} is invalid: use 1 (the visual loop on "
-                         "one thread) or 2 (collision detection and a share of the solves on a second one)")
-    h = merged["haptics"]
-    _positive(h["rate"], "haptics.rate")
-    if not 100 <= h["rate"] <= 10000:
-        raise SceneError(f"haptics.rate = {h['rate']} Hz is out of range: choose 100 to 10000 (1000 is usual)")
-    for key in ("mass",):
-        _positive(h["arm"][key], f"haptics.arm.{key}")
-    _positive(h["max_force"], "haptics.max_force")
-    _positive(h["max_torque"], "haptics.max_torque")
-    k = merged["coupling"]["stiffness"]
-    if h["enabled"] and not (isinstance(k, (int, float)) and 0 < k <= MAX_COUPLING_STIFFNESS):
-        raise SceneError(f"coupling.stiffness = {k!r} N/m: with haptics on it must be in (0, "
-                         f"{MAX_COUPLING_STIFFNESS:g}] N/m, the range the haptic loop is tested stable in")
-    name = str(h["device"])
-    if name.split(":", 1)[0] not in ("simulated", "playback", "openhaptics", "hid", "external"):
-        raise SceneError(f"haptics.device '{name}' is unknown: use simulated, playback:<file>, openhaptics, "
-                         "hid or external")
+    if "format" not in data:
+        raise SceneError(f'the scene has no "format": add "format": "{format_name()}" (docs/scene_format.md)')
+    merged = _merge(defaults(), data, "")
+    if merged["format"] != format_name():
+        raise SceneError(f"format {merged['format']!r} is not supported: this version reads '{format_name()}'")
+    check_fields(merged)
+    scene = Scene(merged, Path(base_dir))
+    if merged["haptics"]["enabled"]:
+        _check_haptics(scene)
+    name = merged["haptics"]["device"]
+    if name.split(":", 1)[0] not in DEVICES:
+        raise SceneError(f"haptics.device '{name}' is unknown: use {', '.join(DEVICES)} (playback:<file>)")
     try:
         parsed = bodies_module.parse(merged["bodies"], Path(base_dir))
     except bodies_module.BodyError as e:
         raise SceneError(str(e)) from None
-    return Scene(merged, Path(base_dir), parsed)
+    scene.bodies = parsed
+    return scene
 
 
 def load(path: Path | str) -> Scene:

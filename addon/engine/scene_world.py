@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from . import bodies
 from . import mesh as meshing
-from . import native_world
+from . import native_world, params
 from . import scene as scenes
 
 
@@ -13,10 +13,7 @@ def build_world(scene: scenes.Scene, progress=None):
     """The native World of a scene: the hand (its render surface embedded in its tets as the
     collision surface) and the other bodies. Returns (world, hand index, hand model, bodies)."""
     model = scenes.build_model(scene, progress=progress)
-    c = scene.data["contact"]
-    world = native_world.World(dt=scene.dt, gravity=scene.data["gravity"], contact_thickness=c["thickness"],
-                               contact_patch=c["patch"], max_iterations=c["max_iterations"], tolerance=c["tolerance"],
-                               threads=c["threads"], stall_factor=c["stall_factor"])
+    world = native_world.World(**scene.struct_values(params.STRUCT_WORLD_PARAMS))
     tet_index, weights = meshing.embed_points(scene.nodes, scene.tets, scene.surface_vertices)
     sn, sw = native_world.embedded_surface(scene.tets, tet_index, weights)
     hand_spec = scene.data["hand"]

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import devices
-from . import native_world
+from . import native_world, params
 from . import scene as scenes
 from .native_session import LOG_COLUMNS, NativeSession, log_arrays
 from .scene_world import build_world
@@ -27,10 +27,8 @@ from .scene_world import build_world
 
 def create(world, hand: int, scene: scenes.Scene, log_capacity: int = 1 << 16) -> NativeSession:
     """The native session of a scene's world with the scene's haptics settings."""
-    h = scene.data["haptics"]
-    return NativeSession(world, hand, haptic_rate=h["rate"], coupling=scene.data["coupling"],
-                         max_force=h["max_force"], max_torque=h["max_torque"], linearized=bool(h["linearized"]),
-                         log_capacity=log_capacity)
+    return NativeSession(world, hand, log_capacity=log_capacity,
+                         **scene.struct_values(params.STRUCT_SESSION_PARAMS))
 
 
 def attach_device(session: NativeSession, scene: scenes.Scene, handle_com: np.ndarray, name: str | None = None):

@@ -24,10 +24,10 @@ import numpy as np
 
 from .mesh import (
     MeshError,
-    _capsule_distance,
-    _clean_surface,
-    _closest_point_on_triangles,
-    _smooth_union,
+    capsule_distance,
+    clean_surface,
+    closest_point_on_triangles,
+    smooth_union,
     surface_volume,
     tet_signed_volumes,
     tetrahedralize,
@@ -64,7 +64,7 @@ def _contour_distance(distance, lower, upper, spacing, project=0):
     contour = grid.contour([0.0], scalars="distance", method="marching_cubes").triangulate()
     V = np.asarray(contour.points, dtype=np.float64)
     F = np.asarray(contour.faces, dtype=np.int64).reshape(-1, 4)[:, 1:]
-    V, F = _clean_surface(V, F)
+    V, F = clean_surface(V, F)
     for _ in range(project):
         V = _project_to_zero_level(distance, V, spacing.min())
     if surface_volume(V, F) < 0.0:
@@ -99,7 +99,7 @@ def _sphere_distance(p, centre, radius):
 
 
 def _smooth_intersection(d1, d2, k):
-    return -_smooth_union(-d1, -d2, k)
+    return -smooth_union(-d1, -d2, k)
 
 
 # --------------------------------------------------------------------------------------------
@@ -137,20 +137,20 @@ _BUNNY_EAR_BLEND = 0.008
 def _bunny_distance(p):
     body = _ellipsoid_distance(p, *_BUNNY_BODY)
     for centre, radii in _BUNNY_HAUNCHES + _BUNNY_FEET:
-        body = _smooth_union(body, _ellipsoid_distance(p, centre, radii), _BUNNY_BLEND)
-    head = _smooth_union(
+        body = smooth_union(body, _ellipsoid_distance(p, centre, radii), _BUNNY_BLEND)
+    head = smooth_union(
         _ellipsoid_distance(p, *_BUNNY_HEAD), _sphere_distance(p, *_BUNNY_SNOUT), _BUNNY_BLEND
     )
     # Each ear blends with the head only, so the two ears stay apart.
     head = np.min(
         [
-            _smooth_union(head, _capsule_distance(p, a, b, r), _BUNNY_EAR_BLEND)
+            smooth_union(head, capsule_distance(p, a, b, r), _BUNNY_EAR_BLEND)
             for a, b, r in _BUNNY_EARS
         ],
         axis=0,
     )
-    shape = _smooth_union(body, head, _BUNNY_BLEND)
-    shape = _smooth_union(shape, _sphere_distance(p, *_BUNNY_TAIL), _BUNNY_BLEND)
+    shape = smooth_union(body, head, _BUNNY_BLEND)
+    shape = smooth_union(shape, _sphere_distance(p, *_BUNNY_TAIL), _BUNNY_BLEND)
     return _smooth_intersection(shape, _BUNNY_GROUND - p[..., 2], 0.004)
 
 
@@ -591,7 +591,7 @@ def _nearest_triangles(V, F, points, chunk=32):
         owners = np.repeat(np.arange(len(points)), len(ids))
         tris = np.tile(ids, len(points))
         a, b, c = (V[F[tris, i]] for i in range(3))
-        closest = _closest_point_on_triangles(points[owners], a, b, c)
+        closest = closest_point_on_triangles(points[owners], a, b, c)
         gap = np.linalg.norm(points[owners] - closest, axis=1).reshape(len(points), len(ids))
         column = gap.argmin(axis=1)
         gap = gap[np.arange(len(points)), column]

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import native_world
+from . import native_world, quaternion
 from . import scene as scenes
 from . import session as session_module
 from .scene_world import build_world
@@ -36,7 +36,7 @@ class ScriptedInputs:
     """What drives a scene without haptics: the device trajectory, through the virtual coupling,
     applied for the step that ends at time t (kinematic bodies follow their scripts natively)."""
 
-    def __init__(self, scene: scenes.Scene, world, hand: int, model, others):
+    def __init__(self, scene: scenes.Scene, world, hand: int, model):
         self.world, self.hand = world, hand
         self.device = scene.trajectory(np.array(model.info()["handle_com"]))
         self.device_on = bool(scene.data["device"]["enabled"])
@@ -51,7 +51,7 @@ def run(scene: scenes.Scene, progress=None) -> dict:
     """Simulates scene.frames visual-loop steps and returns the result arrays."""
     world, hand, model, others, (tet_index, weights) = build_world(
         scene, progress=(lambda f, m: progress(0.2 * f, m)) if progress else None)
-    inputs = ScriptedInputs(scene, world, hand, model, others)
+    inputs = ScriptedInputs(scene, world, hand, model)
     trajectory = inputs.device
     frames, dt, n = scene.frames, scene.dt, model.n_nodes
     haptics = None
@@ -173,22 +173,13 @@ def write(result: dict, path: Path | str) -> Path:
     return path
 
 
-def rotation_matrix(q: np.ndarray) -> np.ndarray:
-    x, y, z, s = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - s * z), 2 * (x * z + s * y)],
-        [2 * (x * y + s * z), 1 - 2 * (x * x + z * z), 2 * (y * z - s * x)],
-        [2 * (x * z - s * y), 2 * (y * z + s * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
 def flesh_deformation(result: dict) -> np.ndarray:
     """Per frame, the largest distance (m) of a node from where the handle's rigid motion alone
     would carry it: how much the flesh lags, sags or bulges."""
     rest, com0 = result["rest_nodes"], result["handle_pose"][0, :3]
     out = np.empty(len(result["time"]))
     for k, pose in enumerate(result["handle_pose"]):
-        rigid = pose[:3] + (rest - com0) @ rotation_matrix(pose[3:]).T
+        rigid = pose[:3] + (rest - com0) @ quaternion.to_matrix(pose[3:]).T
         out[k] = np.linalg.norm(result["positions"][k] - rigid, axis=1).max()
     return out
 

@@ -13,6 +13,8 @@
 #ifndef HAPTIC_HAND_H
 #define HAPTIC_HAND_H
 
+#include "haptic_hand_params.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -32,37 +34,33 @@ extern "C" {
  * (warm started, to the relative residual cg_tolerance); renewed when that lowers the mean cost
  * per step. For large meshes (docs/maths.md, "Schur-complement solve"). */
 #define HH_SOLVER_REUSED_CHOLESKY 2
+/* Soft bodies only: HH_SOLVER_CHOLESKY below 1000 tets, HH_SOLVER_REUSED_CHOLESKY from there on
+ * (the rule bench/bench_soft_solver.py supports; docs/contact.md). */
+#define HH_SOLVER_AUTO 3
 
-#define HH_API_VERSION 1
+#define HH_API_VERSION 2
 
 typedef struct hh_model hh_model;
 typedef struct hh_data hh_data;
 
-/* Parameters of a hand rig. Fill with hh_default_params() then change what you need. */
+/* The parameter structs are built field by field from the parameter table
+ * (haptic_hand_params.h), which also holds every field's unit, default, range and meaning.
+ * Fill one with its hh_default_* function, then change what you need; struct_size catches a
+ * caller built against another version of this header. */
+#define HH_FIELD_DOUBLE_1(name) double name;
+#define HH_FIELD_DOUBLE_3(name) double name[3];
+#define HH_FIELD_INT_1(name) int name;
+#define HH_FIELD_HH_KIND_DOUBLE(name, count) HH_FIELD_DOUBLE_##count(name)
+#define HH_FIELD_HH_KIND_INT(name, count) HH_FIELD_INT_##count(name)
+#define HH_FIELD_HH_KIND_BOOL(name, count) HH_FIELD_INT_##count(name)
+#define HH_FIELD_HH_KIND_ENUM(name, count) HH_FIELD_INT_##count(name)
+#define HH_FIELD(name, kind, count, ...) HH_FIELD_##kind(name, count)
+
+/* A hand rig: material of the flesh, the rigid handle (Section 4), its springs (Eq. 4), the
+ * one-directional virtual coupling to the device (Fig. 2, top), integration and solver. */
 typedef struct hh_params {
-    int struct_size;          /* sizeof(hh_params), checked to catch ABI mismatches */
-    /* material of the flesh (linear co-rotational FEM, Mueller & Gross 2004) */
-    double young_modulus;     /* Pa, > 0 */
-    double poisson_ratio;     /* in (0, 0.5) */
-    double density;           /* kg/m^3, > 0 */
-    double rayleigh_alpha;    /* 1/s, >= 0: mass-proportional damping (breaks momentum conservation) */
-    double rayleigh_beta;     /* s, >= 0: stiffness-proportional damping */
-    /* rigid handle (Section 4): nodes within handle_radius of palm_seed */
-    double palm_seed[3];      /* m */
-    double handle_radius;     /* m, > 0 */
-    double spring_stiffness;  /* k of Eq. 4, N/m, > 0 */
-    double spring_damping;    /* d of Eq. 4, N s/m, >= 0 */
-    /* one-directional viscoelastic virtual coupling device frame -> handle (Fig. 2, top) */
-    double coupling_stiffness;         /* N/m, >= 0 */
-    double coupling_damping;           /* N s/m, >= 0 */
-    double coupling_angular_stiffness; /* N m/rad, >= 0 */
-    double coupling_angular_damping;   /* N m s/rad, >= 0 */
-    /* integration */
-    double gravity[3];        /* m/s^2 */
-    double dt;                /* s, in (0, 0.1] */
-    int solver;               /* HH_SOLVER_CHOLESKY, HH_SOLVER_CG or HH_SOLVER_REUSED_CHOLESKY */
-    double cg_tolerance;      /* relative residual for CG, in (0, 1) */
-    int cg_max_iterations;    /* > 0 */
+    int struct_size;
+    HH_PARAMS_ROWS(HH_FIELD)
 } hh_params;
 
 typedef struct hh_model_info {
@@ -91,6 +89,42 @@ typedef struct hh_step_stats {
 const char* hh_last_error(void);
 int hh_api_version(void);
 
+/* --- the parameter table (haptic_hand_params.h), for bindings and tools --- */
+#define HH_STRUCT_NONE 0 /* a scene-file field with no C struct */
+#define HH_STRUCT_PARAMS 1
+#define HH_STRUCT_WORLD_PARAMS 2
+#define HH_STRUCT_MATERIAL 3
+#define HH_STRUCT_SESSION_PARAMS 4
+
+/* One row of the table, as declared there (strings live in the library). A row shared by two
+ * structs (dt, gravity, the coupling) comes once for each, with the same values. */
+typedef struct hh_param_info {
+    int struct_size;
+    const char* name;
+    const char* json;          /* "" for HH_INTERNAL rows */
+    const char* unit;
+    const char* label;
+    const char* text;          /* enum choices "a|b|c", or the JSON default of a row with no number */
+    const char* description;
+    const char* advice;
+    int kind;                  /* HH_KIND_* */
+    int count;
+    int flags;                 /* HH_OPEN_*, HH_NULLABLE, HH_UI_*, HH_FOR_* ... */
+    int structure;             /* HH_STRUCT_* */
+    int offset;                /* byte offset of the field in its struct, -1 without one */
+    double default_value[3];
+    double min, max, soft_min, soft_max;
+} hh_param_info;
+
+int hh_param_count(void);
+int hh_param_info_get(int index, hh_param_info* out);
+/* sizeof the struct HH_STRUCT_* (the bindings check their layout against it). */
+int hh_struct_size(int structure, int* out_size);
+/* Checks a value (count numbers; enums as their index, booleans as 0 / 1) of the row with this
+ * JSON path against its range: HH_OK, or HH_ERR_INVALID_ARGUMENT with a message naming the
+ * field, the valid range and a good value. The same check the structs get. */
+int hh_param_check(const char* json, const double* values, int count);
+
 /* --- model --- */
 void hh_default_params(hh_params* params);
 /* Validates everything (finite positive parameters, positively oriented tets, a handle
@@ -105,6 +139,10 @@ int hh_model_params(const hh_model* model, hh_params* out);
 /* Nodes a handle of this radius would capture (without building a model). */
 int hh_count_captured(const double* rest_positions, int n_nodes, const double seed[3],
                       double radius, int* out_count);
+/* The same count, and HH_ERR_INVALID_ARGUMENT with hh_model_create's message when the handle
+ * would hold fewer than 4 nodes or all of them. */
+int hh_check_handle(const double* rest_positions, int n_nodes, const double seed[3], double radius,
+                    int* out_count);
 
 /* --- data (state) --- */
 int hh_data_create(const hh_model* model, hh_data** out_data);
@@ -133,7 +171,8 @@ int hh_step_monolithic(const hh_model* model, hh_data* data, hh_step_stats* out_
  * and returns max|v_schur - v_mono| / max|v_mono| (0 when both are zero). */
 int hh_compare_solvers(const hh_model* model, const hh_data* data, double* out_relative_difference);
 
-/* --- handle-space linearization (Section 3, Garre & Otaduy 2009) of the hand alone --- */
+/* --- handle-space linearization of the hand alone (Section 3, Garre & Otaduy 2009); with contact,
+ * hh_world_coupling_model --- */
 /* From the current state (not changed): the step with the handle driven at the end-of-step
  * velocity v_h = (v_com, omega) (prescribed to the pose that velocity reaches), and the springs'
  * wrench on the handle at the end of that step as a linear function of v_h about v_h = 0:
@@ -178,25 +217,12 @@ typedef struct hh_world hh_world;
 
 typedef struct hh_world_params {
     int struct_size;
-    double dt;                /* s, in (0, 0.1] */
-    double gravity[3];        /* m/s^2 */
-    double contact_thickness; /* m, > 0: surfaces are kept this far apart */
-    double contact_patch;     /* m, > 0: per pair of bodies, one contact (the deepest) per cell
-                                 of this size, which bounds the contact count of large areas */
-    int max_iterations;       /* projected Gauss-Seidel sweeps, > 0 */
-    double tolerance;         /* m/s, > 0: largest constraint velocity error that ends the sweeps */
-    double stall_factor;      /* 0, or >= 1 (default 4): the sweeps also end once their residual is
-                                 within this factor of the tolerance and, at their recent rate, the
-                                 tolerance is out of reach within max_iterations; 0: they go on to
-                                 the tolerance or max_iterations */
-    int threads;              /* 1 or 2 (default): with 2, a second thread runs collision detection
-                                 and a share of the bodies' solves side by side with the caller's
-                                 (same results; the haptic loop's thread is separate) */
+    HH_WORLD_PARAMS_ROWS(HH_FIELD)
 } hh_world_params;
 
 typedef struct hh_material {
     int struct_size;
-    double young_modulus, poisson_ratio, density, rayleigh_alpha, rayleigh_beta;
+    HH_MATERIAL_STRUCT_ROWS(HH_FIELD)
 } hh_material;
 
 typedef struct hh_world_stats {
@@ -278,17 +304,7 @@ typedef struct hh_session hh_session;
 
 typedef struct hh_session_params {
     int struct_size;
-    double haptic_rate;                /* Hz, 100..10000 (default 1000) */
-    double coupling_stiffness;         /* N/m: virtual coupling device <-> proxy */
-    double coupling_damping;           /* N s/m */
-    double coupling_angular_stiffness; /* N m/rad */
-    double coupling_angular_damping;   /* N m s/rad */
-    double max_force;                  /* N: feedback clamp */
-    double max_torque;                 /* N m */
-    int linearized;                    /* 1: proxy under the linearized coupling force (the paper);
-                                          0: feedback from the last visual-loop handle only */
-    int log_capacity;                  /* rows of the haptic log ring (one per haptic step) */
-    int realtime;                      /* 1: live haptic thread asks for SCHED_FIFO (needs CAP_SYS_NICE) */
+    HH_SESSION_PARAMS_ROWS(HH_FIELD)
 } hh_session_params;
 
 /* One row of the haptic log, HH_LOG_COLUMNS doubles: time, period, step cost (s), device
@@ -317,6 +333,9 @@ typedef struct hh_session_frame {
 } hh_session_frame;
 
 void hh_default_session_params(hh_session_params* params);
+/* The checks hh_session_create makes, without a world: every field, and the coupling's
+ * stiffness within what the haptic loop is tested stable at. */
+int hh_session_params_check(const hh_session_params* params);
 /* The session borrows the world (it must outlive the session) and drives its hand. */
 int hh_session_create(hh_world* world, int hand_body, const hh_session_params* params, hh_session** out);
 void hh_session_free(hh_session* session);

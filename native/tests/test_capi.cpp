@@ -62,7 +62,7 @@ TEST(bad_parameters_are_named) {
     CHECK(create(b, p, msg) == HH_ERR_INVALID_ARGUMENT && mentions(msg, "density"));
     p = params();
     p.spring_stiffness = 0;
-    CHECK(create(b, p, msg) == HH_ERR_INVALID_ARGUMENT && mentions(msg, "spring_stiffness"));
+    CHECK(create(b, p, msg) == HH_ERR_INVALID_ARGUMENT && mentions(msg, "springs.stiffness"));
     p = params();
     p.poisson_ratio = 0.5;
     CHECK(create(b, p, msg) == HH_ERR_INVALID_ARGUMENT && mentions(msg, "poisson_ratio"));

@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 
 import haptic_hand
 from haptic_hand.blender import meshdata, ops_bake, scene_export
-from haptic_hand.engine import bake_formats, simulate
+from haptic_hand.engine import bake_formats, quaternion, simulate
 from haptic_hand.engine import mesh as meshing
 from haptic_hand.engine import scene as scenes
 
@@ -106,7 +106,7 @@ def test_hand_deforms_where_it_touches(bunny_bake):
     c0 = log["handle_pose"][0, :3]
     k = FRAMES
     pose = log["handle_pose"][k]
-    rigid = pose[:3] + (hand[0] - c0) @ meshdata.rotation_from_xyzs(pose[3:]).T
+    rigid = pose[:3] + (hand[0] - c0) @ quaternion.to_matrix(pose[3:]).T
     deformation = np.linalg.norm(hand[k] - rigid, axis=1)
     gap, _ = cKDTree(bunny[k]).query(hand[k])
     touching, far = gap < 3e-3, gap > 3e-2

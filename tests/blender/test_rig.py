@@ -28,7 +28,8 @@ def test_tetrahedralize_procedural_hand_encloses_render_mesh(addon):
     v, f = meshing.procedural_hand()
     # an object away from the origin: tets must come back in its own coordinates
     hand = add_mesh(context, "Hand", v, f, location=(0.3, -0.2, 0.1))
-    s.edge_length_fac, s.coarsen, s.epsilon = 0.2, True, 0.004
+    o = hand.haptic_hand  # each mesh keeps its own tetrahedralize settings
+    o.edge_length_fac, o.coarsen, o.epsilon = 0.2, True, 0.004
     assert bpy.ops.haptic_hand.use_as_hand() == {"FINISHED"}
     assert bpy.ops.haptic_hand.tetrahedralize() == {"FINISHED"}
 
@@ -42,7 +43,7 @@ def test_tetrahedralize_procedural_hand_encloses_render_mesh(addon):
     # The tet boundary encloses the render surface up to fTetWild's envelope (epsilon times
     # the bounding-box diagonal): points 2 envelopes inside the surface are inside the tets,
     # points 2 envelopes outside are outside.
-    envelope = s.epsilon * np.linalg.norm(render.max(0) - render.min(0))
+    envelope = o.epsilon * np.linalg.norm(render.max(0) - render.min(0))
     normals = np.empty(len(render) * 3, dtype=np.float32)
     hand.data.vertex_normals.foreach_get("vector", normals)
     normals = normals.reshape(-1, 3).astype(float)

@@ -11,7 +11,7 @@ import numpy as np
 from haptic_hand.blender import meshdata, ops_bake, scene_export
 from haptic_hand.engine import mesh as meshing
 from haptic_hand.engine import scene as scenes
-from haptic_hand.engine import simulate
+from haptic_hand.engine import quaternion, simulate
 
 from blender_helpers import SAMPLES, open_copy
 
@@ -53,11 +53,10 @@ def test_bunny_scene_exports_to_the_sample_scene(addon, built_scenes, tmp_path):
     finally:
         export.cleanup()
     assert export.folder is None
-    # the simulation threads the user picked reach the scene, and a soft body's Reuse factor
-    # its solver (off: the default per-step factor, no solver written)
-    assert "solver" not in bunny
-    context.scene.haptic_hand.world_threads = 1
-    bpy.data.objects["bunny"].haptic_hand.reuse_factor = True
+    # the simulation threads the user picked reach the scene, and a soft body's solver
+    assert bunny["solver"]["name"] == next(b for b in sample.bodies if b["name"] == "bunny")["solver"]["name"]
+    context.scene.haptic_hand.threads = 1
+    bpy.data.objects["bunny"].haptic_hand.solver = "reused_cholesky"
     export = scene_export.export(context)
     try:
         assert export.scene.data["contact"]["threads"] == 1
@@ -114,7 +113,7 @@ def test_rigid_body_bake_keys_its_transform(addon, built_scenes, tmp_path):
             context.scene.frame_set(frame)
             shown = meshdata.world_vertices(cube, context.scene)
             pose = poses[k]
-            expected = pose[:3] + (rest_v - poses[0, :3]) @ meshdata.rotation_from_xyzs(pose[3:]).T
+            expected = pose[:3] + (rest_v - poses[0, :3]) @ quaternion.to_matrix(pose[3:]).T
             assert np.abs(shown - expected).max() < 1e-5, (cube.name, frame)
             heights[cube.name].append(shown[:, 2].min())
     falling, resting = (np.array(heights[c.name]) for c in cubes)

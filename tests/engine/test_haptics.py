@@ -117,7 +117,7 @@ def wall_push(linearized: bool, k_vc: float) -> dict:
 
 
 def test_stiffest_coupling_on_a_wall_stays_stable_with_linearization_and_not_without():
-    k_max = scenes.MAX_COUPLING_STIFFNESS
+    k_max = 3e4  # docs/haptics.md: the stiffest coupling the haptic loop is tested stable at (refused above, natively)
     lin = wall_push(True, k_max)
     per_second = [slice(int(i * 990), int((i + 1) * 990)) for i in range(5)]
     energy = [lin["coupling_energy"][s].max() for s in per_second]

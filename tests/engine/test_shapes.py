@@ -30,7 +30,7 @@ def distance_outside_tets(nodes, tets, points):
         faces = nodes[mesh.tet_boundary_faces(tets)]
         p = np.repeat(points[outside], len(faces), axis=0)
         a, b, c = (np.tile(faces[:, i], (len(outside), 1)) for i in range(3))
-        gap = np.linalg.norm(p - mesh._closest_point_on_triangles(p, a, b, c), axis=1)
+        gap = np.linalg.norm(p - mesh.closest_point_on_triangles(p, a, b, c), axis=1)
         distance[outside] = gap.reshape(len(outside), len(faces)).min(axis=1)
     return distance
 

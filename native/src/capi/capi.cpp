@@ -23,29 +23,6 @@ extern "C" {
 const char* hh_last_error(void) { return hh::capi::last_error().c_str(); }
 int hh_api_version(void) { return HH_API_VERSION; }
 
-void hh_default_params(hh_params* p) {
-    if (!p) return;
-    std::memset(p, 0, sizeof(*p));
-    p->struct_size = sizeof(hh_params);
-    p->young_modulus = 5e4;  // soft tissue, Pa
-    p->poisson_ratio = 0.3;
-    p->density = 1000;
-    p->rayleigh_alpha = 0;
-    p->rayleigh_beta = 0.01;
-    p->handle_radius = 0.03;
-    p->spring_stiffness = 1e4;
-    p->spring_damping = 10;
-    p->coupling_stiffness = 2e3;
-    p->coupling_damping = 20;
-    p->coupling_angular_stiffness = 20;
-    p->coupling_angular_damping = 0.2;
-    p->gravity[2] = -9.81;
-    p->dt = 1.0 / 30.0;
-    p->solver = HH_SOLVER_CHOLESKY;
-    p->cg_tolerance = 1e-8;
-    p->cg_max_iterations = 5000;
-}
-
 int hh_model_create(const double* rest_positions, int n_nodes, const int* tets, int n_tets,
                     const hh_params* params, hh_model** out_model) {
     return guard([&] {
@@ -109,6 +86,16 @@ int hh_count_captured(const double* rest_positions, int n_nodes, const double se
         require(rest_positions && seed && out_count && n_nodes >= 0, "hh_count_captured: bad arguments");
         const hh::VecX rest = Eigen::Map<const hh::VecX>(rest_positions, 3 * n_nodes);
         *out_count = static_cast<int>(hh::capture_nodes(rest, vec3(seed), radius).size());
+        return HH_OK;
+    });
+}
+
+int hh_check_handle(const double* rest_positions, int n_nodes, const double seed[3], double radius, int* out_count) {
+    return guard([&] {
+        require(rest_positions && seed && out_count && n_nodes >= 0, "hh_check_handle: bad arguments");
+        const hh::VecX rest = Eigen::Map<const hh::VecX>(rest_positions, 3 * n_nodes);
+        *out_count = static_cast<int>(hh::capture_nodes(rest, vec3(seed), radius).size());
+        hh::check_capture(*out_count, n_nodes, radius);
         return HH_OK;
     });
 }

@@ -4,6 +4,7 @@
 #include <memory>
 
 #include "capi/guard.h"
+#include "params/table.h"
 #include "device/openhaptics.h"
 #include "device/playback.h"
 #include "device/simulated_arm.h"
@@ -30,32 +31,37 @@ hh::Keyframes keyframes(const double* times, const double* positions, const doub
     require(times && positions && n >= 1, "a device trajectory needs at least one timed pose");
     return hh::Keyframes(times, positions, quaternions, n);
 }
+// The stiffest device coupling the haptic loop is tested stable at (N/m).
+constexpr double kMaxHapticCouplingStiffness = 3e4;
+// fail_at: a time from the table's range, or +inf for a device that never fails.
+void require_fail_at(double fail_at) {
+    if (fail_at != HUGE_VAL) hh::params::check("haptics.fail_at", fail_at);
+}
+// Every field against the table, then what holds between fields: the haptic loop's stability.
+void validate_session_params(const hh_session_params& p) {
+    hh::params::validate(HH_STRUCT_SESSION_PARAMS, &p);
+    require(p.coupling_stiffness <= kMaxHapticCouplingStiffness,
+            "coupling.stiffness = " + std::to_string(p.coupling_stiffness) +
+                " N/m is invalid with the haptic loop on: it must be at most 3e4 N/m, the stiffest coupling the "
+                "haptic loop is tested stable at; lower it (1e3 to 3e3 N/m suits a desktop device)");
+}
 void put_pose(const double* in, double* out) { std::memcpy(out, in, 7 * sizeof(double)); }
 }  // namespace
 
 extern "C" {
 
-void hh_default_session_params(hh_session_params* p) {
-    if (!p) return;
-    const hh::SessionParams d;
-    p->struct_size = sizeof(hh_session_params);
-    p->haptic_rate = d.haptic_rate;
-    p->coupling_stiffness = d.coupling.stiffness;
-    p->coupling_damping = d.coupling.damping;
-    p->coupling_angular_stiffness = d.coupling.angular_stiffness;
-    p->coupling_angular_damping = d.coupling.angular_damping;
-    p->max_force = d.max_force;
-    p->max_torque = d.max_torque;
-    p->linearized = d.linearized ? 1 : 0;
-    p->log_capacity = static_cast<int>(d.log_capacity);
-    p->realtime = d.realtime ? 1 : 0;
+int hh_session_params_check(const hh_session_params* params) {
+    return guard([&] {
+        require(params != nullptr, "hh_session_params_check: null pointer");
+        validate_session_params(*params);
+        return HH_OK;
+    });
 }
 
 int hh_session_create(hh_world* world, int hand_body, const hh_session_params* params, hh_session** out) {
     return guard([&] {
         require(world && params && out, "hh_session_create: null pointer");
-        require(params->struct_size == sizeof(hh_session_params),
-                "hh_session_params size mismatch: the Python bindings and the native library are out of date");
+        validate_session_params(*params);
         require(!world->in_live_session.load(), "this world already has a live session");
         hh::SessionParams p;
         p.haptic_rate = params->haptic_rate;
@@ -66,7 +72,6 @@ int hh_session_create(hh_world* world, int hand_body, const hh_session_params* p
         p.max_force = params->max_force;
         p.max_torque = params->max_torque;
         p.linearized = params->linearized != 0;
-        require(params->log_capacity >= 1, "the haptic log needs room for at least one row");
         p.log_capacity = static_cast<std::size_t>(params->log_capacity);
         p.realtime = params->realtime != 0;
         *out = new hh_session(world, hand_body, p);
@@ -87,10 +92,10 @@ int hh_session_device_simulated(hh_session* session, const double* times, const 
     return guard([&] {
         hh_session& s = session_of(session);
         require_stopped(s);
-        require(std::isfinite(arm_mass) && arm_mass > 0 && std::isfinite(arm_stiffness) && arm_stiffness >= 0 &&
-                    std::isfinite(arm_damping) && arm_damping >= 0,
-                "the simulated arm needs a mass > 0 and a stiffness and damping >= 0 (finite)");
-        require(!std::isnan(fail_at), "fail_at must be a time, not NaN");
+        hh::params::check("haptics.arm.mass", arm_mass);
+        hh::params::check("haptics.arm.stiffness", arm_stiffness);
+        hh::params::check("haptics.arm.damping", arm_damping);
+        require_fail_at(fail_at);
         hh::ArmParams arm{arm_mass, arm_stiffness, arm_damping, fail_at};
         s.s.set_device(std::make_unique<hh::SimulatedArm>(keyframes(times, positions, quaternions, n), arm));
         return HH_OK;
@@ -102,7 +107,7 @@ int hh_session_device_playback(hh_session* session, const double* times, const d
     return guard([&] {
         hh_session& s = session_of(session);
         require_stopped(s);
-        require(!std::isnan(fail_at), "fail_at must be a time, not NaN");
+        require_fail_at(fail_at);
         s.s.set_device(std::make_unique<hh::Playback>(keyframes(times, positions, quaternions, n), fail_at));
         return HH_OK;
     });
@@ -142,7 +147,7 @@ int hh_session_device_openhaptics(hh_session* session, const char* library, doub
     return guard([&] {
         hh_session& s = session_of(session);
         require_stopped(s);
-        require(std::isfinite(workspace_scale) && workspace_scale > 0, "the workspace scale must be > 0");
+        hh::params::check("haptics.openhaptics.workspace_scale", workspace_scale);
         require(std::isfinite(max_force) && max_force > 0, "the device's force limit must be > 0");
         hh::OpenHapticsParams p;
         if (library) p.library = library;

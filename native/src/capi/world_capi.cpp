@@ -3,6 +3,7 @@
 #include <memory>
 
 #include "capi/guard.h"
+#include "params/table.h"
 #include "rigid/quaternion.h"
 
 using hh::capi::guard;
@@ -27,11 +28,6 @@ hh::Body& body_at(hh_world* world, int body) {
 }
 const hh::Body& body_at(const hh_world* world, int body) { return body_at(const_cast<hh_world*>(world), body); }
 
-void require_finite_positive(double value, const char* name, const char* rule) {
-    require(std::isfinite(value) && value > 0, std::string(name) + " = " + std::to_string(value) +
-                                                   " is invalid: it must be " + rule);
-}
-
 void set_surface(hh::CollisionSurface& s, const int* nodes, const double* weights, int n_vertices, const int* faces,
                  int n_faces) {
     require(n_vertices > 0 && n_faces > 0 && nodes && weights && faces,
@@ -47,57 +43,32 @@ void set_surface(hh::CollisionSurface& s, const int* nodes, const double* weight
     for (int t = 0; t < n_faces; ++t) s.triangles[t] = Eigen::Vector3i(faces[3 * t], faces[3 * t + 1], faces[3 * t + 2]);
 }
 
-void require_friction(double friction) {
-    require(std::isfinite(friction) && friction >= 0,
-            "friction = " + std::to_string(friction) + " is invalid: it must be zero or positive");
+// A body's Coulomb coefficient, checked against the table's row of the body (or the hand).
+void require_friction(double friction, bool hand = false) {
+    hh::params::check(hand ? "hand.friction" : "bodies[].friction", friction);
+}
+
+// HH_SOLVER_AUTO's rule: the per-step factor (exact to round-off) for a soft body of fewer tets
+// than this, the reused factor from here on. On a soft block resting on the ground
+// (bench/bench_soft_solver.py) both cost under ~1 ms a frame at 384 tets and the reused factor
+// took 0.21x the per-step factor's time at 2058 tets and 0.07x at 20250.
+constexpr int kReusedFactorFromTets = 1000;
+
+// The soft-body solver a C code names (auto: by the body's tet count).
+hh::DeformableSolver soft_solver(int solver, int n_tets) {
+    if (solver == HH_SOLVER_AUTO) solver = n_tets >= kReusedFactorFromTets ? HH_SOLVER_REUSED_CHOLESKY : HH_SOLVER_CHOLESKY;
+    return solver == HH_SOLVER_REUSED_CHOLESKY ? hh::DeformableSolver::ReusedCholesky : hh::DeformableSolver::Cholesky;
 }
 
 }  // namespace
 
 extern "C" {
 
-void hh_default_world_params(hh_world_params* p) {
-    if (!p) return;
-    std::memset(p, 0, sizeof(*p));
-    p->struct_size = sizeof(hh_world_params);
-    p->dt = 1.0 / 30.0;
-    p->gravity[2] = -9.81;
-    p->contact_thickness = 1e-3;
-    p->contact_patch = 4e-3;
-    p->max_iterations = 300;
-    p->tolerance = 1e-5;
-    p->stall_factor = 4;
-    p->threads = 2;
-}
-
-void hh_default_material(hh_material* m) {
-    if (!m) return;
-    std::memset(m, 0, sizeof(*m));
-    m->struct_size = sizeof(hh_material);
-    m->young_modulus = 5e4;
-    m->poisson_ratio = 0.3;
-    m->density = 1000;
-    m->rayleigh_beta = 0.01;
-}
-
 int hh_world_create(const hh_world_params* p, hh_world** out) {
     return guard([&] {
         require(p && out, "hh_world_create: null pointer");
         *out = nullptr;
-        require(p->struct_size == static_cast<int>(sizeof(hh_world_params)),
-                "hh_world_params has the wrong size: rebuild the native library (make native)");
-        require_finite_positive(p->dt, "dt", "a positive time step in seconds");
-        require(p->dt <= 0.1, "dt = " + std::to_string(p->dt) + " is invalid: it must be at most 0.1 s");
-        for (double g : p->gravity) require(std::isfinite(g), "gravity must be finite");
-        require_finite_positive(p->contact_thickness, "contact_thickness", "a positive distance in metres (e.g. 1e-3)");
-        require_finite_positive(p->contact_patch, "contact_patch", "a positive distance in metres (e.g. 4e-3)");
-        require(p->max_iterations > 0, "max_iterations must be positive");
-        require_finite_positive(p->tolerance, "tolerance", "a positive speed in m/s (e.g. 1e-5)");
-        require(std::isfinite(p->stall_factor) && (p->stall_factor == 0 || p->stall_factor >= 1),
-                "stall_factor = " + std::to_string(p->stall_factor) +
-                    " is invalid: use 0 (sweep to the tolerance or max_iterations) or a factor of at least 1 (e.g. 4)");
-        require(p->threads == 1 || p->threads == 2,
-                "threads = " + std::to_string(p->threads) + " is invalid: use 1 (all on the caller's thread) or 2");
+        hh::params::validate(HH_STRUCT_WORLD_PARAMS, p);
         hh::WorldSettings s;
         s.dt = p->dt;
         s.gravity = vec3(p->gravity);
@@ -119,7 +90,7 @@ int hh_world_add_hand(hh_world* world, const hh_model* model, const int* surface
                       int* out_body) {
     return guard([&] {
         require(world && model && out_body, "hh_world_add_hand: null pointer");
-        require_friction(friction);
+        require_friction(friction, true);
         auto b = std::make_unique<hh::Body>();
         b->kind = hh::BodyKind::Hand;
         b->friction = friction;
@@ -143,41 +114,36 @@ int hh_world_add_soft_body(hh_world* world, const double* nodes, int n_nodes, co
                            double friction, int* out_body) {
     return guard([&] {
         require(world && material && out_body, "hh_world_add_soft_body: null pointer");
-        require(material->struct_size == static_cast<int>(sizeof(hh_material)),
-                "hh_material has the wrong size: rebuild the native library (make native)");
-        require_finite_positive(material->young_modulus, "young_modulus", "a positive stiffness in Pa");
-        require(std::isfinite(material->poisson_ratio) && material->poisson_ratio > 0 && material->poisson_ratio < 0.5,
-                "poisson_ratio must be in (0, 0.5)");
-        require_finite_positive(material->density, "density", "a positive density in kg/m^3");
-        require(std::isfinite(material->rayleigh_alpha) && material->rayleigh_alpha >= 0 &&
-                    std::isfinite(material->rayleigh_beta) && material->rayleigh_beta >= 0,
-                "rayleigh_alpha and rayleigh_beta must be zero or positive");
+        hh::params::validate(HH_STRUCT_MATERIAL, material);
         require_friction(friction);
         auto b = std::make_unique<hh::Body>();
         b->kind = hh::BodyKind::Soft;
         b->friction = friction;
         b->kinetic_friction = friction;
-        b->flesh = std::make_unique<hh::Flesh>(hh::build_flesh(
+        b->soft.flesh = std::make_unique<hh::Flesh>(hh::build_flesh(
             nodes, n_nodes, tets, n_tets,
             hh::Material{material->young_modulus, material->poisson_ratio, material->density}));
-        b->alpha = material->rayleigh_alpha;
-        b->beta = material->rayleigh_beta;
-        hh::reset_flesh(*b->flesh, b->state);
-        b->tool = std::make_unique<hh::DeformableSystem>();
-        b->tool->configure(hh::DeformableSolver::Cholesky, 1e-8, 5000);
-        b->tool->A = b->flesh->pattern.matrix;
-        b->fixed.assign(n_nodes, 0);
+        b->soft.alpha = material->rayleigh_alpha;
+        b->soft.beta = material->rayleigh_beta;
+        hh::reset_flesh(*b->soft.flesh, b->state);
+        b->soft.tool = std::make_unique<hh::DeformableSystem>();
+        b->soft.tool->configure(soft_solver(static_cast<int>(hh::params::row("bodies[].solver.name").default_value[0]),
+                                            n_tets),
+                                hh::params::row("bodies[].solver.cg_tolerance").default_value[0],
+                                static_cast<int>(hh::params::row("bodies[].solver.cg_max_iterations").default_value[0]));
+        b->soft.tool->A = b->soft.flesh->pattern.matrix;
+        b->soft.fixed.assign(n_nodes, 0);
         require(n_fixed == 0 || fixed_nodes, "fixed nodes: null array");
         for (int k = 0; k < n_fixed; ++k) {
             require(fixed_nodes[k] >= 0 && fixed_nodes[k] < n_nodes,
                     "fixed node " + std::to_string(fixed_nodes[k]) + " is not a node of the body");
-            b->fixed[fixed_nodes[k]] = 1;
+            b->soft.fixed[fixed_nodes[k]] = 1;
         }
         // entries of At in the rows or columns of fixed nodes, zeroed every step
-        const hh::SpMat& pat = b->flesh->pattern.matrix;
+        const hh::SpMat& pat = b->soft.flesh->pattern.matrix;
         for (int col = 0; col < pat.outerSize(); ++col)
             for (int p = pat.outerIndexPtr()[col]; p < pat.outerIndexPtr()[col + 1]; ++p)
-                if (b->fixed[col / 3] || b->fixed[pat.innerIndexPtr()[p] / 3]) b->fixed_entries.push_back(p);
+                if (b->soft.fixed[col / 3] || b->soft.fixed[pat.innerIndexPtr()[p] / 3]) b->soft.fixed_entries.push_back(p);
         set_surface(b->surface, surface_nodes, surface_weights, n_surface_vertices, faces, n_faces);
         b->has_surface = true;
         require_idle(world);
@@ -213,17 +179,17 @@ int hh_world_add_mesh_body(hh_world* world, int kind, const double* vertices, in
         }
         hh::Vec3 com = hh::Vec3::Zero();
         if (kind == HH_BODY_RIGID) {
-            require_finite_positive(density, "density", "a positive density in kg/m^3");
-            hh::mesh_mass_properties(x, tris, density, b->mass, com, b->inertia_body);
-            b->rigid_system = std::make_unique<hh::RigidSystem>();
+            hh::params::check("bodies[].density", density);
+            hh::mesh_mass_properties(x, tris, density, b->mesh.mass, com, b->mesh.inertia_body);
+            b->mesh.system = std::make_unique<hh::RigidSystem>();
         } else {
             for (const auto& p : x) com += p;
             com /= n_vertices;
         }
         b->rigid.x_com = com;
         b->target = b->rigid;
-        b->local.resize(n_vertices);
-        for (int v = 0; v < n_vertices; ++v) b->local[v] = x[v] - com;
+        b->mesh.local.resize(n_vertices);
+        for (int v = 0; v < n_vertices; ++v) b->mesh.local[v] = x[v] - com;
         b->surface.triangles = tris;
         b->surface.nodes.resize(n_vertices);
         b->surface.weights.resize(n_vertices);
@@ -259,8 +225,9 @@ int hh_world_add_plane(hh_world* world, const double point[3], const double norm
 int hh_world_set_friction(hh_world* world, int body, double static_friction, double kinetic_friction) {
     return guard([&] {
         hh::Body& b = body_at(world, body);
-        require_friction(static_friction);
-        require_friction(kinetic_friction);
+        require_friction(static_friction, b.kind == hh::BodyKind::Hand);
+        hh::params::check(b.kind == hh::BodyKind::Hand ? "hand.kinetic_friction" : "bodies[].kinetic_friction",
+                          kinetic_friction);
         require(kinetic_friction <= static_friction,
                 "kinetic friction " + std::to_string(kinetic_friction) + " exceeds static friction " +
                     std::to_string(static_friction) + ": a sliding contact cannot hold more than a sticking one");
@@ -275,16 +242,15 @@ int hh_world_set_body_solver(hh_world* world, int body, int solver, double cg_to
         hh::Body& b = body_at(world, body);
         require(b.kind == hh::BodyKind::Soft,
                 "only soft bodies take a solver here (the hand's is in its model parameters)");
-        require(solver == HH_SOLVER_CHOLESKY || solver == HH_SOLVER_REUSED_CHOLESKY,
-                "a soft body's solver is HH_SOLVER_CHOLESKY or HH_SOLVER_REUSED_CHOLESKY (got " + std::to_string(solver) +
-                    "): conjugate gradient would solve every contact response on its own");
-        require(std::isfinite(cg_tolerance) && cg_tolerance > 0 && cg_tolerance < 1,
-                "cg_tolerance must be in (0, 1): the relative residual the reused factor's CG stops at, e.g. 1e-6");
-        require(cg_max_iterations > 0, "cg_max_iterations must be positive");
+        hh::params::check("bodies[].solver.name", solver);
+        require(solver != HH_SOLVER_CG, "bodies[].solver.name = cg is invalid for a soft body: use cholesky or "
+                                        "reused_cholesky (conjugate gradient would solve every contact response "
+                                        "on its own)");
+        hh::params::check("bodies[].solver.cg_tolerance", cg_tolerance);
+        hh::params::check("bodies[].solver.cg_max_iterations", cg_max_iterations);
         require_idle(world);
-        b.tool->configure(solver == HH_SOLVER_REUSED_CHOLESKY ? hh::DeformableSolver::ReusedCholesky
-                                                              : hh::DeformableSolver::Cholesky,
-                          cg_tolerance, cg_max_iterations);
+        b.soft.tool->configure(soft_solver(solver, static_cast<int>(b.soft.flesh->mesh.tets.size())), cg_tolerance,
+                               cg_max_iterations);
         b.carried_impulse.resize(0);
         return HH_OK;
     });
@@ -371,7 +337,7 @@ int hh_world_body_kind(const hh_world* world, int body, int* out_kind, int* out_
         const hh::Body& b = body_at(world, body);
         if (out_kind) *out_kind = static_cast<int>(b.kind);
         if (out_n_nodes) *out_n_nodes = b.kind == hh::BodyKind::Hand ? b.hand_model->mesh.n_nodes
-                                        : b.kind == hh::BodyKind::Soft ? b.flesh->mesh.n_nodes : 0;
+                                        : b.kind == hh::BodyKind::Soft ? b.soft.flesh->mesh.n_nodes : 0;
         if (out_n_surface_vertices) *out_n_surface_vertices = b.has_surface ? b.surface.n_vertices() : 0;
         return HH_OK;
     });
@@ -457,9 +423,9 @@ int hh_world_linear_momentum(const hh_world* world, double out[3]) {
                 p += b.hand_model->handle.mass * b.hand->h.v_com;
                 for (int i = 0; i < b.hand_model->mesh.n_nodes; ++i) p += b.hand_model->masses[i] * b.hand->v.segment<3>(3 * i);
             } else if (b.kind == hh::BodyKind::Soft) {
-                for (int i = 0; i < b.flesh->mesh.n_nodes; ++i) p += b.flesh->masses[i] * b.state.v.segment<3>(3 * i);
+                for (int i = 0; i < b.soft.flesh->mesh.n_nodes; ++i) p += b.soft.flesh->masses[i] * b.state.v.segment<3>(3 * i);
             } else if (b.kind == hh::BodyKind::Rigid) {
-                p += b.mass * b.rigid.v_com;
+                p += b.mesh.mass * b.rigid.v_com;
             }
         }
         put3(p, out);

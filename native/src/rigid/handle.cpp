@@ -12,11 +12,7 @@ std::vector<int> capture_nodes(const VecX& rest, const Vec3& seed, double radius
     return nodes;
 }
 
-HandleModel build_handle(const VecX& rest, const VecX& node_masses, const Vec3& seed, double radius) {
-    HandleModel h;
-    h.nodes = capture_nodes(rest, seed, radius);
-    const int n = static_cast<int>(rest.size() / 3);
-    const int c = static_cast<int>(h.nodes.size());
+void check_capture(int c, int n, double radius) {
     if (c < 4) {
         std::ostringstream msg;
         msg << "handle radius " << radius << " m around the palm seed captures " << c
@@ -30,6 +26,12 @@ HandleModel build_handle(const VecX& rest, const VecX& node_masses, const Vec3& 
             << " nodes, so nothing of the hand is soft: decrease the handle radius";
         throw InvalidArgument(msg.str());
     }
+}
+
+HandleModel build_handle(const VecX& rest, const VecX& node_masses, const Vec3& seed, double radius) {
+    HandleModel h;
+    h.nodes = capture_nodes(rest, seed, radius);
+    check_capture(static_cast<int>(h.nodes.size()), static_cast<int>(rest.size() / 3), radius);
     for (int i : h.nodes) {
         h.mass += node_masses[i];
         h.rest_com += node_masses[i] * rest.segment<3>(3 * i);

@@ -18,6 +18,10 @@ struct HandleModel {
 
 std::vector<int> capture_nodes(const VecX& rest, const Vec3& seed, double radius);
 
+// Throws InvalidArgument when a sphere of this radius captures fewer than 4 of the n nodes
+// (`captured` of them) or all of them: the one rule of a usable handle.
+void check_capture(int captured, int n, double radius);
+
 // Throws InvalidArgument when the sphere captures fewer than 4 nodes or every node, or
 // when the captured nodes are collinear (singular inertia).
 HandleModel build_handle(const VecX& rest, const VecX& node_masses, const Vec3& seed, double radius);

@@ -1,6 +1,7 @@
 #include "sim/model.h"
 
 #include "fem/element_order.h"
+#include "params/table.h"
 
 #include <cmath>
 #include <sstream>
@@ -10,19 +11,6 @@ namespace hh {
 namespace {
 void require(bool ok, const std::string& message) {
     if (!ok) throw InvalidArgument(message);
-}
-
-std::string describe(const char* name, double value, const char* rule) {
-    std::ostringstream msg;
-    msg << name << " = " << value << " is invalid: it must be " << rule;
-    return msg.str();
-}
-
-void require_positive(const char* name, double value, const char* fix) {
-    require(std::isfinite(value) && value > 0, describe(name, value, fix));
-}
-void require_non_negative(const char* name, double value, const char* fix) {
-    require(std::isfinite(value) && value >= 0, describe(name, value, fix));
 }
 
 bool point_in_tet(const TetMesh& mesh, const Eigen::Vector4i& t, const Vec3& p) {
@@ -36,37 +24,7 @@ bool point_in_tet(const TetMesh& mesh, const Eigen::Vector4i& t, const Vec3& p) 
 }
 }  // namespace
 
-void validate_params(const hh_params& p) {
-    require(p.struct_size == static_cast<int>(sizeof(hh_params)),
-            "hh_params has the wrong size: the Python bindings and the native library are from "
-            "different versions; rebuild the native library (make native)");
-    require_positive("young_modulus", p.young_modulus, "a positive stiffness in Pa (soft tissue: 1e4 to 1e6)");
-    require(std::isfinite(p.poisson_ratio) && p.poisson_ratio > 0 && p.poisson_ratio < 0.5,
-            describe("poisson_ratio", p.poisson_ratio, "in (0, 0.5); nearly incompressible flesh is about 0.45"));
-    require_positive("density", p.density, "a positive density in kg/m^3 (flesh: about 1000-1100)");
-    require_non_negative("rayleigh_alpha", p.rayleigh_alpha, "zero or positive (1/s)");
-    require_non_negative("rayleigh_beta", p.rayleigh_beta, "zero or positive (s)");
-    for (int i = 0; i < 3; ++i)
-        require(std::isfinite(p.palm_seed[i]), describe("palm_seed", p.palm_seed[i], "a finite point in metres"));
-    require_positive("handle_radius", p.handle_radius, "a positive radius in metres");
-    require_positive("spring_stiffness", p.spring_stiffness, "a positive stiffness in N/m");
-    require_non_negative("spring_damping", p.spring_damping, "zero or positive (N s/m)");
-    require_non_negative("coupling_stiffness", p.coupling_stiffness, "zero or positive (N/m)");
-    require_non_negative("coupling_damping", p.coupling_damping, "zero or positive (N s/m)");
-    require_non_negative("coupling_angular_stiffness", p.coupling_angular_stiffness, "zero or positive (N m/rad)");
-    require_non_negative("coupling_angular_damping", p.coupling_angular_damping, "zero or positive (N m s/rad)");
-    for (int i = 0; i < 3; ++i)
-        require(std::isfinite(p.gravity[i]), describe("gravity", p.gravity[i], "finite (m/s^2)"));
-    require(std::isfinite(p.dt) && p.dt > 0, describe("dt", p.dt, "a positive time step in seconds"));
-    require(p.dt <= 0.1, describe("dt", p.dt,
-                                  "at most 0.1 s: the linearized implicit step loses accuracy beyond "
-                                  "that; the visual loop needs 1/30 s or less"));
-    require(p.solver == HH_SOLVER_CHOLESKY || p.solver == HH_SOLVER_CG || p.solver == HH_SOLVER_REUSED_CHOLESKY,
-            describe("solver", p.solver, "HH_SOLVER_CHOLESKY (0), HH_SOLVER_CG (1) or HH_SOLVER_REUSED_CHOLESKY (2)"));
-    require(std::isfinite(p.cg_tolerance) && p.cg_tolerance > 0 && p.cg_tolerance < 1,
-            describe("cg_tolerance", p.cg_tolerance, "in (0, 1), e.g. 1e-8"));
-    require(p.cg_max_iterations > 0, describe("cg_max_iterations", p.cg_max_iterations, "positive"));
-}
+void validate_params(const hh_params& p) { params::validate(HH_STRUCT_PARAMS, &p); }
 
 Flesh build_flesh(const double* rest_positions, int n_nodes, const int* tets, int n_tets, const Material& material) {
     require(rest_positions && tets, "rest positions and tets must not be null");

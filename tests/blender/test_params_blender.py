@@ -1,0 +1,208 @@
+"""The parameter table in Blender: every property's default is the engine's, every property has
+a tooltip, a Blender scene with default settings exports to the command line's default scene,
+Blender -> JSON -> Blender -> JSON keeps every parameter, and lengths follow the scene's units."""
+
+import json
+import math
+import shutil
+
+import pytest
+
+bpy = pytest.importorskip("bpy")
+import numpy as np
+
+from haptic_hand.blender import meshdata, ops_rig, param_props, properties, scene_export, scene_import
+from haptic_hand.engine import mesh as meshing
+from haptic_hand.engine import native, params
+from haptic_hand.engine import scene as scenes
+
+from blender_helpers import SAMPLES
+
+
+def rna_default(settings, name):
+    prop = settings.bl_rna.properties[name]
+    return prop.enum_items[prop.default].identifier if prop.type == "ENUM" else prop.default
+
+
+def test_every_property_default_is_the_tables(addon):
+    s = bpy.context.scene.haptic_hand
+    bpy.ops.mesh.primitive_cube_add()
+    o = bpy.context.active_object.haptic_hand
+    checked = 0
+    for settings, where in ((s, params.UI_SCENE), (o, params.UI_OBJECT)):
+        for p in param_props.rows(where):
+            name = f"{p.name}_si" if p.unit == "m" else p.name
+            value = rna_default(settings, name)
+            if p.kind == params.KIND_ENUM:
+                assert value == p.choices[int(p.default_value[0])], p.json
+            elif p.kind in params.NUMERIC_KINDS:
+                assert value == pytest.approx(p.default_value[0], rel=1e-7), p.json  # single precision
+                assert param_props.get_si(settings, p) == p.default or p.nullable, p.json
+            checked += 1
+    assert checked > 40
+
+
+def test_every_property_has_a_tooltip(addon):
+    bpy.ops.mesh.primitive_cube_add()
+    for settings in (bpy.context.scene.haptic_hand, bpy.context.active_object.haptic_hand):
+        for prop in settings.bl_rna.properties:
+            if prop.identifier not in ("rna_type", "name"):
+                assert prop.description.strip(), f"{settings.bl_rna.identifier}.{prop.identifier} has no tooltip"
+
+
+def build_hand(context, scale: float = 1.0):
+    """The procedural hand with its stored tets and a seed at its palm, in a scene whose Blender
+    unit is `scale` metres, all settings at their defaults; 30 fps, 60 frames."""
+    bscene = context.scene
+    bscene.unit_settings.system = "METRIC"
+    bscene.unit_settings.scale_length = scale
+    bscene.render.fps, bscene.render.fps_base = 30, 1.0
+    bscene.frame_start, bscene.frame_end = 1, 61
+    stored = np.load(SAMPLES / "procedural_hand_tets.npz")
+    v, f = meshing.procedural_hand()
+    hand = bpy.data.objects.new("Hand", meshdata.new_mesh("Hand", v / scale, f))
+    bscene.collection.objects.link(hand)
+    ops_rig.make_tet_object(context, hand, stored["nodes"] / scale, stored["tets"])
+    s = bscene.haptic_hand
+    s.hand = hand
+    hand.haptic_hand.role = "HAND"
+    seed = bpy.data.objects.new(ops_rig.SEED_NAME, None)
+    bscene.collection.objects.link(seed)
+    seed.location = meshing.procedural_hand_palm_seed() / scale
+    s.seed = seed
+    context.view_layer.update()
+    return hand
+
+
+def test_a_default_blender_scene_exports_to_the_default_scene(addon):
+    build_hand(addon)
+    export = scene_export.export(addon)
+    try:
+        got = export.scene.data
+        cli = scenes.from_dict({"format": scenes.FORMAT}).data
+        content = ("hand.mesh", "hand.tets", "hand.palm_seed", "device.trajectory")  # the scene's own content
+        compared = 0
+        for p in params.table():
+            if p.body or p.flags & params.INTERNAL or p.json in content:
+                continue
+            assert params.get(got, p) == params.get(cli, p), p.json
+            compared += 1
+        assert compared > 40
+    finally:
+        export.cleanup()
+
+
+def non_default(p: params.Param):
+    """A valid value of the row other than its default (within the slider's range)."""
+    if p.kind == params.KIND_BOOL:
+        return not bool(p.default_value[0])
+    if p.kind == params.KIND_ENUM:
+        return next(c for c in reversed(p.choices) if c != p.choices[int(p.default_value[0])] and c != "cg")
+    if p.kind == params.KIND_INT:
+        return int(p.soft_min) if int(p.soft_min) != p.default_value[0] else int(p.soft_max)
+    if p.kind == params.KIND_PATH:
+        return "/opt/openhaptics/libHD.so"
+    lo, hi = p.soft_min, p.soft_max
+    if p.flags & params.ZERO_OR_RANGE:
+        lo = max(lo, p.min)
+    return param_props.decimal(lo + 0.37 * (hi - lo) if math.isfinite(hi) else 2 * p.default_value[0] + 1)
+
+
+def set_all(settings, rows):
+    for p in rows:
+        value = non_default(p)
+        if p.kind == params.KIND_JSON:
+            value = param_props.json_switch_value(p)
+        param_props.set_si(settings, p, value)
+
+
+def add_body(context, name, role, vertices, faces, location):
+    obj = bpy.data.objects.new(name, meshdata.new_mesh(name, vertices, faces))
+    context.scene.collection.objects.link(obj)
+    obj.location = location
+    obj.haptic_hand.role = role
+    return obj
+
+
+def table_values(path) -> dict:
+    """Every table field of the scene file at path, default-filled as the engine reads it."""
+    scene = scenes.load(path)
+    out = {p.json: params.get(scene.data, p) for p in params.table() if not p.body and not p.flags & params.INTERNAL}
+    for b in scene.bodies:
+        for p in params.table():
+            if p.body and p.applies_to(b["type"]):
+                out[f"{b['name']}:{p.json}"] = params.get(b, p)
+    return out
+
+
+def test_blender_json_blender_json_keeps_every_parameter(addon, tmp_path):
+    context = addon
+    hand = build_hand(context)
+    s = context.scene.haptic_hand
+    set_all(s, param_props.rows(params.UI_SCENE))
+    s.use_kinetic_friction, s.kinetic_friction = True, 0.1  # at most the static friction
+    s.coupling_stiffness = 2500.0  # the haptic loop is on: within its tested range
+    set_all(hand.haptic_hand, [p for p in param_props.selected(params.UI_OBJECT, prefix="hand.")])
+    nodes, tets = meshing.structured_box([0.04, 0.04, 0.04], [2, 2, 2])
+    faces = meshing.tet_boundary_faces(tets)
+    for name, role, at in (("soft", "SOFT", (0, 0.2, -0.2)), ("rigid", "RIGID", (0.2, 0, -0.2)),
+                           ("wall", "STATIC", (-0.2, 0, -0.2)), ("ground", "PLANE", (0, 0, -0.3))):
+        obj = add_body(context, name, role, nodes, faces, at)
+        body_type = scene_export.BODY_TYPES[role]
+        set_all(obj.haptic_hand, [p for p in param_props.selected(params.UI_OBJECT, body_type)])
+        obj.haptic_hand.use_kinetic_friction, obj.haptic_hand.kinetic_friction = True, 0.05
+        if role == "SOFT":
+            ops_rig.make_tet_object(context, obj, nodes, tets)
+    s.device, s.device_file = "PLAYBACK", str(tmp_path / "recording.npz")
+    first = scene_export.export(context)
+    folder = tmp_path / "first"
+    shutil.copytree(first.folder, folder)
+    first.cleanup()
+    json1 = json.loads((folder / "scene.json").read_text())
+    # what was set in Blender reached the file
+    assert json1["coupling"]["damping"] == non_default(params.by_json("coupling.damping"))
+    assert json1["haptics"]["device"] == f"playback:{tmp_path / 'recording.npz'}"
+    assert next(b for b in json1["bodies"] if b["name"] == "soft")["solver"]["name"] == \
+        non_default(params.by_json("bodies[].solver.name"))
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene_import.build(bpy.context, folder / "scene.json")
+    second = scene_export.export(bpy.context)
+    folder2 = tmp_path / "second"
+    shutil.copytree(second.folder, folder2)
+    second.cleanup()
+    v1, v2 = table_values(folder / "scene.json"), table_values(folder2 / "scene.json")
+    # file names in each export's own folder; the trajectory is compared as the motion it gives
+    skip = {"hand.mesh", "hand.tets", "device.trajectory"}
+    skip |= {k for k in v1 if k.endswith((":bodies[].mesh", ":bodies[].tets"))}
+    a, b = (scenes.load(p).trajectory(np.zeros(3)) for p in (folder / "scene.json", folder2 / "scene.json"))
+    for t in np.linspace(0, 2.0, 61):
+        np.testing.assert_allclose(np.concatenate(a.pose(t)), np.concatenate(b.pose(t)), atol=1e-6)
+    changed = {k: (v1[k], v2.get(k)) for k in v1 if k not in skip and v1[k] != v2.get(k)}
+    assert not changed
+    assert len(v1) > 80 and set(v1) == set(v2)
+
+
+def test_lengths_follow_a_centimetre_scene(addon):
+    context = addon
+    bscene = context.scene
+    bscene.unit_settings.length_unit = "CENTIMETERS"
+    build_hand(context, scale=0.01)  # the hand modelled in centimetres: 1 Blender unit = 1 cm
+    s = bscene.haptic_hand
+    prop = s.bl_rna.properties["handle_radius"]
+    assert prop.unit == "LENGTH"
+    assert s.handle_radius == pytest.approx(3.0)  # the default 0.03 m, shown as 3 cm
+    s.handle_radius = 3.5  # the user types 3.5, meaning 3.5 cm
+    assert s.handle_radius_si == pytest.approx(0.035)
+    assert bpy.utils.units.to_string("METRIC", "LENGTH", s.handle_radius * bscene.unit_settings.scale_length) \
+        .replace(" ", "") == "3.5cm"
+    nodes, _ = scene_export.hand_tets_world(bscene)
+    expected = native.count_captured(nodes, meshing.procedural_hand_palm_seed(), 0.035)
+    assert s.captured_nodes == expected and 4 <= expected < len(nodes)
+    export = scene_export.export(context)
+    try:
+        assert export.scene.data["hand"]["handle_radius"] == pytest.approx(0.035)
+        assert export.scene.data["contact"]["thickness"] == pytest.approx(1e-3)  # the default, in metres
+        np.testing.assert_allclose(export.scene.nodes, nodes, atol=1e-6)
+    finally:
+        export.cleanup()
