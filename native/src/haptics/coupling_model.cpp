@@ -38,7 +38,8 @@ Mat3 left_jacobian_inverse(const Vec3& phi) {
 
 CouplingModel hand_coupling_model(const Model& m, const Data& d, const Mat6& held) {
     if (!d.device.prescribed || d.end_aht.size() != m.handle.nodes.size())
-        throw InvalidArgument("the coupling model needs the last step taken with the handle driven to a prescribed pose (the proxy)");
+        throw InvalidArgument(
+            "the coupling model needs the last step taken with the handle driven to a prescribed pose (the proxy)");
     const double dt = m.params.dt;
     const double k = m.params.spring_stiffness, damping = m.params.spring_damping;
     const std::vector<int>& nodes = m.handle.nodes;

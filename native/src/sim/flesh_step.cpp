@@ -37,8 +37,9 @@ void flesh_pass(const Flesh& flesh, FleshState& state, double dt, double beta, D
         }
     }
     // rotations, elastic forces and dt (beta + dt) R K R^T in one pass over the part's elements
+    const VecX& x = positions ? *positions : state.x;
     state.part_energy[part] =
-        assemble_corotational(flesh.mesh, flesh.elements, positions ? *positions : state.x, state.f_elastic, state.rotations, flesh.pattern,
+        assemble_corotational(flesh.mesh, flesh.elements, x, state.f_elastic, state.rotations, flesh.pattern,
                               dt * beta + dt * dt, values, part == 0 ? 0 : parts.end[part - 1], parts.end[part]);
 }
 

@@ -130,7 +130,8 @@ void formulate_end(const Model& model, Data& data) {
         const Mat3 end_rotation = quat_to_matrix(dev.quaternion);
         data.end_aht.resize(model.handle.nodes.size());
         for (size_t j = 0; j < model.handle.nodes.size(); ++j)
-            data.end_aht[j] = handle_flesh_block(p.spring_stiffness, p.spring_damping, dt, end_rotation * model.handle.r_body[j]);
+            data.end_aht[j] =
+                handle_flesh_block(p.spring_stiffness, p.spring_damping, dt, end_rotation * model.handle.r_body[j]);
     }
 }
 

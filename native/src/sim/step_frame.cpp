@@ -44,9 +44,12 @@ void update_step_frame(const Model& model, const VecX& x, const VecX& v, const H
     f.inertia_inverse.setZero();
     f.start_moment.setZero();
     if (f.free) {
-        auto point_inertia = [](double m, const Vec3& r) { return m * (r.squaredNorm() * Mat3::Identity() - r * r.transpose()); };
+        auto point_inertia = [](double m, const Vec3& r) {
+            return m * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
+        };
         const Mat3 turned = quat_to_matrix(f.handle.q);
-        Mat3 inertia = turned * model.handle.inertia_body * turned.transpose() + point_inertia(model.handle.mass, handle_turned);
+        Mat3 inertia =
+            turned * model.handle.inertia_body * turned.transpose() + point_inertia(model.handle.mass, handle_turned);
         f.start_moment = model.handle.mass * (h.v_com - f.omega.cross(h.x_com - f.center)).cross(f.handle.v_com);
         for (int i = 0; i < n; ++i) {
             const Vec3 r = x.segment<3>(3 * i) - f.center;

@@ -66,6 +66,7 @@ Vec3 relative_momentum(const StepFrame& f, double mass, const Vec3& x, const Vec
 // the hand's angular momentum grows by dt sum m (w - u) x v_frame (a spinning hand that stretches
 // under its centrifugal load would gain energy). With a free handle that excess is taken out as
 // a rigid turn of the whole hand about c (momentum unchanged); a device holding the handle takes it.
+// (In a world, of the free solve's velocities: the contact impulses' own share is left.)
 VecX frame_velocities(const Model& model, const StepFrame& f, const VecX& relative);
 
 }  // namespace hh
