@@ -148,6 +148,7 @@ def _declare(lib: ctypes.CDLL) -> None:
         "hh_coupling_wrench": ([vp, vp, pd, pd], i),
         "hh_coupling_linear_model": ([vp, vp, pd, pd], i),
         "hh_coupling_response": ([vp, vp, pd, pd], i),
+        "hh_coupling_model": ([vp, vp, pd, pd], i),
         "hh_energies": ([vp, vp, pd, pd, pd], i),
         "hh_linear_momentum": ([vp, vp, pd], i),
         # worlds (scenes with contact)
@@ -423,6 +424,14 @@ class HandSimulation:
         out = np.empty(6)
         _check(library().hh_coupling_response(self.model._handle, self._handle, _ptr(v), _ptr(out)))
         return out
+
+    def coupling_model(self) -> tuple[np.ndarray, np.ndarray]:
+        """After a step with the handle prescribed (set_device(..., enabled=2)): (wrench0 (6,),
+        stiffness (6, 6)), the springs' wrench at the handle's end pose and its derivative with
+        respect to a displacement (dx, dtheta) of the prescribed pose."""
+        w0, k = np.empty(6), np.empty((6, 6))
+        _check(library().hh_coupling_model(self.model._handle, self._handle, _ptr(w0), _ptr(k)))
+        return w0, k
 
     def energies(self) -> dict:
         k, e, s = ctypes.c_double(), ctypes.c_double(), ctypes.c_double()

@@ -173,18 +173,22 @@ int hh_compare_solvers(const hh_model* model, const hh_data* data, double* out_r
 
 /* --- handle-space linearization of the hand alone (Section 3, Garre & Otaduy 2009); with contact,
  * hh_world_coupling_model --- */
-/* Formulates and solves the step from the current state (the state is not changed) and
- * returns the linear model of the springs' wrench on the handle at the end of the step as a
- * function of the handle's end-of-step velocity v_h = (v_com, omega):
- *   W(v_h) = wrench0 + response * v_h,   response = -(A_s - Aht At^-1 Ath) / dt,
- * A_s the springs' part of Ah: the flesh answers the handle through the same solves as the
- * Schur complement. response is row-major 6x6; wrench0 is (force, torque). */
+/* From the current state (not changed): the step with the handle driven at the end-of-step
+ * velocity v_h = (v_com, omega) (prescribed to the pose that velocity reaches), and the springs'
+ * wrench on the handle at the end of that step as a linear function of v_h about v_h = 0:
+ *   W(v_h) = wrench0 + response * v_h,
+ * the exact derivative of hh_coupling_response (docs/haptics.md). response is row-major 6x6;
+ * wrench0 is (force, torque). */
 int hh_coupling_linear_model(const hh_model* model, const hh_data* data, double wrench0[6], double response[36]);
-/* The same wrench evaluated without linearizing the springs: the flesh's velocity solved for
- * the prescribed handle velocity, both advanced by one step (the handle's rotation by the
- * exponential map), the springs' wrench taken at the new state. For checking the model. */
+/* The same wrench without linearizing: the full step with the handle driven at v_h, the
+ * springs' wrench taken at its end. For checking the model. */
 int hh_coupling_response(const hh_model* model, const hh_data* data, const double handle_velocity[6],
                          double wrench[6]);
+/* After hh_step with the handle prescribed (hh_set_device enabled = 2) and before the state is
+ * changed: the springs' wrench wrench0 at the handle's end-of-step pose and its stiffness (36,
+ * row-major) with respect to a displacement (dx, dtheta) of the prescribed pose, the exact
+ * derivative of that step (as hh_world_coupling_model, without contact). */
+int hh_coupling_model(const hh_model* model, const hh_data* data, double wrench0[6], double stiffness[36]);
 
 /* --- observables --- */
 /* Total force and torque (about the handle's centre of mass) the springs apply on the handle. */
@@ -260,7 +264,8 @@ int hh_world_set_friction(hh_world* world, int body, double static_friction, dou
  * cg_tolerance, and is the contact response operator, whose columns are kept until the factor is
  * renewed (for large soft bodies in long contact, like a bunny resting on the ground). */
 int hh_world_set_body_solver(hh_world* world, int body, int solver, double cg_tolerance, int cg_max_iterations);
-/* Kinematic: the pose and velocity at the end of the next step. Rigid: the current state. */
+/* Kinematic: the pose and velocity at the end of the next step. Rigid: the current state. Hand:
+ * its handle's current state (with hh_world_set_body_nodes, the whole hand's state). */
 int hh_world_set_pose(hh_world* world, int body, const double position[3], const double quaternion[4],
                       const double velocity[3], const double angular_velocity[3]);
 int hh_world_get_pose(const hh_world* world, int body, double position[3], double quaternion[4],

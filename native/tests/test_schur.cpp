@@ -695,3 +695,38 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
         CHECK(stale >= 4);
     }
 }
+
+// Issue 37, point 3: the step's rigid frame (sim/step_frame.h). Velocities that turn with the
+// frame (each node's the frame's velocity at its turned position) carry every node and the
+// handle to the frame's rigid motion exactly: no spring and no element is stretched by the turn.
+TEST(a_velocity_field_turning_with_the_step_frame_moves_the_hand_rigidly) {
+    const BoxMesh b = make_box(4, 3, 2, 0.01);
+    const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), box_params());
+    for (bool held : {false, true}) {
+        Data d(m);
+        const Vec3 omega(1.0, -2.0, 2.5);  // 3.4 rad/s: 0.11 rad per step
+        for (int i = 0; i < m.mesh.n_nodes; ++i) d.v.segment<3>(3 * i) = omega.cross(d.x.segment<3>(3 * i) - d.h.x_com);
+        d.h.omega = omega;
+        d.device.enabled = held;
+        d.device.position = d.h.x_com;
+        formulate(m, d);
+        const StepFrame f = d.frame;
+        const VecX x0 = d.x;
+        const Vec3 com0 = d.h.x_com;
+        const Vec4 q0 = d.h.q;
+        integrate(m, d, step_velocities(m, d, VecX::Zero(6 + 3 * m.mesh.n_nodes)));
+        double error = 0;
+        for (int i = 0; i < m.mesh.n_nodes; ++i) {
+            const Vec3 rigid = f.center + f.rotation * (x0.segment<3>(3 * i) - f.center);
+            error = std::max(error, (d.x.segment<3>(3 * i) - rigid).norm());
+            error = std::max(error, (d.v.segment<3>(3 * i) - omega.cross(rigid - f.center)).norm() * m.params.dt);
+        }
+        error = std::max(error, (d.h.x_com - (f.center + f.rotation * (com0 - f.center))).norm());
+        CHECK_LT(error, 1e-15);
+        CHECK_LT((quat_to_matrix(d.h.q) - f.rotation * quat_to_matrix(q0)).cwiseAbs().maxCoeff(), 1e-14);
+        // the springs' wrench is still zero: the handle's points turned with their nodes
+        Vec3 force, torque;
+        coupling_wrench(m, d, force, torque);
+        CHECK_LT(force.norm() + torque.norm(), 1e-9);
+    }
+}

@@ -410,6 +410,13 @@ def native_and_reference_steps(mode, polar):
     state = perturbed(rig, rng)
     drive = coupled_drive(state, rng, gains)
     drive.mode[:] = mode
+    # The native step advances the hand by its handle's turn at the start-of-step angular
+    # velocity and linearizes Eq. 7 about the state and velocities that turn gives (docs/maths.md,
+    # "Rotation-consistent integration"); the reference takes the paper's step, linearized at the
+    # start state. From a still hand (deformed, turned, driven) the two steps are the same.
+    state.v[:] = 0.0
+    state.bv[:] = 0.0
+    state.bw[:] = 0.0
     sim = native.HandSimulation(model)
     sim.set_state(state.x, state.v, state.bx[0], state.bq[0], state.bv[0], state.bw[0])
     sim.set_device(drive.position[0], drive.quaternion[0], drive.velocity[0], drive.angular_velocity[0],

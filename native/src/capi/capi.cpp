@@ -1,11 +1,13 @@
 // The C ABI: every entry point runs its body through guard(), which turns any exception into
 // a status code and a thread-local message, so nothing thrown ever reaches Blender.
+#include <cmath>
 #include <cstring>
 #include <memory>
 #include <new>
 #include <string>
 
 #include "haptic_hand.h"
+#include "haptics/coupling_model.h"
 #include "rigid/quaternion.h"
 
 #include "capi/guard.h"
@@ -156,6 +158,7 @@ int hh_set_state(const hh_model* model, hh_data* data, const double* x, const do
         d.x = nx;
         d.v = nv;
         d.h = h;
+        d.end_aht.clear();  // (no coupling model of the last step for another state: hh_coupling_model)
         return HH_OK;
     });
 }
@@ -237,15 +240,31 @@ int hh_compare_solvers(const hh_model* model, const hh_data* data, double* out_r
 }
 
 namespace {
-// Formulates and solves the step of a copy of the data, so the caller's state is untouched.
-std::unique_ptr<hh::Data> solved_copy(const hh::Model& m, const hh::Data& d) {
+// A copy of the data stepped with its handle driven at the velocity vh = (v_com, omega): prescribed
+// to the pose that velocity reaches (a prescribed handle is held, so its step's frame turns about
+// the handle at its angular velocity: x_com + dt v_com, and the frame's turn followed by
+// exp(dt (omega - omega_start)), sim/step.cpp integrate), as the visual loop drives it to the proxy.
+std::unique_ptr<hh::Data> driven_copy(const hh::Model& m, const hh::Data& d, const hh::Vec6& vh) {
     auto work = std::make_unique<hh::Data>(m);
     static_cast<hh::FleshState&>(*work) = static_cast<const hh::FleshState&>(d);
     work->h = d.h;
     work->device = d.device;
-    hh::formulate(m, *work);
-    work->hand.solve();
+    work->device.enabled = work->device.prescribed = true;
+    const double dt = m.params.dt;
+    const hh::Vec4 turned = hh::quat_multiply(hh::quat_from_rotation_vector(dt * d.h.omega), d.h.q).normalized();
+    work->device.position = d.h.x_com + dt * vh.head<3>();
+    work->device.quaternion =
+        hh::quat_multiply(hh::quat_from_rotation_vector(dt * (vh.tail<3>() - d.h.omega)), turned).normalized();
+    hh::step(m, *work, false);
     return work;
+}
+
+// J_l(phi): d exp(phi + e) = exp(J_l e) exp(phi) to first order in e
+hh::Mat3 left_jacobian(const hh::Vec3& phi) {
+    const double a = phi.norm();
+    const hh::Mat3 k = hh::skew(phi);
+    if (a < 1e-6) return hh::Mat3::Identity() + 0.5 * k + k * k / 6.0;
+    return hh::Mat3::Identity() + (1 - std::cos(a)) / (a * a) * k + (a - std::sin(a)) / (a * a * a) * k * k;
 }
 }  // namespace
 
@@ -253,18 +272,16 @@ int hh_coupling_linear_model(const hh_model* model, const hh_data* data, double 
     return guard([&] {
         require(model && data && wrench0 && response, "hh_coupling_linear_model: null pointer");
         const hh::Model& m = model->m;
-        auto w = solved_copy(m, data->d);
         const double dt = m.params.dt;
-        // end-of-step wrench with v_h = 0: dt W0 = dt F(x, 0) - Aht v_t(0), v_t(0) = A_t^-1 b_t
-        hh::Vec6 aht_s0 = hh::Vec6::Zero();
-        w->tool.r = w->hand.r.tail(3 * m.mesh.n_nodes);
-        w->tool.solve();
-        for (size_t j = 0; j < m.handle.nodes.size(); ++j)
-            aht_s0 += w->coupling.aht[j] * w->tool.s.segment<3>(3 * m.handle.nodes[j]);
-        const hh::Vec6 w0 = (w->coupling.bh - aht_s0) / dt;
-        const hh::Mat6 r = -(w->coupling.ah - w->hand.aht_inverse_ath) / dt;
+        // the step with v_h = 0 (the handle ends where it starts) and the model's stiffness there,
+        // taken to the velocity: d(dx, dtheta) = dt (dv_com, J_l(-dt omega) domega)
+        auto w = driven_copy(m, data->d, hh::Vec6::Zero());
+        const hh::CouplingModel cm = hh::hand_coupling_model(m, *w, hh::Mat6::Zero());
+        hh::Mat6 pose_rate = dt * hh::Mat6::Identity();
+        pose_rate.bottomRightCorner<3, 3>() = dt * left_jacobian(-dt * data->d.h.omega);
+        const hh::Mat6 r = cm.stiffness * pose_rate;
         for (int i = 0; i < 6; ++i) {
-            wrench0[i] = w0[i];
+            wrench0[i] = cm.wrench[i];
             for (int j = 0; j < 6; ++j) response[6 * i + j] = r(i, j);
         }
         return HH_OK;
@@ -275,24 +292,27 @@ int hh_coupling_response(const hh_model* model, const hh_data* data, const doubl
     return guard([&] {
         require(model && data && handle_velocity && wrench, "hh_coupling_response: null pointer");
         const hh::Model& m = model->m;
-        auto w = solved_copy(m, data->d);
         hh::Vec6 vh;
         for (int i = 0; i < 6; ++i) vh[i] = handle_velocity[i];
         require(vh.allFinite(), "handle velocity must be finite");
-        // Eq. 12 with the handle velocity prescribed
-        w->tool.r = w->hand.r.tail(3 * m.mesh.n_nodes);
-        for (size_t j = 0; j < m.handle.nodes.size(); ++j)
-            w->tool.r.segment<3>(3 * m.handle.nodes[j]) -= w->coupling.ath[j] * vh;
-        w->tool.solve();
-        hh::VecX s(6 + 3 * m.mesh.n_nodes);
-        s.head<6>() = vh;
-        s.tail(3 * m.mesh.n_nodes) = w->tool.s;
-        hh::integrate(m, *w, s);
+        auto w = driven_copy(m, data->d, vh);
         hh::Vec3 f, t;
         hh::coupling_wrench(m, *w, f, t);
         for (int i = 0; i < 3; ++i) {
             wrench[i] = f[i];
             wrench[3 + i] = t[i];
+        }
+        return HH_OK;
+    });
+}
+
+int hh_coupling_model(const hh_model* model, const hh_data* data, double wrench0[6], double stiffness[36]) {
+    return guard([&] {
+        require(model && data && wrench0 && stiffness, "hh_coupling_model: null pointer");
+        const hh::CouplingModel cm = hh::hand_coupling_model(model->m, data->d, hh::Mat6::Zero());
+        for (int i = 0; i < 6; ++i) {
+            wrench0[i] = cm.wrench[i];
+            for (int j = 0; j < 6; ++j) stiffness[6 * i + j] = cm.stiffness(i, j);
         }
         return HH_OK;
     });

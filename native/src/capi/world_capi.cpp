@@ -260,9 +260,9 @@ int hh_world_set_pose(hh_world* world, int body, const double position[3], const
                       const double velocity[3], const double angular_velocity[3]) {
     return guard([&] {
         hh::Body& b = body_at(world, body);
-        require(b.kind == hh::BodyKind::Kinematic || b.kind == hh::BodyKind::Rigid,
-                "only kinematic and free rigid bodies have a pose to set");
-        hh::RigidState& s = b.kind == hh::BodyKind::Kinematic ? b.target : b.rigid;
+        require(b.kind == hh::BodyKind::Kinematic || b.kind == hh::BodyKind::Rigid || b.kind == hh::BodyKind::Hand,
+                "only kinematic and free rigid bodies and the hand's handle have a pose to set");
+        hh::RigidState& s = b.kind == hh::BodyKind::Kinematic ? b.target : b.kind == hh::BodyKind::Hand ? b.hand->h : b.rigid;
         hh::RigidState n = s;
         if (position) n.x_com = vec3(position);
         if (quaternion) n.q = hh::Vec4(quaternion[0], quaternion[1], quaternion[2], quaternion[3]);
@@ -280,12 +280,14 @@ int hh_world_get_pose(const hh_world* world, int body, double position[3], doubl
                       double angular_velocity[3]) {
     return guard([&] {
         const hh::Body& b = body_at(world, body);
-        require(b.kind == hh::BodyKind::Kinematic || b.kind == hh::BodyKind::Rigid || b.kind == hh::BodyKind::Static,
-                "only mesh bodies have a pose");
-        put3(b.rigid.x_com, position);
-        if (quaternion) std::memcpy(quaternion, b.rigid.q.data(), 4 * sizeof(double));
-        put3(b.rigid.v_com, velocity);
-        put3(b.rigid.omega, angular_velocity);
+        require(b.kind == hh::BodyKind::Kinematic || b.kind == hh::BodyKind::Rigid || b.kind == hh::BodyKind::Static ||
+                    b.kind == hh::BodyKind::Hand,
+                "only mesh bodies and the hand's handle have a pose");
+        const hh::RigidState& s = b.kind == hh::BodyKind::Hand ? b.hand->h : b.rigid;
+        put3(s.x_com, position);
+        if (quaternion) std::memcpy(quaternion, s.q.data(), 4 * sizeof(double));
+        put3(s.v_com, velocity);
+        put3(s.omega, angular_velocity);
         return HH_OK;
     });
 }

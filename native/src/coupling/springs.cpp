@@ -43,6 +43,12 @@ SpringJacobian spring_jacobian(double k, double d, const Vec3& x_a, const Vec3& 
     return j;
 }
 
+Mat63 handle_flesh_block(double k, double d, double dt, const Vec3& lever) {
+    Mat63 block;
+    block << Mat3::Identity(), skew(lever);
+    return -(dt * d + dt * dt * k) * block;  // Eq. 8: -dt dF_h/dv_A - dt^2 dF_h/dx_A
+}
+
 void assemble_coupling(double k, double d, double dt, const std::vector<int>& nodes,
                        const std::vector<Vec3>& r_body, const VecX& x, const VecX& v,
                        const HandleState& h, CouplingBlocks& out) {
@@ -53,9 +59,6 @@ void assemble_coupling(double k, double d, double dt, const std::vector<int>& no
     out.bt.resize(c);
     out.ah.setZero();
     out.bh.setZero();
-    HandleState at_rest = h;  // forces with all velocities zero: the elastic part for b
-    at_rest.v_com.setZero();
-    at_rest.omega.setZero();
     for (size_t j = 0; j < c; ++j) {
         const Vec3 x_a = x.segment<3>(3 * nodes[j]), v_a = v.segment<3>(3 * nodes[j]);
         const SpringJacobian jac = spring_jacobian(k, d, x_a, v_a, r_body[j], h);
@@ -64,7 +67,7 @@ void assemble_coupling(double k, double d, double dt, const std::vector<int>& no
         out.ath[j] = -dt * jac.dfa_dvh - dt * dt * jac.dfa_dxh;
         out.at_diagonal[j] = -dt * jac.dfa_dva - dt * dt * jac.dfa_dxa;
         out.ah += -dt * jac.dfh_dvh - dt * dt * jac.dfh_dxh;
-        const SpringForce f = spring_force(k, d, x_a, Vec3::Zero(), r_body[j], at_rest);
+        const SpringForce f = spring_force(k, d, x_a, v_a, r_body[j], h);
         out.bt[j] = dt * f.on_node;
         out.bh.head<3>() += dt * f.on_handle;
         out.bh.tail<3>() += dt * f.torque;

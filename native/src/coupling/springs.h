@@ -38,10 +38,12 @@ struct SpringJacobian {
 SpringJacobian spring_jacobian(double k, double d, const Vec3& x_a, const Vec3& v_a,
                                const Vec3& r_body, const HandleState& h);
 
-// The coupling part of Eq. 7 for one step of length dt: per captured node the blocks
-// Ath_j (3x6) and Aht_j (6x3) of Eqs. 8 and 10, plus what the springs add to the node's
-// diagonal block of At and to Ah, and to the right-hand sides (the elastic part of the
-// spring forces times dt: linear damping drops out of b in the semi-implicit step).
+// The coupling part of Eq. 7 for one step of length dt, linearized about the given state
+// (x, v, h): per captured node the blocks Ath_j (3x6) and Aht_j (6x3) of Eqs. 8 and 10, plus
+// what the springs add to the node's diagonal block of At and to Ah, and to the right-hand
+// sides dt times the spring forces at that state. The step passes the state its rigid frame
+// carries the hand to (sim/step_frame.h) and solves for the velocities relative to that state's,
+// so the forces there enter whole, damping included.
 struct CouplingBlocks {
     std::vector<Mat36> ath;
     std::vector<Mat63> aht;
@@ -50,6 +52,11 @@ struct CouplingBlocks {
     std::vector<Vec3> bt;
     Vec6 bh = Vec6::Zero();
 };
+
+// Aht_j for a spring whose handle point sits at lever R r_B from the handle's centre: the
+// blocks depend on the handle's orientation alone (Eq. 11: dF_B/dx_A = k I, dT_B/dx_A =
+// [R r_B]x k I, and the same with d for the velocities).
+Mat63 handle_flesh_block(double k, double d, double dt, const Vec3& lever);
 
 void assemble_coupling(double k, double d, double dt, const std::vector<int>& nodes,
                        const std::vector<Vec3>& r_body, const VecX& x, const VecX& v,

@@ -37,12 +37,21 @@ struct CouplingModel {
 };
 
 // The model after the world's last step for its hand body `hand`, whose handle must have
-// been prescribed (DeviceFrame::prescribed): with v_h the handle's step velocity, Eq. 12
-// with the held contact rows gives
-//   dF_c = -(A_s - Aht At^-1 Ath + H_l W_a^-1 H_r) dv_h / dt,
-//   H_r = J_a At^-1 Ath,  H_l = Aht At^-1 J_a^T,  W_a = J_a A^-1 J_a^T (the held rows of the
-// step's Delassus operator), and dx_h = dt dv_h. Costs no solve beyond the step's own: At^-1
-// Ath are the Schur complement's columns and At^-1 J^T the contact solve's (docs/maths.md).
+// been prescribed (DeviceFrame::prescribed): the exact derivative of that step's end-of-step
+// wrench with respect to the prescribed pose (docs/haptics.md, docs/maths.md),
+//   K = dF/dx_h + (dF/dv_h + (Aht_e A_t^-1 Ath - H_l M^-1 N H_r) / dt) D / dt,
+// every spring Jacobian at the end of the step (Aht_e: Aht at the end pose), D = diag(I,
+// J_l^-1(phi)) the end velocity's change with the pose (phi the handle's turn relative to the
+// step's frame), and the contacts that pushed held (H_r = J A_t^-1 Ath, H_l = Aht_e A_t^-1 J^T,
+// M and N: sticking and sliding rows, held_contacts in coupling_model.cpp). Costs no solve
+// beyond the step's own: A_t^-1 Ath are the Schur complement's columns and A_t^-1 J^T the
+// contact solve's.
 CouplingModel linearize_coupling(const World& world, int hand);
+
+// The same for a hand alone (no world) after data's last step with a prescribed handle; held:
+// the contacts' term H_l M^-1 N H_r (zero without contact).
+struct Model;
+struct Data;
+CouplingModel hand_coupling_model(const Model& m, const Data& d, const Mat6& held);
 
 }  // namespace hh

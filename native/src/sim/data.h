@@ -5,6 +5,7 @@
 
 #include "sim/flesh_step.h"
 #include "sim/model.h"
+#include "sim/step_frame.h"
 #include "solver/hand_system.h"
 
 namespace hh {
@@ -30,6 +31,13 @@ struct Data : FleshState {
     RigidSystem rigid;
     HandSystem hand{tool, rigid};
     CouplingBlocks coupling;
+    // The step's rigid frame (formulate_begin): Eq. 7 is linearized about the state it carries
+    // the hand to and data.hand solves for the velocities relative to frame's, (v_h, v_t) - (the
+    // frame's), which integrate() takes back.
+    StepFrame frame;
+    // With a prescribed handle: Aht's blocks at the handle's end-of-step pose, where the coupling
+    // model differentiates the springs' wrench (haptics/coupling_model.cpp); else empty.
+    std::vector<Mat63> end_aht;
     hh_step_stats stats{};
 };
 
@@ -43,7 +51,12 @@ void formulate(const Model& model, Data& data);
 void formulate_begin(const Model& model, Data& data);
 void formulate_pass(const Model& model, Data& data, int part);
 void formulate_end(const Model& model, Data& data);
-// Advances x, v and the handle from the velocities s = (v_h, v_t) solved for.
+// (v_h, v_t) of the step from data.hand's solution of Eq. 7 relative to the step's frame
+// (frame_velocities, sim/step_frame.h).
+VecX step_velocities(const Model& model, const Data& data, const VecX& relative);
+// Advances x, v and the handle to the end of the step with velocities s = (v_h, v_t): every
+// node and the handle by the step's rigid frame (data.frame), then by dt times its velocity
+// relative to the frame's (the handle's turn on the exponential map of that relative part).
 void integrate(const Model& model, Data& data, const VecX& s);
 // One step: formulate, solve by Schur complement (or the monolithic reference), integrate.
 void step(const Model& model, Data& data, bool monolithic);

@@ -25,7 +25,8 @@ void begin_flesh(const Flesh& flesh, FleshState& state, DeformableSystem& tool) 
     size_rotations(state.rotations, flesh.mesh.tets.size());
 }
 
-void flesh_pass(const Flesh& flesh, FleshState& state, double dt, double beta, DeformableSystem& tool, int part) {
+void flesh_pass(const Flesh& flesh, FleshState& state, double dt, double beta, DeformableSystem& tool, int part,
+                const VecX* positions) {
     const ElementPassParts& parts = flesh.passes;
     double* values = tool.A.valuePtr();
     if (part < 2) {  // this part's nodes start from zero: their three columns and forces
@@ -36,8 +37,9 @@ void flesh_pass(const Flesh& flesh, FleshState& state, double dt, double beta, D
         }
     }
     // rotations, elastic forces and dt (beta + dt) R K R^T in one pass over the part's elements
+    const VecX& x = positions ? *positions : state.x;
     state.part_energy[part] =
-        assemble_corotational(flesh.mesh, flesh.elements, state.x, state.f_elastic, state.rotations, flesh.pattern,
+        assemble_corotational(flesh.mesh, flesh.elements, x, state.f_elastic, state.rotations, flesh.pattern,
                               dt * beta + dt * dt, values, part == 0 ? 0 : parts.end[part - 1], parts.end[part]);
 }
 

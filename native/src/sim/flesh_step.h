@@ -20,10 +20,13 @@ void reset_flesh(const Flesh& flesh, FleshState& state);
 // Fills tool.A (pattern from flesh.pattern) and bt; marks the matrix changed. In stages:
 // begin_flesh, then flesh_pass for parts 0 and 1 (A and B of flesh.passes: disjoint nodes, so
 // two threads may run them at the same time), then part 2 (the seam), then end_flesh.
+// flesh_pass evaluates the elements at `positions` when given (the hand: the state its step
+// linearizes about, sim/step_frame.h), else at state.x.
 void formulate_flesh(const Flesh& flesh, FleshState& state, double dt, const Vec3& gravity, double alpha,
                      double beta, DeformableSystem& tool, Eigen::Ref<VecX> bt);
 void begin_flesh(const Flesh& flesh, FleshState& state, DeformableSystem& tool);
-void flesh_pass(const Flesh& flesh, FleshState& state, double dt, double beta, DeformableSystem& tool, int part);
+void flesh_pass(const Flesh& flesh, FleshState& state, double dt, double beta, DeformableSystem& tool, int part,
+                const VecX* positions = nullptr);
 void end_flesh(const Flesh& flesh, FleshState& state, double dt, const Vec3& gravity, double alpha, DeformableSystem& tool,
                Eigen::Ref<VecX> bt);
 

@@ -54,11 +54,14 @@ void formulate(const Model& model, Data& data) {
 
 void formulate_begin(const Model& model, Data& data) {
     data.hand.r.resize(6 + 3 * model.mesh.n_nodes);
+    update_step_frame(model, data.x, data.v, data.h, data.device.enabled || data.device.prescribed, data.frame);
     begin_flesh(model, data, data.tool);
+    // the polar decompositions start from last step's rotations turned by the frame's
+    for (Vec4& q : data.rotations.q) q = quat_multiply(data.frame.turn, q);
 }
 
 void formulate_pass(const Model& model, Data& data, int part) {
-    flesh_pass(model, data, model.params.dt, model.params.rayleigh_beta, data.tool, part);
+    flesh_pass(model, data, model.params.dt, model.params.rayleigh_beta, data.tool, part, &data.frame.x);
 }
 
 void formulate_end(const Model& model, Data& data) {
@@ -66,13 +69,21 @@ void formulate_end(const Model& model, Data& data) {
     const double dt = p.dt;
     const int n = model.mesh.n_nodes;
     const Vec3 g(p.gravity[0], p.gravity[1], p.gravity[2]);
+    const StepFrame& f = data.frame;
 
-    // Deformable block (shared with every soft body), then the springs' part of A_t and b_t.
+    // Deformable block (shared with every soft body) at the advanced state, then the springs'
+    // part of A_t and b_t. Eq. 7 relative to the frame's velocities s~ at the advanced state X~:
+    //   A (s - s~) = M (v - v_frame) - dt M omega x (omega x R r) + dt F(X~, s~),
+    // the inertia term relative to the frame (sim/step_frame.h) and every force at X~, s~; of
+    // Rayleigh damping only alpha M acts on the frame's velocity (beta K damps deformation).
     VecX& r = data.hand.r;
     auto bt = r.tail(3 * n);
-    end_flesh(model, data, dt, g, p.rayleigh_alpha, data.tool, bt);
-    assemble_coupling(p.spring_stiffness, p.spring_damping, dt, model.handle.nodes, model.handle.r_body,
-                      data.x, data.v, data.h, data.coupling);
+    end_flesh(model, data, dt, g, p.rayleigh_alpha, data.tool, bt);  // b_t = M v + dt (f(X~) + M g)
+    for (int i = 0; i < n; ++i)
+        bt.segment<3>(3 * i) += relative_momentum(f, model.masses[i], data.x.segment<3>(3 * i), Vec3::Zero()) -
+                                dt * p.rayleigh_alpha * model.masses[i] * f.v.segment<3>(3 * i);
+    assemble_coupling(p.spring_stiffness, p.spring_damping, dt, model.handle.nodes, model.handle.r_body, f.x, f.v,
+                      f.handle, data.coupling);
     const CouplingBlocks& cb = data.coupling;
     for (size_t j = 0; j < model.handle.nodes.size(); ++j) {
         add_node_block(model, model.handle.nodes[j], cb.at_diagonal[j], data.tool.A.valuePtr());
@@ -81,13 +92,14 @@ void formulate_end(const Model& model, Data& data) {
 
     // Rigid block (Eq. 3 and 7): gravity acts on the flesh only; the handle's mass is the
     // captured nodes' mass counted again for its inertia, so the hand's weight is counted once.
-    const Mat3 inertia = handle_world_inertia(model, data.h);
+    const HandleState& h = data.h;
+    const Mat3 inertia = handle_world_inertia(model, f.handle);
     Mat6 ah = Mat6::Zero();
     ah.topLeftCorner<3, 3>() = model.handle.mass * Mat3::Identity();
     ah.bottomRightCorner<3, 3>() = inertia;
     Vec6 bh;
-    bh.head<3>() = model.handle.mass * data.h.v_com;
-    bh.tail<3>() = inertia * data.h.omega - dt * data.h.omega.cross(inertia * data.h.omega);  // gyroscopic, explicit
+    bh.head<3>() = relative_momentum(f, model.handle.mass, h.x_com, h.v_com) - f.imbalance;
+    bh.tail<3>() = inertia * (h.omega - f.omega) - dt * f.omega.cross(inertia * f.omega);  // gyroscopic, explicit
     const DeviceFrame& dev = data.device;
     if (dev.enabled) {
         // One-directional viscoelastic virtual coupling to the device frame at the end of the
@@ -96,35 +108,48 @@ void formulate_end(const Model& model, Data& data) {
         const double ang = dt * p.coupling_angular_damping + dt * dt * p.coupling_angular_stiffness;
         ah.topLeftCorner<3, 3>() += lin * Mat3::Identity();
         ah.bottomRightCorner<3, 3>() += ang * Mat3::Identity();
-        const Vec3 rot_error = quat_to_rotation_vector(quat_multiply(dev.quaternion, quat_conjugate(data.h.q)));
-        bh.head<3>() += dt * (p.coupling_stiffness * (dev.position - data.h.x_com) + p.coupling_damping * dev.velocity);
-        bh.tail<3>() += dt * (p.coupling_angular_stiffness * rot_error + p.coupling_angular_damping * dev.angular_velocity);
+        const Vec3 rot_error = quat_to_rotation_vector(quat_multiply(dev.quaternion, quat_conjugate(f.handle.q)));
+        bh.head<3>() += dt * (p.coupling_stiffness * (dev.position - f.handle.x_com) +
+                              p.coupling_damping * (dev.velocity - f.handle.v_com));
+        bh.tail<3>() += dt * (p.coupling_angular_stiffness * rot_error +
+                              p.coupling_angular_damping * (dev.angular_velocity - f.omega));
     }
     data.hand.Ah = ah + cb.ah;
     r.head<6>() = bh + cb.bh;
     data.hand.Ath = cb.ath;
     data.hand.Aht = cb.aht;
+    data.end_aht.clear();
     if (dev.prescribed) {
         // The handle reaches the device pose at the end of the step: its rows of Eq. 7 become
-        // v_h = target, and the flesh still feels it through Ath (Eq. 12). The true Aht stays
-        // in data.coupling for the handle-space linearization.
+        // v_h = target, and the flesh still feels it through Ath (Eq. 12). The coupling model
+        // reads Aht at that pose (end_aht).
         data.hand.Ah = Mat6::Identity();
-        r.segment<3>(0) = (dev.position - data.h.x_com) / dt;
-        r.segment<3>(3) = quat_to_rotation_vector(quat_multiply(dev.quaternion, quat_conjugate(data.h.q))) / dt;
+        r.segment<3>(0) = (dev.position - f.handle.x_com) / dt;
+        r.segment<3>(3) = quat_to_rotation_vector(quat_multiply(dev.quaternion, quat_conjugate(f.handle.q))) / dt;
         for (Mat63& block : data.hand.Aht) block.setZero();
+        const Mat3 end_rotation = quat_to_matrix(dev.quaternion);
+        data.end_aht.resize(model.handle.nodes.size());
+        for (size_t j = 0; j < model.handle.nodes.size(); ++j)
+            data.end_aht[j] =
+                handle_flesh_block(p.spring_stiffness, p.spring_damping, dt, end_rotation * model.handle.r_body[j]);
     }
+}
+
+VecX step_velocities(const Model& model, const Data& data, const VecX& relative) {
+    return frame_velocities(model, data.frame, relative);
 }
 
 void integrate(const Model& model, Data& data, const VecX& s) {
     const double dt = model.params.dt;
     const int n = model.mesh.n_nodes;
+    const StepFrame& f = data.frame;
+    data.v = s.tail(3 * n);
+    data.x = f.x + dt * (data.v - f.v);
     data.h.v_com = s.segment<3>(0);
     data.h.omega = s.segment<3>(3);
-    data.v = s.tail(3 * n);
-    data.x += dt * data.v;
-    data.h.x_com += dt * data.h.v_com;
-    // exponential map keeps q_h a unit quaternion (first-order equal to q + dt G omega)
-    data.h.q = quat_multiply(quat_from_rotation_vector(dt * data.h.omega), data.h.q);
+    data.h.x_com = f.handle.x_com + dt * (data.h.v_com - f.handle.v_com);
+    // the exponential map keeps q_h a unit quaternion (first-order equal to q + dt G omega)
+    data.h.q = quat_multiply(quat_from_rotation_vector(dt * (data.h.omega - f.omega)), f.handle.q);
     data.h.q.normalize();
 }
 
@@ -139,14 +164,14 @@ void step(const Model& model, Data& data, bool monolithic) {
         const auto t1 = clock::now();
         const VecX s = solve_monolithic(data.hand, data.hand.r);
         data.stats.t_deformable = seconds_since(t1);
-        integrate(model, data, s);
+        integrate(model, data, step_velocities(model, data, s));
     } else {
         data.hand.solve();
         data.stats.t_deformable = data.hand.t_deformable;
         data.stats.t_schur = data.hand.t_schur;
         data.stats.cg_iterations = data.tool.iterations;
         data.stats.max_residual = data.tool.max_residual;
-        integrate(model, data, data.hand.s);
+        integrate(model, data, step_velocities(model, data, data.hand.s));
     }
     data.stats.t_total = seconds_since(t0);
 }

@@ -86,7 +86,7 @@ void World::solve_free(Body& b) {
                 b.hand->hand.carried = carried;
             }
             b.hand->hand.solve();
-            b.v_free = b.hand->hand.s;
+            b.v_free = step_velocities(*b.hand_model, *b.hand, b.hand->hand.s);  // (it solves relative to the step's frame)
             if (carried.size()) b.v_free -= b.hand->hand.carried_response;
             st.t_deformable = b.hand->hand.t_deformable + parts;  // (the carried impulses' pass too)
             st.t_schur = b.hand->hand.t_schur;

@@ -86,8 +86,9 @@ public:
         MatX K;                     // touched x (rows or touched): those columns at the touched unknowns
         Eigen::SparseMatrix<double, Eigen::RowMajor> G;  // rows x touched: J_b on the touched unknowns
         std::vector<int> local_row;  // per global row: index in `rows`, or -1
-        // the hand with a prescribed handle: per row, J_b A_t^-1 [Ath | Aht^T] (rows x 12, the
-        // true Aht), for the handle-space linearization (contact_handle_terms); else empty
+        // the hand with a prescribed handle: per row, J_b A_t^-1 [Ath | Aht^T] (rows x 12, Aht
+        // at the handle's end-of-step pose, Data::end_aht), for the handle-space linearization
+        // (contact_handle_terms); else empty
         MatX handle_terms;
     };
     std::vector<ContactGroup> contact_groups;
@@ -96,6 +97,7 @@ public:
     std::map<int, ContactBody> contact_bodies;  // per dynamic body in the contact solve
     VecX contact_lambda;    // 3c impulses (N s) in the contact frames
     VecX contact_friction;  // c static friction coefficients
+    VecX contact_velocity;  // 3c relative velocities after the step, in the contact frames
     // Entries of the last step's W (unsymmetrized) for the given global rows: zero between
     // rows of different groups.
     MatX contact_delassus(const std::vector<int>& rows) const;

@@ -68,6 +68,7 @@ void World::prepare_contacts() {
     contact_bodies.clear();
     contact_lambda.resize(0);
     contact_friction.resize(0);
+    contact_velocity.resize(0);
     if (nc == 0) return;
     const int rows = cs.rows = 3 * nc;
     auto direction = [&](int row) -> const Vec3& { return contact_direction(contacts, row); };
@@ -137,6 +138,13 @@ void World::prepare_contacts() {
     for (int c = 0; c < nc; ++c) {
         const Contact& k = contacts[c];
         gap[c] = k.distance - settings.contact_thickness;
+        // A hand's side ends its step beyond x + dt v by its step frame's turn (sim/step_frame.h)
+        for (int s = 0; s < 2; ++s) {
+            const ContactSide& side = s == 0 ? k.a : k.b;
+            const Body& b = *bodies[side.body];
+            if (b.kind == BodyKind::Hand && side.count > 0)
+                gap[c] += (s == 0 ? 1.0 : -1.0) * k.normal.dot(turn_remainder(b.hand->frame, side.point(b.surface)));
+        }
         friction[c] = std::sqrt(bodies[k.a.body]->friction * bodies[k.b.body]->friction);
         kinetic[c] = std::sqrt(bodies[k.a.body]->kinetic_friction * bodies[k.b.body]->kinetic_friction);
         // kinematic bodies' motion enters as a known relative velocity
@@ -319,7 +327,8 @@ void World::form_handle_terms(int bi) {
     if (b.kind != BodyKind::Hand || !b.hand->device.prescribed) return;
     ContactBody& cb = contact_bodies.at(bi);
     MatX at_touched;
-    b.hand->hand.handle_columns(cb.touched, b.hand->coupling.aht, at_touched);
+    // (Aht at the handle's end-of-step pose, where the model differentiates the springs' wrench)
+    b.hand->hand.handle_columns(cb.touched, b.hand->end_aht, at_touched);
     cb.handle_terms = cb.G * at_touched;
 }
 
@@ -555,6 +564,17 @@ void World::finish_contacts() {
     }
     contact_lambda = lambda;
     contact_friction = cs.friction;
+    // the relative velocities the step leaves at its contacts: the free ones (every group's
+    // u_free) changed by each body's response to the impulses (the coupling model's sliding ones)
+    contact_velocity = cs.u_free;
+    for (const auto& e : contact_bodies) {
+        const ContactBody& cb = e.second;
+        const Body& b = *bodies[e.first];
+        VecX v_touched(cb.touched.size());
+        for (size_t k = 0; k < cb.touched.size(); ++k) v_touched[k] = b.v_new[cb.touched[k]];
+        const VecX change = cb.G * v_touched - cs.u_body.at(e.first);
+        for (size_t l = 0; l < cb.rows.size(); ++l) contact_velocity[cb.rows[l]] += change[l];
+    }
 }
 
 // The step's contact solve, to contact_trace: called once the step has summed its parts' times
