@@ -47,7 +47,7 @@ def defaults() -> dict:
 
 
 def parse(specs: list, base_dir: Path) -> list[dict]:
-    from .scene import SceneError, _merge, check_fields
+    from .scene import SceneError, _merge, check_fields, timed_poses
 
     if not isinstance(specs, list):
         raise BodyError("'bodies' must be a list of body descriptions")
@@ -71,6 +71,12 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
             raise BodyError(f"body '{spec['name']}' needs a 'mesh' (procedural:bunny, procedural:letter:H, box, "
                             "or an .obj path)")
         _refuse_fields_of_other_types(spec, given)
+        _check_fixed(spec)
+        if spec["type"] == "kinematic" and spec["trajectory"]:
+            try:
+                timed_poses(spec["trajectory"], f"body '{spec['name']}': trajectory")
+            except SceneError as e:
+                raise BodyError(str(e)) from None
         spec["_base_dir"] = str(base_dir)
         out.append(spec)
     return out
@@ -86,12 +92,25 @@ def _refuse_fields_of_other_types(spec: dict, given: dict) -> None:
                             f"(this one is {spec['type']}): remove it")
 
 
+def _check_fixed(spec: dict) -> None:
+    rule = spec["fixed"]
+    if rule is None or rule == "bottom":
+        return
+    whole = isinstance(rule, list) and all(isinstance(i, int) and not isinstance(i, bool) for i in rule)
+    if not whole:
+        raise BodyError(f"body '{spec['name']}': fixed = {json.dumps(rule)[:60]} is invalid: use null, \"bottom\" "
+                        "(its lowest nodes) or a list of node indices (whole numbers)")
+
+
 def _surface(spec: dict) -> tuple[np.ndarray, np.ndarray]:
     source = spec["mesh"]
     if source == "procedural:bunny":
         return shapes.procedural_bunny()
     if isinstance(source, str) and source.startswith("procedural:letter:"):
-        return shapes.procedural_letter(source.split(":", 2)[2])
+        try:
+            return shapes.procedural_letter(source.split(":", 2)[2])
+        except ValueError as e:
+            raise BodyError(f"body '{spec['name']}': mesh {source!r}: {e}") from None
     if source == "box":
         nodes, tets = meshing.structured_box(spec["size"], spec["cells"], -0.5 * np.asarray(spec["size"], float))
         faces = meshing.tet_boundary_faces(tets)
@@ -102,13 +121,18 @@ def _surface(spec: dict) -> tuple[np.ndarray, np.ndarray]:
     path = Path(spec["_base_dir"]) / str(source)
     if not path.is_file():
         raise BodyError(f"body '{spec['name']}': mesh file {path} does not exist (paths are relative to the scene)")
-    return meshing.load_obj(path)
+    v, f = meshing.load_obj(path)
+    if spec["type"] in ("soft", "rigid"):  # they need a closed solid: its volume, its inside
+        try:
+            meshing.check_closed_surface(v, f)
+        except meshing.MeshError as e:
+            raise meshing.MeshError(f"body '{spec['name']}' ({path.name}): {e}") from None
+    return v, f
 
 
 def _soft_tets(spec: dict, v: np.ndarray, f: np.ndarray, progress=None) -> tuple[np.ndarray, np.ndarray]:
     if spec["tets"]:
-        stored = np.load(Path(spec["_base_dir"]) / spec["tets"])
-        return stored["nodes"], stored["tets"]
+        return meshing.load_tets(Path(spec["_base_dir"]) / spec["tets"], f"body '{spec['name']}': tets")
     source = spec["mesh"]
     if source == "procedural:bunny":
         return shapes.procedural_bunny_coarse_tets()
@@ -122,6 +146,8 @@ def _soft_tets(spec: dict, v: np.ndarray, f: np.ndarray, progress=None) -> tuple
 
 
 def prepare(spec: dict, progress=None) -> PreparedBody:
+    from .scene import check_embedding
+
     kind = TYPES[spec["type"]]
     body = PreparedBody(spec, kind)
     if kind == W.PLANE:
@@ -132,7 +158,9 @@ def prepare(spec: dict, progress=None) -> PreparedBody:
     if kind == W.SOFT:
         nodes, tets = _soft_tets(spec, v, f, progress)
         body.nodes, body.tets = np.asarray(nodes, float) + offset, np.asarray(tets, np.int32)
-        body.tet_index, body.weights = meshing.embed_points(body.nodes, body.tets, body.vertices)
+        body.tet_index, body.weights = check_embedding(body.nodes, body.tets, body.vertices,
+                                                       float(spec["tetrahedralize"]["epsilon"]),
+                                                       f"body '{spec['name']}'", "its tets")
     return body
 
 
@@ -143,7 +171,7 @@ def fixed_nodes(body: PreparedBody) -> np.ndarray:
     if rule == "bottom":
         z = body.nodes[:, 2]
         return np.flatnonzero(z <= z.min() + 1e-6).astype(np.int32)
-    ids = np.asarray(rule, dtype=np.int64).reshape(-1)
+    ids = np.asarray(rule, dtype=np.int64).reshape(-1)  # whole numbers (parse checked)
     if ids.size and (ids.min() < 0 or ids.max() >= len(body.nodes)):
         raise BodyError(f"body '{body.name}': fixed node indices must be in 0..{len(body.nodes) - 1}")
     return ids.astype(np.int32)
