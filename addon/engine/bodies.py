@@ -18,6 +18,8 @@ from . import mesh as meshing
 from . import native_world as W
 from . import params, shapes
 
+_DEPTH_SAMPLES = 256  # inside points whose depth is measured
+
 TYPES = {"soft": W.SOFT, "rigid": W.RIGID, "kinematic": W.KINEMATIC, "static": W.STATIC, "plane": W.PLANE}
 
 class BodyError(ValueError):
@@ -194,3 +196,52 @@ def add_to_world(world: W.World, body: PreparedBody) -> int:
     if spec["kinetic_friction"] is not None:
         world.set_friction(body.index, friction, float(spec["kinetic_friction"]))
     return body.index
+
+
+def check_overlaps(hand_vertices: np.ndarray, hand_faces: np.ndarray, prepared: list, thickness: float) -> None:
+    """Refuses a scene in which two bodies (the hand among them) start inside each other deeper
+    than the contact thickness, naming the pair and the depth. The contact solve would push them
+    apart in one step, as hard as it can; they are refused rather than separated."""
+    surfaces = [("the hand", hand_vertices, np.asarray(hand_faces), True)]
+    surfaces += [(f"body '{b.name}'", b.vertices, b.faces, b.kind in (W.SOFT, W.RIGID))
+                 for b in prepared if b.kind != W.PLANE]
+    planes = [b for b in prepared if b.kind == W.PLANE]
+    for i, (name_a, va, fa, moves_a) in enumerate(surfaces):
+        for plane in planes:
+            normal = np.asarray(plane.spec["normal"], float)
+            depth = -((va - np.asarray(plane.spec["point"], float)) @ normal) / np.linalg.norm(normal)
+            _refuse_overlap(name_a, f"plane '{plane.name}'", depth, np.argmax(depth), thickness)
+        for name_b, vb, fb, moves_b in surfaces[i + 1:]:
+            if not (moves_a or moves_b):
+                continue  # kinematic and static bodies never push each other
+            for (n1, v1, _), (n2, v2, f2) in (((name_a, va, fa), (name_b, vb, fb)), ((name_b, vb, fb), (name_a, va, fa))):
+                depth = _depth_inside(v1, v2, f2)
+                if len(depth):
+                    _refuse_overlap(n1, n2, depth, int(np.argmax(depth)), thickness)
+
+
+def _refuse_overlap(inner: str, outer: str, depth: np.ndarray, vertex: int, thickness: float) -> None:
+    if len(depth) and depth[vertex] > thickness:
+        raise BodyError(
+            f"{inner} starts inside {outer}: {depth[vertex] * 1e3:.3g} mm deep at its vertex {vertex}, more than the "
+            f"{thickness * 1e3:.3g} mm contact thickness; move them apart by at least that before the run (bodies "
+            "that start inside each other are refused, not pushed apart)")
+
+
+def _depth_inside(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """How deep (m) each point lies inside the closed surface (vertices, faces); 0 outside. An
+    open surface has no inside: zeros."""
+    depth = np.zeros(len(points))
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    closed = np.all(np.unique(edges, axis=0, return_counts=True)[1] == 2)
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    near = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+    if not closed or not len(near):
+        return depth
+    inside = near[meshing.winding_numbers(vertices, faces, points[near]) > 0.5]
+    inside = inside[:: max(1, len(inside) // _DEPTH_SAMPLES)]  # a deep overlap needs no exact maximum
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    for p in inside:
+        q = np.broadcast_to(points[p], a.shape)
+        depth[p] = np.linalg.norm(meshing.closest_point_on_triangles(q, a, b, c) - q, axis=1).min()
+    return depth

@@ -197,10 +197,28 @@ def _check(status: int) -> None:
 
 
 def _f64(a, shape=None, name="array") -> np.ndarray:
-    out = np.ascontiguousarray(a, dtype=np.float64)
+    try:
+        out = np.ascontiguousarray(a, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{name} must be numbers (float64), got {type(a).__name__}") from None
     if shape is not None and out.shape != shape:
         raise InvalidInput(f"{name} has shape {out.shape}, expected {shape}")
     return out
+
+
+def _indices(a, columns: int, name: str) -> np.ndarray:
+    """An (m, columns) int32 index array; floats are refused rather than truncated, indices
+    beyond 32 bits rather than wrapped."""
+    a = np.asarray(a)
+    if a.size == 0:
+        a = a.astype(np.int32)
+    if a.dtype.kind not in "iu":
+        raise InvalidInput(f"{name} must be integer indices, got {a.dtype} values (floats are refused, not truncated)")
+    if a.ndim != 2 or a.shape[1] != columns:
+        raise InvalidInput(f"{name} must be an (m, {columns}) integer array, got shape {a.shape}")
+    if a.size and (a.min() < -2**31 or a.max() > 2**31 - 1):
+        raise InvalidInput(f"{name} holds an index beyond 32 bits ({a.max()}): it is refused, not wrapped")
+    return np.ascontiguousarray(a, dtype=np.int32)
 
 
 def _ptr(a: np.ndarray | None, ctype=ctypes.c_double):
@@ -258,9 +276,7 @@ class HandModel:
         self.nodes = _f64(nodes)
         if self.nodes.ndim != 2 or self.nodes.shape[1] != 3:
             raise InvalidInput(f"nodes must be an (n, 3) array, got shape {self.nodes.shape}")
-        self.tets = np.ascontiguousarray(tets, dtype=np.int32)
-        if self.tets.ndim != 2 or self.tets.shape[1] != 4:
-            raise InvalidInput(f"tets must be an (m, 4) array, got shape {self.tets.shape}")
+        self.tets = _indices(tets, 4, "tets")
         from . import params as table
 
         p = table.new_struct(table.STRUCT_PARAMS, _solver_index(params))

@@ -8,7 +8,7 @@ import ctypes
 import numpy as np
 
 from . import params as table
-from .native import SOLVERS, HandModel, InvalidInput, StepStats, WorldStats, _check, _f64, _ptr, library
+from .native import SOLVERS, HandModel, InvalidInput, StepStats, WorldStats, _check, _f64, _indices, _ptr, library
 
 HAND, SOFT, RIGID, KINEMATIC, STATIC, PLANE = range(6)
 # the solvers a soft body takes (conjugate gradient would solve every contact response on its own)
@@ -17,10 +17,7 @@ KIND_NAMES = {HAND: "hand", SOFT: "soft", RIGID: "rigid", KINEMATIC: "kinematic"
 
 
 def _i32(a, shape_tail: int, name: str) -> np.ndarray:
-    out = np.ascontiguousarray(a, dtype=np.int32)
-    if out.ndim != 2 or out.shape[1] != shape_tail:
-        raise InvalidInput(f"{name} must be an (n, {shape_tail}) integer array, got shape {out.shape}")
-    return out
+    return _indices(a, shape_tail, name)
 
 
 def _default(value, json_path: str):
