@@ -18,6 +18,7 @@ from . import mesh as meshing
 from . import native_world as W
 from . import params, shapes
 
+MAX_BOX_TETS = 200_000  # a box body's tets (6 a cell): beyond, a step takes seconds and memory runs out
 _DEPTH_SAMPLES = 256  # inside points whose depth is measured
 
 TYPES = {"soft": W.SOFT, "rigid": W.RIGID, "kinematic": W.KINEMATIC, "static": W.STATIC, "plane": W.PLANE}
@@ -60,7 +61,7 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
         label = f"bodies[{i}]" + (f" ('{given['name']}')" if isinstance(given.get("name"), str) else "")
         try:
             spec = _merge(defaults(), given, f"{label}.")
-            if spec["type"] not in TYPES:
+            if not isinstance(spec["type"], str) or spec["type"] not in TYPES:
                 raise BodyError(f"{label} has type {json.dumps(spec['type'])}: use one of {', '.join(TYPES)}")
             check_fields(spec, body=True, where=lambda p: f"{label}.{p.json[len(params.BODY):]}")
         except SceneError as e:
@@ -74,6 +75,9 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
                             "or an .obj path)")
         _refuse_fields_of_other_types(spec, given)
         _check_fixed(spec)
+        if spec["type"] != "plane" and spec["mesh"] == "box" and 6 * int(np.prod(spec["cells"])) > MAX_BOX_TETS:
+            raise BodyError(f"body '{spec['name']}': cells {spec['cells']} make {6 * int(np.prod(spec['cells'])):,} "
+                            f"tets, over {MAX_BOX_TETS:,}: use fewer cells (a few per centimetre)")
         if spec["type"] == "kinematic" and spec["trajectory"]:
             try:
                 timed_poses(spec["trajectory"], f"body '{spec['name']}': trajectory")

@@ -447,8 +447,8 @@ def self_intersections(V, F, capacity: int = 64) -> tuple[np.ndarray, int]:
 
     from . import native
 
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    F = np.ascontiguousarray(F, dtype=np.int32)
+    V, F = surface_arrays(V, F)
+    V, F = np.ascontiguousarray(V), np.ascontiguousarray(F, dtype=np.int32)
     pairs = np.zeros((capacity, 2), dtype=np.int32)
     count = ctypes.c_int()
     fn = native.library().hh_surface_self_intersections

@@ -232,9 +232,17 @@ def default_params() -> dict:
     return params.struct_values(params.new_struct(params.STRUCT_PARAMS))
 
 
+def _points(a, name: str) -> np.ndarray:
+    """An (n, 3) float64 array (the C side reads 3 n numbers)."""
+    out = _f64(a, None, name)
+    if out.ndim != 2 or out.shape[1] != 3:
+        raise InvalidInput(f"{name} must be an (n, 3) array, got shape {out.shape}")
+    return out
+
+
 def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
     """How many nodes a handle sphere of this radius around seed captures."""
-    x = _f64(nodes)
+    x = _points(nodes, "nodes")
     s = _f64(seed, (3,), "palm_seed")
     out = ctypes.c_int()
     _check(library().hh_count_captured(_ptr(x), x.shape[0], _ptr(s), float(radius), ctypes.byref(out)))
@@ -254,7 +262,7 @@ def _solver_index(values: dict) -> dict:
 def check_handle(nodes: np.ndarray, seed, radius: float) -> int:
     """The nodes a handle sphere captures; InvalidInput (the model's own message) when it would
     hold fewer than 4 nodes or all of them."""
-    x = _f64(nodes)
+    x = _points(nodes, "nodes")
     s = _f64(seed, (3,), "palm_seed")
     out = ctypes.c_int()
     _check(library().hh_check_handle(_ptr(x), x.shape[0], _ptr(s), float(radius), ctypes.byref(out)))
