@@ -100,7 +100,7 @@ HAND_SETTINGS = {
 # 6872 triangles, already 4x the paper's 1733). The 10x hands carry 10x the paper's surface:
 # the same hand on the grid that gives ~17330 triangles (2.52 mm: 17436). The "dense" stress
 # case carries 10x the scenes' surface instead (grid sqrt(10) finer: 68928 triangles, 40x the
-# paper's), as the 10x runs did up to the eighth round (bench/README.md).
+# paper's).
 HAND_PAPER_RESOLUTION = 0.004
 PAPER_HAND_TRIANGLES = 1733  # the paper's hand surface (Section 7)
 DENSE_10X = "3500 dense"     # hands[...] key of the stress case: ~3500 tets, 68928 triangles

@@ -16,7 +16,6 @@ import numpy as np
 HH_OK = 0
 HH_ERR_INVALID_ARGUMENT = -1
 HH_ERR_NUMERICAL = -2
-SOLVERS = {"cholesky": 0, "cg": 1, "reused_cholesky": 2}
 API_VERSION = 2
 
 _HERE = Path(__file__).resolve().parent
@@ -249,13 +248,22 @@ def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
     return out.value
 
 
+def solver_code(name: str, field: str = "solver.name") -> int:
+    """The C code of a solver named as the parameter table names it (the hand's solver.name, or
+    a soft body's bodies[].solver.name, whose choices add auto)."""
+    from . import params
+
+    choices = params.by_json(field).choices
+    if name not in choices:
+        raise InvalidInput(f"solver '{name}' is unknown: use one of {', '.join(choices)}")
+    return choices.index(name)
+
+
 def _solver_index(values: dict) -> dict:
     """The hand's parameters with the solver given by name turned into its C code."""
     out = dict(values)
     if isinstance(out.get("solver"), str):
-        if out["solver"] not in SOLVERS:
-            raise InvalidInput(f"solver '{out['solver']}' is unknown: use one of {', '.join(SOLVERS)}")
-        out["solver"] = SOLVERS[out["solver"]]
+        out["solver"] = solver_code(out["solver"])
     return out
 
 
@@ -339,13 +347,16 @@ class HandModel:
         p = table.structure(table.STRUCT_PARAMS)()
         _check(library().hh_model_params(self._handle, ctypes.byref(p)))
         out = table.struct_values(p)
-        out["solver"] = {v: k for k, v in SOLVERS.items()}[out["solver"]]
+        out["solver"] = table.by_json("solver.name").choices[out["solver"]]
         return out
 
-    def set_solver(self, solver: str, cg_tolerance: float = 1e-8, cg_max_iterations: int = 5000) -> None:
-        if solver not in SOLVERS:
-            raise InvalidInput(f"solver '{solver}' is unknown: use one of {', '.join(SOLVERS)}")
-        _check(library().hh_set_solver(self._handle, SOLVERS[solver], cg_tolerance, cg_max_iterations))
+    def set_solver(self, solver: str, cg_tolerance: float | None = None, cg_max_iterations: int | None = None) -> None:
+        """The hand's solver by name; a tolerance or iteration cap left out takes the table's default."""
+        from . import params as table
+
+        tol = table.by_json("solver.cg_tolerance").default if cg_tolerance is None else cg_tolerance
+        cap = table.by_json("solver.cg_max_iterations").default if cg_max_iterations is None else cg_max_iterations
+        _check(library().hh_set_solver(self._handle, solver_code(solver), float(tol), int(cap)))
 
 
 class HandSimulation:

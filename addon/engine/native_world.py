@@ -8,11 +8,9 @@ import ctypes
 import numpy as np
 
 from . import params as table
-from .native import SOLVERS, HandModel, InvalidInput, StepStats, WorldStats, _check, _f64, _indices, _points, _ptr, library
+from .native import HandModel, InvalidInput, StepStats, WorldStats, _check, _f64, _indices, _points, _ptr, library, solver_code
 
 HAND, SOFT, RIGID, KINEMATIC, STATIC, PLANE = range(6)
-# the solvers a soft body takes (conjugate gradient would solve every contact response on its own)
-SOFT_SOLVERS = ("cholesky", "reused_cholesky")
 KIND_NAMES = {HAND: "hand", SOFT: "soft", RIGID: "rigid", KINEMATIC: "kinematic", STATIC: "static", PLANE: "plane"}
 
 
@@ -119,11 +117,10 @@ class World:
         """A soft body's solver: "cholesky" (factored every step, the default) or
         "reused_cholesky" (an earlier step's factor preconditions CG and is the contact response
         operator, its columns kept between factorizations: for large soft bodies)."""
-        if solver not in SOFT_SOLVERS:
-            raise InvalidInput(f"a soft body's solver '{solver}' is unknown: use {' or '.join(SOFT_SOLVERS)}")
         tol = _default(cg_tolerance, "bodies[].solver.cg_tolerance")
         iterations = _default(cg_max_iterations, "bodies[].solver.cg_max_iterations")
-        _check(library().hh_world_set_body_solver(self._handle, body, SOLVERS[solver], float(tol), int(iterations)))
+        _check(library().hh_world_set_body_solver(self._handle, body, solver_code(solver, "bodies[].solver.name"), float(tol),
+                                                  int(iterations)))
 
     # --- driving ---
     def set_pose(self, body: int, position=None, quaternion=None, velocity=None, angular_velocity=None) -> None:

@@ -34,6 +34,9 @@ extern "C" {
  * (warm started, to the relative residual cg_tolerance); renewed when that lowers the mean cost
  * per step. For large meshes (docs/maths.md, "Schur-complement solve"). */
 #define HH_SOLVER_REUSED_CHOLESKY 2
+/* Soft bodies only: HH_SOLVER_CHOLESKY below 1000 tets, HH_SOLVER_REUSED_CHOLESKY from there on
+ * (the rule bench/bench_soft_solver.py supports; docs/contact.md). */
+#define HH_SOLVER_AUTO 3
 
 #define HH_API_VERSION 2
 

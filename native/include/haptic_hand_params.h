@@ -294,11 +294,12 @@
       "A kinematic body's timed offsets from where it starts: [{t, position, quaternion}] (in "        \
       "Blender, its animation)",                                                                       \
       "strictly increasing times")                                                                     \
-    X(solver, HH_KIND_ENUM, 1, "bodies[].solver.name", "", HH_V(0), 0, 2,                         \
-      HH_UI_OBJECT | HH_FOR_SOFT, 0, 2, "Solver", "cholesky|cg|reused_cholesky",                       \
-      "A soft body's solver: a Cholesky factor every step, or an earlier step's factor "               \
-      "preconditioning CG, its contact responses kept (large bodies in long contact); not cg",         \
-      "cholesky or reused_cholesky (cg would solve every contact response on its own)")                                           \
+    X(solver, HH_KIND_ENUM, 1, "bodies[].solver.name", "", HH_V(3), 0, 3,                              \
+      HH_UI_OBJECT | HH_FOR_SOFT, 0, 3, "Solver", "cholesky|cg|reused_cholesky|auto",                  \
+      "A soft body's solver: a Cholesky factor every step; an earlier step's factor preconditioning "  \
+      "CG, its contact responses kept (large bodies in long contact); or auto: the first below 1000 "  \
+      "tets, the second from there on; not cg",                                                       \
+      "auto, cholesky or reused_cholesky (cg would solve every contact response on its own)")         \
     X(cg_tolerance, HH_KIND_DOUBLE, 1, "bodies[].solver.cg_tolerance", "", HH_V(1e-6), 0, 1,      \
       HH_OPEN_MIN | HH_OPEN_MAX | HH_UI_OBJECT | HH_UI_ADVANCED | HH_FOR_SOFT, 1e-12, 1e-3,            \
       "CG tolerance", "", "Relative residual at which a soft body's CG stops (reused_cholesky)",       \

@@ -62,13 +62,14 @@ Model reused_box_model() {
     p.cg_tolerance = 1e-10;
     return build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
 }
-double schur_vs_monolithic(int solver, double cg_tol) {
+double schur_vs_monolithic(int solver, double cg_tol, const FactorForms& forms = FactorForms()) {
     const BoxMesh b = make_box(4, 3, 2, 0.01);
     hh_params p = box_params();
     p.solver = solver;
     p.cg_tolerance = cg_tol;
     const Model m = build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
     Data d(m);
+    d.tool.set_factor_forms(forms);
     solve_perturbed(m, d, 21);
     const VecX schur = d.hand.s;
     const VecX mono = solve_monolithic(d.hand, d.hand.r);
@@ -81,10 +82,9 @@ TEST(schur_equals_monolithic_with_cholesky) { CHECK_LT(schur_vs_monolithic(HH_SO
 TEST(schur_equals_monolithic_with_the_supernodal_per_step_cholesky) {
     // large meshes factor every step in the supernodal form (L L^T in dense panels); forced here
     // on the small box, the Schur solve through it must still equal the monolithic reference
-    setenv("HH_CHOLESKY_FORM", "supernodal", 1);
-    const double difference = schur_vs_monolithic(HH_SOLVER_CHOLESKY, 1e-8);
-    unsetenv("HH_CHOLESKY_FORM");
-    CHECK_LT(difference, 1e-8);
+    FactorForms supernodal;
+    supernodal.per_step = FactorForms::PerStep::Supernodal;
+    CHECK_LT(schur_vs_monolithic(HH_SOLVER_CHOLESKY, 1e-8, supernodal), 1e-8);
 }
 
 TEST(schur_equals_monolithic_with_cg) { CHECK_LT(schur_vs_monolithic(HH_SOLVER_CG, 1e-14), 1e-8); }

@@ -1,7 +1,8 @@
 """Blender tests: the add-on in the bpy module, headless. Skipped when bpy is not importable.
 
-Timers and modal events never fire headless (FACTS.md), so the tests call the step functions
-the modal operators call (ops_bake.prepare/poll_job, live.start/update/stop)."""
+Timers and modal-operator timer events never fire in the bpy module or in `blender --background`,
+so the tests call the step functions the modal operators call (ops_bake.prepare/poll_job,
+live.start/update/stop)."""
 
 from __future__ import annotations
 

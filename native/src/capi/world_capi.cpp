@@ -48,8 +48,15 @@ void require_friction(double friction, bool hand = false) {
     hh::params::check(hand ? "hand.friction" : "bodies[].friction", friction);
 }
 
-// The soft-body solver a table index or C code names.
-hh::DeformableSolver soft_solver(int solver) {
+// HH_SOLVER_AUTO's rule: the per-step factor (exact to round-off) for a soft body of fewer tets
+// than this, the reused factor from here on. On a soft block resting on the ground
+// (bench/bench_soft_solver.py) both cost under ~1 ms a frame at 384 tets and the reused factor
+// took 0.21x the per-step factor's time at 2058 tets and 0.07x at 20250.
+constexpr int kReusedFactorFromTets = 1000;
+
+// The soft-body solver a C code names (auto: by the body's tet count).
+hh::DeformableSolver soft_solver(int solver, int n_tets) {
+    if (solver == HH_SOLVER_AUTO) solver = n_tets >= kReusedFactorFromTets ? HH_SOLVER_REUSED_CHOLESKY : HH_SOLVER_CHOLESKY;
     return solver == HH_SOLVER_REUSED_CHOLESKY ? hh::DeformableSolver::ReusedCholesky : hh::DeformableSolver::Cholesky;
 }
 
@@ -115,29 +122,30 @@ int hh_world_add_soft_body(hh_world* world, const double* nodes, int n_nodes, co
         b->kind = hh::BodyKind::Soft;
         b->friction = friction;
         b->kinetic_friction = friction;
-        b->flesh = std::make_unique<hh::Flesh>(hh::build_flesh(
+        b->soft.flesh = std::make_unique<hh::Flesh>(hh::build_flesh(
             nodes, n_nodes, tets, n_tets,
             hh::Material{material->young_modulus, material->poisson_ratio, material->density}));
-        b->alpha = material->rayleigh_alpha;
-        b->beta = material->rayleigh_beta;
-        hh::reset_flesh(*b->flesh, b->state);
-        b->tool = std::make_unique<hh::DeformableSystem>();
-        b->tool->configure(soft_solver(static_cast<int>(hh::params::row("bodies[].solver.name").default_value[0])),
-                           hh::params::row("bodies[].solver.cg_tolerance").default_value[0],
-                           static_cast<int>(hh::params::row("bodies[].solver.cg_max_iterations").default_value[0]));
-        b->tool->A = b->flesh->pattern.matrix;
-        b->fixed.assign(n_nodes, 0);
+        b->soft.alpha = material->rayleigh_alpha;
+        b->soft.beta = material->rayleigh_beta;
+        hh::reset_flesh(*b->soft.flesh, b->state);
+        b->soft.tool = std::make_unique<hh::DeformableSystem>();
+        b->soft.tool->configure(soft_solver(static_cast<int>(hh::params::row("bodies[].solver.name").default_value[0]),
+                                            n_tets),
+                                hh::params::row("bodies[].solver.cg_tolerance").default_value[0],
+                                static_cast<int>(hh::params::row("bodies[].solver.cg_max_iterations").default_value[0]));
+        b->soft.tool->A = b->soft.flesh->pattern.matrix;
+        b->soft.fixed.assign(n_nodes, 0);
         require(n_fixed == 0 || fixed_nodes, "fixed nodes: null array");
         for (int k = 0; k < n_fixed; ++k) {
             require(fixed_nodes[k] >= 0 && fixed_nodes[k] < n_nodes,
                     "fixed node " + std::to_string(fixed_nodes[k]) + " is not a node of the body");
-            b->fixed[fixed_nodes[k]] = 1;
+            b->soft.fixed[fixed_nodes[k]] = 1;
         }
         // entries of At in the rows or columns of fixed nodes, zeroed every step
-        const hh::SpMat& pat = b->flesh->pattern.matrix;
+        const hh::SpMat& pat = b->soft.flesh->pattern.matrix;
         for (int col = 0; col < pat.outerSize(); ++col)
             for (int p = pat.outerIndexPtr()[col]; p < pat.outerIndexPtr()[col + 1]; ++p)
-                if (b->fixed[col / 3] || b->fixed[pat.innerIndexPtr()[p] / 3]) b->fixed_entries.push_back(p);
+                if (b->soft.fixed[col / 3] || b->soft.fixed[pat.innerIndexPtr()[p] / 3]) b->soft.fixed_entries.push_back(p);
         set_surface(b->surface, surface_nodes, surface_weights, n_surface_vertices, faces, n_faces);
         b->has_surface = true;
         require_idle(world);
@@ -174,16 +182,16 @@ int hh_world_add_mesh_body(hh_world* world, int kind, const double* vertices, in
         hh::Vec3 com = hh::Vec3::Zero();
         if (kind == HH_BODY_RIGID) {
             hh::params::check("bodies[].density", density);
-            hh::mesh_mass_properties(x, tris, density, b->mass, com, b->inertia_body);
-            b->rigid_system = std::make_unique<hh::RigidSystem>();
+            hh::mesh_mass_properties(x, tris, density, b->mesh.mass, com, b->mesh.inertia_body);
+            b->mesh.system = std::make_unique<hh::RigidSystem>();
         } else {
             for (const auto& p : x) com += p;
             com /= n_vertices;
         }
         b->rigid.x_com = com;
         b->target = b->rigid;
-        b->local.resize(n_vertices);
-        for (int v = 0; v < n_vertices; ++v) b->local[v] = x[v] - com;
+        b->mesh.local.resize(n_vertices);
+        for (int v = 0; v < n_vertices; ++v) b->mesh.local[v] = x[v] - com;
         b->surface.triangles = tris;
         b->surface.nodes.resize(n_vertices);
         b->surface.weights.resize(n_vertices);
@@ -243,7 +251,8 @@ int hh_world_set_body_solver(hh_world* world, int body, int solver, double cg_to
         hh::params::check("bodies[].solver.cg_tolerance", cg_tolerance);
         hh::params::check("bodies[].solver.cg_max_iterations", cg_max_iterations);
         require_idle(world);
-        b.tool->configure(soft_solver(solver), cg_tolerance, cg_max_iterations);
+        b.soft.tool->configure(soft_solver(solver, static_cast<int>(b.soft.flesh->mesh.tets.size())), cg_tolerance,
+                               cg_max_iterations);
         b.carried_impulse.resize(0);
         return HH_OK;
     });
@@ -328,7 +337,7 @@ int hh_world_body_kind(const hh_world* world, int body, int* out_kind, int* out_
         const hh::Body& b = body_at(world, body);
         if (out_kind) *out_kind = static_cast<int>(b.kind);
         if (out_n_nodes) *out_n_nodes = b.kind == hh::BodyKind::Hand ? b.hand_model->mesh.n_nodes
-                                        : b.kind == hh::BodyKind::Soft ? b.flesh->mesh.n_nodes : 0;
+                                        : b.kind == hh::BodyKind::Soft ? b.soft.flesh->mesh.n_nodes : 0;
         if (out_n_surface_vertices) *out_n_surface_vertices = b.has_surface ? b.surface.n_vertices() : 0;
         return HH_OK;
     });
@@ -414,9 +423,9 @@ int hh_world_linear_momentum(const hh_world* world, double out[3]) {
                 p += b.hand_model->handle.mass * b.hand->h.v_com;
                 for (int i = 0; i < b.hand_model->mesh.n_nodes; ++i) p += b.hand_model->masses[i] * b.hand->v.segment<3>(3 * i);
             } else if (b.kind == hh::BodyKind::Soft) {
-                for (int i = 0; i < b.flesh->mesh.n_nodes; ++i) p += b.flesh->masses[i] * b.state.v.segment<3>(3 * i);
+                for (int i = 0; i < b.soft.flesh->mesh.n_nodes; ++i) p += b.soft.flesh->masses[i] * b.state.v.segment<3>(3 * i);
             } else if (b.kind == hh::BodyKind::Rigid) {
-                p += b.mass * b.rigid.v_com;
+                p += b.mesh.mass * b.rigid.v_com;
             }
         }
         put3(p, out);

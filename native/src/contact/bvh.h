@@ -8,9 +8,8 @@
 // into one leaf holding a contiguous range of ranks, which keeps the tree small. 8 rather than
 // 4: the hand's self-collision descends along every pair of neighbouring patches down to the
 // leaves (~16500 node pairs a frame with 4 on the 1695-tet hand, for ~2900 vertex-triangle
-// tests), and fewer levels cost less than larger leaves; detection 1.12x as fast on that
-// hand's paper bunny, 1.05x on the 10x bunny, the same contacts bit for bit
-// (bench_detection.py; bench/README.md, twenty-fourth round).
+// tests), and fewer levels cost less than larger leaves (bench_detection.py compares two
+// builds; the contacts are the same bit for bit).
 //
 // Boxes are stored tight (the items' own boxes) with one margin for all of them: an inflated
 // box is computed as (lo - margin, hi + margin) when it is needed. Rounding is monotonic, so

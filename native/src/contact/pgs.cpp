@@ -36,8 +36,7 @@ void add_three_columns_single(double* __restrict y, const float* __restrict h, l
 
 // h_d = sum_e c_e a_e[d] (d = 0, 1, 2; h_d = h + d ld) over m entries, for the n columns c_e:
 // one contact's three response columns H = C P^T on a body, formed at the start of each solve.
-// Four columns a pass (accumulated one column a pass, the three outputs were read and written
-// up to 12 times: ~5% of a 10x bunny frame, now about half that).
+// Four columns a pass, so that the three outputs are read and written once per four columns.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 12 && !defined(__SANITIZE_THREAD__)
 __attribute__((target_clones("arch=x86-64-v3", "default")))
 #endif
@@ -72,8 +71,8 @@ void form_three_columns(double* __restrict h, long m, long ld, const double* con
 
 // The elimination step of basic_solve: the trailing r x r block of a column-major matrix (leading
 // dimension ld, block at a) loses l u^T, l = the pivot's column below it, u_j = a[j ld - 1]
-// (the pivot's row). The library is built for baseline x86-64; this loop is ~20% of a bunny
-// frame's contact solve, so it gets the AVX2 clone too.
+// (the pivot's row). The library is built for baseline x86-64; this loop is a large share of a
+// small problem's contact solve, so it gets the AVX2 clone too.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && __GNUC__ >= 12 && !defined(__SANITIZE_THREAD__)
 __attribute__((target_clones("arch=x86-64-v3", "default")))
 #endif
@@ -146,40 +145,24 @@ namespace {
 // nearly exactly; one far below it (nearly dependent rows) keeps nearly the sweeps' impulses.
 // The caller adapts the damping as Marquardt did: ten times larger after a step it rejected,
 // ten times smaller after one it kept, within [kDampingMin, kDampingMax]. Undamped, rows
-// implied by the others to 1e-6 - 1e-4 of their diagonal, whose targets differed by the
-// sweeps' residual, took impulses tens of times the sweeps' (one contact's normal impulse 90x)
-// that pushed sticking contacts out of their friction disks, and the step was rejected: half
-// of the steps on the paper bunny with the 1695-tet hand were. Measured on the benchmark's
-// meshes (bench/README.md, twenty-third round): that bunny 107.8 -> 49.3 sweeps a frame,
-// 18% -> 4% of the frames at the cap; with the 401-tet hand 161.8 -> 108.0. A fixed damping
-// of 1e-4 - 1e-3 did as well on the scenes, but made each step on two clean nearly dependent
-// rows (test_contact_reduced) gain only a factor 5-10; the damping of the whole solve
-// towards zero instead of towards the sweeps' impulses helped too (3e-6: 64.7 sweeps) but
-// biased every step, so that larger damping (3e-5 and more) made things worse.
+// implied by the others to 1e-6 - 1e-4 of their diagonal, whose targets differ by the sweeps'
+// residual, take impulses tens of times the sweeps' that push sticking contacts out of their
+// friction disks, and the step is rejected. A fixed damping would make each step on two clean
+// nearly dependent rows (test_contact_reduced) gain only a little; damping the whole solve
+// towards zero instead of towards the sweeps' impulses biases every step.
 //
 // A contact on its disk's rim that the sweeps leave slipping slower than ten times the
 // tolerance starts the step sticking, as the kinetic-friction test takes such a contact for a
-// sticking one still converging: the direction of so slow a slip is the sweeps' noise, and the
-// step, keeping it while raising the contact's normal impulse, made it slide at mm/s off the
-// direction against its friction, and the step was rejected (bench/README.md, twenty-second
-// round). Sticking, the solve finds its friction; outside the disk it turns sliding along the
-// solved friction (no cycling: a step never turns a sliding contact sticking). Measured on the
-// benchmark's meshes: paper bunny with the 1695-tet hand 143.1 -> 107.8 sweeps a frame, 34% ->
-// 18% of the frames at the cap; 10x letters 169.6 -> 152.1 (4370-tet hand) and 162.0 -> 148.5
-// (16826); the 401-tet bunny and the paper letters within a sweep or two; thresholds from the
-// tolerance to 40 times it all gave 108-131 on the 1695-tet bunny, every rim contact sticking
-// 147.
+// sticking one still converging: the direction of so slow a slip is the sweeps' noise, and a
+// step keeping it while raising the contact's normal impulse makes it slide off the direction
+// against its friction, and is rejected. Sticking, the solve finds its friction; outside the
+// disk it turns sliding along the solved friction (no cycling: a step never turns a sliding
+// contact sticking).
 //
-// The direction d of a sliding contact stays as the sweeps left it. Also tried, measured on
-// recorded bunny frames and not kept: moving d after each solve to the solved friction (Newton
-// on the rim's tangent line) or against the solved sliding velocity, switching a sliding
-// contact whose friction would drive it to sticking: strongly coupled hand contacts cycled
-// between sticking and sliding and the steps were rejected. Removing only the most pulled
-// contact per solve, as first done here, took up to 10 dense solves per step; all at once
-// (measured on whole sample scenes, bench_visual's meshes: paper bunny 185 -> 175 sweeps a
-// frame with the 380-tet hand, 183 -> 179 with the 1700-tet one, frames at the cap 49 -> 43%
-// and 48 -> 44%, same penetration; letters unchanged) is cheaper and converges no worse now
-// (an earlier version of this step had measured the opposite: 211 sweeps against 196-202).
+// The direction d of a sliding contact stays as the sweeps left it: moving it after each solve
+// to the solved friction or against the solved sliding velocity makes strongly coupled hand
+// contacts cycle between sticking and sliding. The contacts a solve pulls leave the set all at
+// once (one at a time took up to 10 dense solves per step and converged no better).
 constexpr int kSubspaceEvery = 10;     // sweeps between subspace steps while they help
 constexpr int kSubspaceMaxInterval = 80;  // ... and at most, after steps that did not
 constexpr int kSubspaceRounds = 10;    // solves per step (set changes)
@@ -190,8 +173,8 @@ constexpr double kSlowSlip = 10;       // slip (x tolerance) below which a rim c
 constexpr double kDampingStart = 1e-4, kDampingMin = 1e-6, kDampingMax = 1e-3;
 // Largest active set the step takes on: its cost grows as a^2 blocks of W and (3a)^3 / 3 per
 // dense solve, while a sweep costs ~ contacts x touched unknowns. On the paper's bunny ~20
-// contacts are active; in the 10x bunny scene several hundred, where the dense step made a
-// frame cost seconds (4 s against 0.15 s of plain sweeps): there the sweeps go on alone.
+// contacts are active; in the 10x bunny scene several hundred, where the dense steps would cost
+// far more than the sweeps: there the sweeps go on alone.
 constexpr int kSubspaceMaxActive = 64;
 // Sweeps between full ones, with the open contacts left out in between (see sweep)
 constexpr int kFullEvery = 10;
@@ -370,7 +353,7 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
         rhs.resize(na);
         scale.resize(na);
         // m entry by entry (Eigen's dynamic-size block copies, one per pair of active contacts and
-        // round, had cost two thirds as much as the solve itself on the paper's bunny)
+        // round, cost a large share of the step next to the solve itself)
         double* const md = m.data();
         for (int q = 0; q < a; ++q) {
             if (!state[q]) continue;
@@ -470,30 +453,133 @@ bool subspace_step(const Op& op, int c, const VecX& bias, const VecX& coefficien
 // The sweeps, on any form of W. Op gives, per contact i, its current relative velocity
 // velocity(i) (3: normal, tangent1, tangent2), the symmetric 3x3 diagonal block block(i) of
 // W, and apply(i, delta): the impulses of contact i change by delta.
+//
+// Which contacts a sweep visits. Open contacts are left out: a contact without impulse whose
+// gap stays open (u_n + gap/dt > 0) is a no-op in a sweep (its update leaves lambda = 0). Most
+// contacts of the paper's bunny are such (about 20 of 250 push), yet each would cost a
+// velocity in every sweep and in every residual. A full sweep (every contact, and the residual
+// on every contact) every kFullEvery sweeps marks those without impulse that are open by more
+// than the tolerance; the sweeps in between visit the others only. A contact that closes in
+// between is caught at the next full sweep, and every decision (to stop, to take or keep a
+// subspace step) is made on the residual of every contact, so the stopping criterion is
+// unchanged; while the left-out contacts stay open the sweeps are exactly the full ones. (The
+// margin is the tolerance: a wider one leaves more contacts in.)
+// Where the subspace step cannot run (more active contacts than it takes), settled contacts
+// are left out in between too: those whose own residual at the full sweep is within the
+// tolerance or within kHotFraction of the worst; full sweeps then come every kFullEveryLarge
+// sweeps. There (the 10x bunny ends every frame at the cap) the error sits in a few groups of
+// 2-5 nearly dependent contacts (the eigen-directions of W that carry most of the hand's
+// impulse error), while most contacts the sweeps visit are already far closer than the worst:
+// the partial sweeps, focused on the contacts they visit (ReducedOp::focus), then cost a
+// fraction of the full ones, and the residual left at the cap, and the hand's generalized
+// impulse's distance from the converged one, stay as they are with full sweeps.
+//
+// Subspace steps: every `interval` sweeps, kSubspaceEvery while the steps are kept, doubled (up
+// to kSubspaceMaxInterval) after each rejected one. Steps come in pairs: step_due is taken
+// before a pending step is decided, so the sweep that decides one takes the next at once (after
+// a rejection from the restored impulses, the contacts the rejected step took out starting
+// out); skipping that second step leaves a larger residual. A rejected step costs its dense
+// solves and the sweep after it, hence the longer interval after one.
+//
+// The stall stop. Near the tolerance the sweeps often crawl: on the paper bunny's pressed
+// frames the residual comes within a few times the tolerance in tens of sweeps and then falls
+// ~10% every 30 sweeps, so many frames would sweep on to the cap for a residual a little lower
+// (micrometres over a step). With stall_factor, once the residual on every contact is within
+// stall_factor x the tolerance and the best residual's rate of fall over the last kStallWindow
+// sweeps would not bring it to the tolerance within the sweeps left, the solve ends as if
+// converged (the reported residual is the one reached). Far from the tolerance the sweeps go
+// on: there they still matter (the 10x scenes end at the cap 10-20x above it).
 template <class Op>
-PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX& kinetic, double dt,
-                double recovery_speed, VecX& lambda, int max_iterations, double tolerance, double stall_factor) {
+class Sweeps {
+public:
+    Sweeps(Op& op, int c, const VecX& gap, const VecX& friction, const VecX& kinetic, double dt, double recovery_speed,
+           VecX& lambda, int max_iterations, double tolerance, double stall_factor)
+        : op(op), c(c), kinetic(kinetic), lambda(lambda), max_iterations(max_iterations), tolerance(tolerance),
+          stall_factor(stall_factor), bias(c), coefficient(friction), u(c), all(c), own(c, 0.0), disks(c),
+          disk_made(c, 0), blocks_cache(c), last_state(c, -1) {
+        // target normal velocity: close an open gap exactly within the step, never faster; push
+        // out of a penetration at a bounded speed, so a deep one is resolved over a few steps
+        // instead of by one violent impulse that would feed energy into the scene
+        for (int i = 0; i < c; ++i) bias[i] = std::max(gap[i] / dt, -recovery_speed);
+        for (int i = 0; i < c; ++i) all[i] = i;
+    }
+
+    PgsResult run() {
+        for (int it = 0, pass = 0; it < max_iterations; ++it) {
+            const bool full = it >= next_full;
+            if (full && it > 0) op.refresh(lambda);
+            const std::vector<int>& visit = full ? all : live;
+            const double estimate = sweep(visit, full);
+            result.iterations = it + 1;
+            result.residual = full ? residual(visit) : estimate;
+            if (full) after_full_sweep(it);
+            // every decision below (stop, subspace step, keep a step) on the residual of every
+            // contact. With more active contacts than the subspace step takes (`large`), a step
+            // that falls due in a partial sweep waits for the next full sweep, whose residual is
+            // every contact's anyway: measuring it in the partial sweep before (a catch-up of
+            // the focused contacts' columns and a velocity per contact, then a full sweep next)
+            // is wasted on a step that cannot run there unless the active set shrank.
+            const bool step_due = it + 1 >= next_step && (full || !large);
+            const bool deciding = pending || result.residual <= tolerance || it + 1 >= max_iterations || step_due;
+            if (!full && deciding) {
+                op.refresh(lambda);
+                result.residual = residual(all);
+                next_full = it + 1;  // the next sweep visits every contact again
+            }
+            if (pending) judge_step(it);
+            if (result.residual > tolerance && it + 1 < max_iterations && step_due && take_step(it)) continue;
+            // (a residual on every contact: after a full sweep or one that decided something)
+            const bool measured_all = full || deciding;
+            if (result.residual > tolerance && it + 1 < max_iterations && !(measured_all && stalled(it, result.residual)))
+                continue;
+            if (pass++ > 0 || !break_loose()) break;
+            next_full = it + 1;
+            progress.clear();  // the kinetic problem's progress is its own
+        }
+        return result;
+    }
+
+private:
+    Op& op;
+    const int c;
+    const VecX& kinetic;
+    VecX& lambda;
+    const int max_iterations;
+    const double tolerance, stall_factor;
     PgsResult result;
-    // target normal velocity: close an open gap exactly within the step, never faster; push
-    // out of a penetration at a bounded speed, so a deep one is resolved over a few steps
-    // instead of by one violent impulse that would feed energy into the scene
-    VecX bias(c);
-    for (int i = 0; i < c; ++i) bias[i] = std::max(gap[i] / dt, -recovery_speed);
+    VecX bias;
     // Friction coefficient each contact's disk uses: static first; contacts still sliding once
     // the static problem is solved break loose and are solved again against kinetic friction.
     // (Deciding per contact inside the sweep would let the first contact of a resting block
     // give way before its neighbours had taken their share.)
-    VecX coefficient = friction;
-    std::vector<Vec3> u(c);
+    VecX coefficient;
+    std::vector<Vec3> u;  // per contact, its relative velocity when its residual was last measured
     // How far the current impulses are from satisfying every condition, in m/s: normal
     // complementarity, sticking contacts at rest, sliding ones sliding against their friction.
-    // `all` the contacts, `live` those the sweeps visit (see below); `own` each contact's
-    // residual when last measured
-    std::vector<int> all(c), live;
-    std::vector<double> own(c, 0.0);
-    for (int i = 0; i < c; ++i) all[i] = i;
+    // `all` the contacts, `live` those the partial sweeps visit; `own` each contact's residual
+    // when last measured
+    std::vector<int> all, live;
+    std::vector<double> own;
+    // per contact, the eigen-decomposition of its tangential block, made when first needed
+    // (with the reduced form, a contact's block is formed with its columns: see below)
+    std::vector<Disk> disks;
+    std::vector<unsigned char> disk_made;
+    // the subspace steps: the impulses and residual before the pending one, the blocks of W
+    // they keep, each contact's state at the end of the last one, their solves' damping
+    VecX saved;
+    double saved_residual = 0;
+    ActiveBlocks blocks_cache;
+    std::vector<int> last_state;
+    double damping = kDampingStart;  // (adapted: see subspace_step)
+    bool pending = false;
+    int interval = kSubspaceEvery, next_step = kSubspaceEvery;
+    int next_full = 0;
+    bool large = false;  // more active contacts than the subspace step takes (at the last full sweep)
+    // (sweep, best residual so far) at each measurement of every contact's residual (stalled)
+    std::vector<std::pair<int, double>> progress;
+
     // contact i's conditions at relative velocity ui and its current impulses
-    auto local_residual = [&](int i, const Vec3& ui) {
+    double local_residual(int i, const Vec3& ui) const {
         const int n = 3 * i;
         const double un = ui[0] + bias[i];
         double r = lambda[n] > 0 ? std::abs(un) : std::max(0.0, -un);
@@ -507,8 +593,9 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
                 r = std::max(r, (ut + (ut.norm() / lt.norm()) * lt).norm());  // anti-parallel
         }
         return r;
-    };
-    auto residual = [&](const std::vector<int>& contacts) {
+    }
+
+    double residual(const std::vector<int>& contacts) {
         double worst = 0;
         for (const int i : contacts) {
             const Vec3 ui = op.velocity(i);
@@ -517,100 +604,15 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             worst = std::max(worst, own[i]);
         }
         return worst;
-    };
-    // per contact, the eigen-decomposition of its tangential block, made when first needed
-    // (with the reduced form, a contact's block is formed with its columns: see below)
-    std::vector<Disk> disks(c);
-    std::vector<unsigned char> disk_made(c, 0);
-    VecX saved;
-    ActiveBlocks blocks_cache(c);
-    std::vector<int> last_state(c, -1);  // per contact, its state at the end of the last subspace step
-    double saved_residual = 0;
-    double damping = kDampingStart;  // of the subspace steps' solves, adapted (see subspace_step)
-    bool pending = false;
-    // Sweeps until the next subspace step: kSubspaceEvery while the steps are kept, doubled
-    // (up to kSubspaceMaxInterval) after each rejected one. Steps come in pairs: step_due is
-    // taken before a pending step is decided, so the sweep that decides one takes the next at
-    // once (after a rejection from the restored impulses, the contacts the rejected step took
-    // out starting out). Skipping that second step left a larger residual on the paper bunny
-    // (docs/contact.md). A rejected step costs its dense
-    // solves and the sweep after it; on the benchmark's bunny frames most were rejected and
-    // the steps took a third of the solve's time.
-    int interval = kSubspaceEvery, next_step = kSubspaceEvery;
-    // Open contacts left out of the sweeps. A contact without impulse whose gap stays open
-    // (u_n + gap/dt > 0) is a no-op in a sweep: its update leaves lambda = 0. Most contacts of
-    // the paper's bunny are such (about 20 of 250 push), yet each cost a velocity in every sweep
-    // and in every residual: about half of the solve's time. A full sweep (every contact, and
-    // the residual on every contact) every kFullEvery sweeps marks those without impulse that
-    // are open by more than the tolerance; the sweeps in between visit the others only. A
-    // contact that closes in between is caught at the next full sweep, and every decision (to
-    // stop, to take or keep a subspace step) is made on the residual of every contact, so the
-    // stopping criterion is unchanged; while the left-out contacts stay open the sweeps are
-    // exactly the full ones. (Measured on recorded bunny frames, the margin mattered: open by
-    // 1e-3 m/s left 4.4 ms of 6.1, by the tolerance 3.2 ms; a full sweep every 5 or 20 sweeps
-    // made little difference.)
-    // Where the subspace step cannot run (more active contacts than it takes), settled contacts
-    // are left out in between too: those whose own residual at the full sweep is within the
-    // tolerance or within kHotFraction of the worst; full sweeps then come every
-    // kFullEveryLarge sweeps. There (the 10x bunny ends every frame at the cap) the error sits
-    // in a few groups of 2-5 nearly dependent contacts (the eigen-directions of W that carry
-    // most of the hand's impulse error), while most contacts the sweeps visit are already far
-    // closer than the worst. Measured on 60 recorded 10x bunny frames at 300 sweeps (one
-    // thread): 70 ms before; leaving out those within 3% of the worst, 36 ms (93 contacts a
-    // sweep instead of 386); with the partial sweeps focused (ReducedOp::focus) 32 ms; within
-    // 10% and full sweeps every 30, 23 ms. The residual left at the cap, and the hand's
-    // generalized impulse's distance from the converged one (1-4%), stayed as they were.
-    const double open_margin = tolerance;
-    int next_full = 0;
-    bool large = false;  // more active contacts than the subspace step takes (at the last full sweep)
-    // the contacts the partial sweeps visit, from every contact's residual (own, u) against the worst
-    auto select_live = [&](double worst) {
-        live.clear();
-        // settled contacts left out only where the subspace steps cannot run (too many
-        // active contacts): with them, the sweeps converge together and leaving contacts
-        // out slowed them (60 contacts on one element: 127 -> 155 sweeps)
-        int active = 0;
-        for (int i = 0; i < c; ++i) active += lambda[3 * i] > 0;
-        large = active > kSubspaceMaxActive;
-        const double settled = large ? std::max(tolerance, kHotFraction * worst) : -1.0;
-        for (int i = 0; i < c; ++i)
-            if ((lambda[3 * i] > 0 || lambda[3 * i + 1] != 0 || lambda[3 * i + 2] != 0 || !(u[i][0] + bias[i] > open_margin)) &&
-                own[i] > settled)
-                live.push_back(i);
-    };
-    // The stall stop. Near the tolerance the sweeps often crawl: on the paper bunny's pressed
-    // frames the residual comes within 1-4x the tolerance in 20-60 sweeps and then falls ~10%
-    // every 30 sweeps, so a quarter of the frames swept on to the cap of 300 for a residual
-    // 1.5x lower (2e-5 -> 1.3e-5 m/s: 0.2 um a step at dt 1/30 s). With stall_factor, once the
-    // residual on every contact is within stall_factor x the tolerance and the best residual's
-    // rate of fall over the last kStallWindow sweeps would not bring it to the tolerance within
-    // the sweeps left, the solve ends as if converged (the reported residual is the one
-    // reached). Far from the tolerance the sweeps go on: there they still matter (the 10x
-    // scenes end at the cap 10-20x above it). `progress`: (sweep, best residual so far) at
-    // each measurement of every contact's residual.
-    std::vector<std::pair<int, double>> progress;
-    auto stalled = [&](int it, double r) {
-        const double best = progress.empty() ? r : std::min(r, progress.back().second);
-        progress.emplace_back(it, best);
-        if (!(stall_factor > 0) || r > stall_factor * tolerance) return false;
-        int k = static_cast<int>(progress.size()) - 1;  // the last measurement kStallWindow or more sweeps before
-        while (k >= 0 && progress[k].first > it - kStallWindow) --k;
-        if (k < 0) return false;
-        const double fall = best / progress[k].second;  // over it - progress[k].first sweeps
-        if (fall >= 1) return true;
-        const double needed = (it - progress[k].first) * std::log(best / tolerance) / -std::log(fall);
-        return needed > max_iterations - 1 - it;
-    };
-    for (int it = 0, pass = 0; it < max_iterations; ++it) {
-        const bool full = it >= next_full;
-        if (full && it > 0) op.refresh(lambda);
-        const std::vector<int>& visit = full ? all : live;
-        // A partial sweep measures no residual of its own: each contact's conditions as the
-        // sweep finds it (before its update, with the contacts visited before it updated)
-        // estimate where the last sweep left them, and only when that estimate is within the
-        // tolerance is every contact's residual measured (see `deciding` below: every decision
-        // stays on the residual of every contact). The measurement after each partial sweep
-        // was a second pass of velocities over the visited contacts.
+    }
+
+    // One sweep over `visit`. A partial sweep measures no residual of its own: each contact's
+    // conditions as the sweep finds it (before its update, with the contacts visited before it
+    // updated) estimate where the last sweep left them, returned; only when that estimate is
+    // within the tolerance is every contact's residual measured (run: `deciding`). The
+    // measurement after each partial sweep would be a second pass of velocities over the
+    // visited contacts.
+    double sweep(const std::vector<int>& visit, bool full) {
         double estimate = 0;
         for (const int i : visit) {
             const int n = 3 * i;
@@ -631,100 +633,133 @@ PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX
             }
             if (!bare) ui = op.velocity(i);
             if (!full) estimate = std::max(estimate, local_residual(i, ui));
-            const double ln = std::max(0.0, lambda[n] - (ui[0] + bias[i]) / w(0, 0));
-            Vec3 delta(ln - lambda[n], 0, 0);
-            lambda[n] = ln;
-            ui += w.col(0) * delta[0];
-            // friction: the exact solution of this contact's 2x2 subproblem (impulse inside
-            // the disk of radius mu lambda_n minimizing the block's kinetic energy), whose
-            // optimality conditions are Coulomb's: sticking inside the disk, or on its rim
-            // exactly opposite the post-step sliding velocity (maximal dissipation).
-            const Eigen::Matrix2d wtt = 0.5 * (w.block<2, 2>(1, 1) + w.block<2, 2>(1, 1).transpose());
-            if (wtt.trace() > 0) {
-                const Eigen::Vector2d ut(ui[1], ui[2]);
-                const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
-                if (!disk_made[i]) {
-                    disks[i] = Disk(wtt);
-                    disk_made[i] = 1;
-                }
-                const Eigen::Vector2d target = disk_constrained_minimum(disks[i], wtt * lt - ut, coefficient[i] * lambda[n]);
-                delta[1] = target[0] - lt[0];
-                delta[2] = target[1] - lt[1];
-                lambda[n + 1] = target[0];
-                lambda[n + 2] = target[1];
+            update(i, w, ui);
+        }
+        return estimate;
+    }
+
+    // Contact i's impulses given the others': the normal one projected, then friction as the
+    // exact solution of the contact's 2x2 subproblem (the impulse inside the disk of radius
+    // mu lambda_n minimizing the block's kinetic energy), whose optimality conditions are
+    // Coulomb's: sticking inside the disk, or on its rim exactly opposite the post-step sliding
+    // velocity (maximal dissipation).
+    void update(int i, const Mat3& w, Vec3 ui) {
+        const int n = 3 * i;
+        const double ln = std::max(0.0, lambda[n] - (ui[0] + bias[i]) / w(0, 0));
+        Vec3 delta(ln - lambda[n], 0, 0);
+        lambda[n] = ln;
+        ui += w.col(0) * delta[0];
+        const Eigen::Matrix2d wtt = 0.5 * (w.block<2, 2>(1, 1) + w.block<2, 2>(1, 1).transpose());
+        if (wtt.trace() > 0) {
+            const Eigen::Vector2d ut(ui[1], ui[2]);
+            const Eigen::Vector2d lt(lambda[n + 1], lambda[n + 2]);
+            if (!disk_made[i]) {
+                disks[i] = Disk(wtt);
+                disk_made[i] = 1;
             }
-            op.apply(i, delta);
+            const Eigen::Vector2d target = disk_constrained_minimum(disks[i], wtt * lt - ut, coefficient[i] * lambda[n]);
+            delta[1] = target[0] - lt[0];
+            delta[2] = target[1] - lt[1];
+            lambda[n + 1] = target[0];
+            lambda[n + 2] = target[1];
         }
-        result.iterations = it + 1;
-        result.residual = full ? residual(visit) : estimate;
-        if (full) {
-            select_live(result.residual);
-            next_full = it + (large ? kFullEveryLarge : kFullEvery);
-            // (on small problems the focus's copies cost more than they save: paper bunny
-            // contact 4.4 -> 4.8 ms a frame)
-            if (large) op.focus(live, lambda);
-        }
-        // every decision below (stop, subspace step, keep a step) on the residual of every contact
-        // With more active contacts than the subspace step takes (`large`), a step that falls
-        // due in a partial sweep waits for the next full sweep, whose residual is every
-        // contact's anyway: measuring it in the partial sweep before (a catch-up of the focused
-        // contacts' columns and a velocity per contact, then a full sweep next) cost ~5% of the
-        // 10x bunny's sweeps, for a step that cannot run there unless the active set shrank.
-        const bool step_due = it + 1 >= next_step && (full || !large);
-        const bool deciding = pending || result.residual <= tolerance || it + 1 >= max_iterations || step_due;
-        if (!full && deciding) {
-            op.refresh(lambda);
+        op.apply(i, delta);
+    }
+
+    // After a full sweep (every contact's residual measured): the contacts the partial sweeps
+    // visit until the next one, and when that comes
+    void after_full_sweep(int it) {
+        select_live(result.residual);
+        next_full = it + (large ? kFullEveryLarge : kFullEvery);
+        // (on small problems the focus's copies cost more than they save)
+        if (large) op.focus(live, lambda);
+    }
+
+    // the contacts the partial sweeps visit, from every contact's residual (own, u) against the worst
+    void select_live(double worst) {
+        live.clear();
+        // settled contacts left out only where the subspace steps cannot run (too many
+        // active contacts): with them, the sweeps converge together and leaving contacts
+        // out slows them (test_contact_reduced's contacts on one element take more sweeps)
+        int active = 0;
+        for (int i = 0; i < c; ++i) active += lambda[3 * i] > 0;
+        large = active > kSubspaceMaxActive;
+        const double settled = large ? std::max(tolerance, kHotFraction * worst) : -1.0;
+        const double open_margin = tolerance;
+        for (int i = 0; i < c; ++i)
+            if ((lambda[3 * i] > 0 || lambda[3 * i + 1] != 0 || lambda[3 * i + 2] != 0 || !(u[i][0] + bias[i] > open_margin)) &&
+                own[i] > settled)
+                live.push_back(i);
+    }
+
+    // The pending subspace step, then this sweep: kept only if the residual fell
+    void judge_step(int it) {
+        pending = false;
+        const bool rejected = result.residual > saved_residual;
+        interval = rejected ? std::min(kSubspaceMaxInterval, 2 * interval) : kSubspaceEvery;
+        damping = rejected ? std::min(kDampingMax, 10 * damping) : std::max(kDampingMin, damping / 10);
+        next_step = it + 1 + interval;
+        if (rejected) {
+            lambda = saved;
+            op.reset(lambda);
             result.residual = residual(all);
-            next_full = it + 1;  // the next sweep visits every contact again
         }
-        if (pending) {
-            // a subspace step, then this sweep: kept only if the residual fell
-            pending = false;
-            const bool rejected = result.residual > saved_residual;
-            interval = rejected ? std::min(kSubspaceMaxInterval, 2 * interval) : kSubspaceEvery;
-            damping = rejected ? std::min(kDampingMax, 10 * damping) : std::max(kDampingMin, damping / 10);
-            next_step = it + 1 + interval;
-            if (rejected) {
-                lambda = saved;
-                op.reset(lambda);
-                result.residual = residual(all);
-            }
+    }
+
+    // A subspace step now, decided after the next sweep (judge_step); false when none could be
+    // taken (no active contact, or too many)
+    bool take_step(int it) {
+        saved = lambda;
+        saved_residual = result.residual;
+        if (subspace_step(op, c, bias, coefficient, u, tolerance, damping, blocks_cache, last_state, lambda)) {
+            op.reset(lambda);
+            pending = true;
+            next_full = it + 1;  // the step may close left-out contacts: the sweep after it visits all
+            return true;
         }
-        if (result.residual > tolerance && it + 1 < max_iterations && step_due) {
-            saved = lambda;
-            saved_residual = result.residual;
-            if (subspace_step(op, c, bias, coefficient, u, tolerance, damping, blocks_cache, last_state, lambda)) {
-                op.reset(lambda);
-                pending = true;
-                next_full = it + 1;  // the step may close left-out contacts: the sweep after it visits all
-                continue;
-            }
-            // no step (no active contact, or too many): not before then (with too many, not
-            // before the next full sweep: each step decision costs a residual on every contact)
-            next_step = it + 1 + (large ? kFullEveryLarge : interval);
-        }
-        // (a residual on every contact: after a full sweep or one that decided something)
-        const bool measured_all = full || deciding;
-        if (result.residual > tolerance && it + 1 < max_iterations && !(measured_all && stalled(it, result.residual)))
-            continue;
-        if (pass++ > 0) break;
-        bool broke_loose = false;
+        // not before then (with too many, not before the next full sweep: each step decision
+        // costs a residual on every contact)
+        next_step = it + 1 + (large ? kFullEveryLarge : interval);
+        return false;
+    }
+
+    // The stall stop (see the class's comment), on the residual r of every contact after sweep it
+    bool stalled(int it, double r) {
+        const double best = progress.empty() ? r : std::min(r, progress.back().second);
+        progress.emplace_back(it, best);
+        if (!(stall_factor > 0) || r > stall_factor * tolerance) return false;
+        int k = static_cast<int>(progress.size()) - 1;  // the last measurement kStallWindow or more sweeps before
+        while (k >= 0 && progress[k].first > it - kStallWindow) --k;
+        if (k < 0) return false;
+        const double fall = best / progress[k].second;  // over it - progress[k].first sweeps
+        if (fall >= 1) return true;
+        const double needed = (it - progress[k].first) * std::log(best / tolerance) / -std::log(fall);
+        return needed > max_iterations - 1 - it;
+    }
+
+    // The static problem solved: contacts sliding clearly faster than the solver's tolerance
+    // (not sticking ones still converging) while at the static limit break loose, to kinetic
+    // friction. Whether any did.
+    bool break_loose() {
+        bool any = false;
         for (int i = 0; i < c; ++i) {
             const Eigen::Vector2d ut(u[i][1], u[i][2]);
-            // sliding clearly faster than the solver's tolerance (not a sticking contact
-            // still converging) while at the static limit: it breaks loose
             const Eigen::Vector2d lt(lambda[3 * i + 1], lambda[3 * i + 2]);
             if (kinetic[i] < coefficient[i] && ut.norm() > kSlowSlip * tolerance &&
                 lt.norm() >= coefficient[i] * lambda[3 * i] * (1 - 1e-9)) {
                 coefficient[i] = kinetic[i];
-                broke_loose = true;
+                any = true;
             }
         }
-        if (!broke_loose) break;
-        next_full = it + 1;
-        progress.clear();  // the kinetic problem's progress is its own
+        return any;
     }
-    return result;
+};
+
+template <class Op>
+PgsResult sweep(Op& op, int c, const VecX& gap, const VecX& friction, const VecX& kinetic, double dt,
+                double recovery_speed, VecX& lambda, int max_iterations, double tolerance, double stall_factor) {
+    return Sweeps<Op>(op, c, gap, friction, kinetic, dt, recovery_speed, lambda, max_iterations, tolerance, stall_factor)
+        .run();
 }
 
 // W dense: u = u_free + W lambda kept up to date, a column per changed impulse.
@@ -986,13 +1021,12 @@ ReducedColumns::ReducedColumns(const ReducedContactProblem& p, const VecX* warm)
         for (int i = 0; i < c; ++i) up_front[i] = warm->segment<3>(3 * i) != Vec3::Zero();
     for (int i = 0; i < c; ++i) formed[i] = parts[i].empty();  // (no dynamic body: no columns, W's block 0)
     // The columns in single precision when they outgrow the caches: a sweep then streams
-    // them from memory, and half the bytes is most of the sweep's time (10x bunny: ~950
-    // contacts on ~590 unknowns, 13 MB of columns; sweeps 37.5 -> 30.5 ms a frame). The
+    // them from memory, and half the bytes is most of the sweep's time (the 10x bunny's ~950
+    // contacts on ~590 unknowns have ~13 MB of columns). The
     // velocities are kept in double and recomputed exactly from time to time (refresh), so
     // the single-precision round-off (~1e-7 relative) does not accumulate; the paper bunny's
-    // ~2 MB stay double (the copy cost more than it saved there). No double copy is kept
-    // then: each contact's columns are formed in double in a scratch and rounded (the copy
-    // was written and read once: 9 MB a 10x bunny frame); each contact's own 3x3 block of W is
+    // ~2 MB stay double (the copy would cost more than it saves there). No double copy is kept
+    // then: each contact's columns are formed in double in a scratch and rounded; each contact's own 3x3 block of W is
     // taken from its columns as they are formed, the subspace step's blocks between contacts
     // from C itself.
     const bool single = p.single_columns == 1 || (p.single_columns < 0 && bytes > kSingleColumnsBytes);

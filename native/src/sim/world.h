@@ -6,76 +6,18 @@
 // solve (Delassus operator W = J A^-1 J^T, projected Gauss-Seidel), then all bodies advance.
 #pragma once
 #include <cstdint>
+#include <cstdio>
 #include <map>
 #include <memory>
 #include <unordered_map>
 #include <vector>
 
-#include "common/beside.h"
 #include "common/worker.h"
 #include "contact/detection.h"
 #include "contact/pgs.h"
-#include "sim/data.h"
-#include "sim/keyframes.h"
+#include "sim/body.h"
 
 namespace hh {
-
-enum class BodyKind { Hand, Soft, Rigid, Kinematic, Static, Plane };
-
-// A rigid body's pose and velocity: the same four quantities as the hand's handle.
-using RigidState = HandleState;
-
-struct Body {
-    BodyKind kind = BodyKind::Static;
-    double friction = 0.5;          // static Coulomb coefficient
-    double kinetic_friction = 0.5;  // kinetic coefficient, at most the static one
-    bool self_collision = false;
-    SelfExclusions self_exclusions;  // self-collision pairs already in contact at rest
-    bool has_surface = false;
-    CollisionSurface surface;
-    std::vector<Vec3> points;  // the points the surface is made of, this step (world frame)
-
-    // hand
-    std::unique_ptr<Model> hand_model;
-    std::unique_ptr<Data> hand;
-    double pass_seconds[3] = {0, 0, 0};  // s, this step: formulate_begin, element pass parts 0 and 1 (World::step)
-    // the hand, this step: assembled by its own task before its free solve, with the factor's
-    // parts between (World::step); the assembly's and the parts' times
-    bool assemble_apart = false;
-    double assembly_seconds = 0, factor_part_seconds[2] = {0, 0};
-    // soft body
-    std::unique_ptr<Flesh> flesh;
-    FleshState state;
-    std::unique_ptr<DeformableSystem> tool;
-    std::vector<char> fixed;         // per node
-    std::vector<int> fixed_entries;  // offsets in At's values zeroed for fixed nodes
-    double alpha = 0, beta = 0;
-    VecX soft_rhs;
-    // a soft body on the reused factor, during World::step: its fresh response columns in two
-    // shares that may run side by side (DeformableSystem::response_units); empty otherwise
-    Beside beside;
-    // rigid, kinematic, static mesh: vertices in the body frame (origin at the centre of mass)
-    std::vector<Vec3> local;
-    RigidState rigid;
-    RigidState target;  // kinematic: the pose and velocity at the end of the next step
-    Keyframes script;   // kinematic: when set, the world moves the body along it (target = script at t + dt)
-    double mass = 0;
-    Mat3 inertia_body = Mat3::Zero();
-    std::unique_ptr<RigidSystem> rigid_system;
-    // plane
-    Vec3 plane_point = Vec3::Zero(), plane_normal = Vec3::UnitZ();
-
-    // last step
-    VecX v_free, v_new;     // velocities of the body's unknowns (dofs())
-    Vec3 contact_force = Vec3::Zero();  // N, total over the last step
-    // A hand or soft body whose contact responses come from a lagged operator (ReusedCholesky):
-    // the last step's contact impulses on its unknowns (J^T lambda, N s), which its next free
-    // solve takes as a known load (World::solve_free); empty when it had no contact.
-    VecX carried_impulse;
-
-    bool dynamic() const { return kind == BodyKind::Hand || kind == BodyKind::Soft || kind == BodyKind::Rigid; }
-    int dofs() const;
-};
 
 struct WorldSettings {
     double dt = 1.0 / 30.0;
@@ -163,14 +105,18 @@ public:
     // through_aht = Aht A_t^-1 J^T e_row. False when the hand is not in that row.
     bool contact_handle_terms(int body, int row, Vec6& through_ath, Vec6& through_aht) const;
     double time = 0;  // s: simulated time, advanced by step()
+    // When set (C++ only, for measurements), every step writes its contact solve's parts here:
+    // warm-start hits, contacts, groups, the build / sweeps / apply times, the columns formed, and
+    // each body's rows and touched unknowns
+    std::FILE* contact_trace = nullptr;
 
     int add(std::unique_ptr<Body> body);
     void step();
 
 private:
-    void update_points(Body& b);
-    // Detection in parts (step runs them as tasks): the pairs to look at and each body's
-    // reach, each body's surface, each pair, then every pair's contacts gathered and reduced.
+    // Detection in parts (sim/world_detection.cpp; step runs them as tasks): the pairs to look
+    // at and each body's reach, each body's surface, each pair, then every pair's contacts
+    // gathered and reduced.
     struct DetectionJob {
         int a, b;      // bodies (a == b: self-contact)
         double reach;  // m
@@ -183,6 +129,7 @@ private:
     void detect_job(int job);
     void finish_detection();
     void reduce_contacts();
+    // Each dynamic body's free solve (sim/world.cpp)
     void solve_free(Body& b);
     void assemble_hand(Body& b);
     // The contact solve in parts (sim/world_contact.cpp), scheduled by step as tasks: prepare
@@ -211,14 +158,19 @@ private:
     void trace_contacts() const;
     const std::vector<int>& contact_involved() const;               // (after prepare_contacts)
     const std::vector<int>& contact_group_bodies(int group) const;  // (after prepare_contacts)
+    // The step's schedule (sim/world_schedule.cpp): its tasks, and the times they write
+    struct StepTasks;
+    void move_kinematic_targets();
+    void add_free_solves(StepTasks& tasks);
+    void add_detection(StepTasks& tasks);
+    void add_contact_solve(StepTasks& tasks);
+    void add_contact_bodies(StepTasks& tasks, std::vector<int>& built);
+    void add_contact_groups(StepTasks& tasks, const std::vector<int>& built);
+    void sum_step_times(const StepTasks& tasks, double finish_seconds);
+    void measure_contacts();
     void integrate();
     double contact_distance(const Contact& c) const;
     std::unique_ptr<Worker> worker_;  // settings.threads > 1
 };
-
-// Mass, centre of mass and inertia about it of a closed, outward-wound triangle mesh of
-// uniform density (divergence theorem over the tetrahedra it makes with the origin).
-void mesh_mass_properties(const std::vector<Vec3>& vertices, const std::vector<Eigen::Vector3i>& triangles,
-                          double density, double& mass, Vec3& com, Mat3& inertia);
 
 }  // namespace hh

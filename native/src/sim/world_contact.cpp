@@ -8,7 +8,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <functional>
 #include <map>
 #include <string>
@@ -33,10 +32,6 @@ Vec3 carried_velocity(const Body& b, const Vec3& x) {
 }
 
 // A contact row's direction in the world: normal, tangent1, tangent2 (rows 3c, 3c + 1, 3c + 2)
-// HH_CONTACT_TRACE set: every step prints its contact solve's parts to stderr (read once, at
-// load: the per-frame path does not consult the environment)
-const bool kContactTrace = std::getenv("HH_CONTACT_TRACE") != nullptr;
-
 const Vec3& contact_direction(const std::vector<Contact>& contacts, int row) {
     const Contact& c = contacts[row / 3];
     return row % 3 == 0 ? c.normal : (row % 3 == 1 ? c.tangent1 : c.tangent2);
@@ -104,7 +99,7 @@ void World::prepare_contacts() {
                     for (int q = 0; q < 4; ++q) {
                         const int node = b.surface.nodes[v][q];
                         // a fixed node of a soft body does not move: it takes no impulse
-                        if (b.surface.weights[v][q] == 0 || (b.kind == BodyKind::Soft && b.fixed[node])) continue;
+                        if (b.surface.weights[v][q] == 0 || (b.kind == BodyKind::Soft && b.soft.fixed[node])) continue;
                         ts->push_back({base + 3 * node, sign * side.weight[k] * b.surface.weights[v][q], false, Vec3::Zero()});
                     }
                 }
@@ -200,17 +195,8 @@ void World::prepare_contacts() {
 // scene the bunny's ~500 solves were ~10 ms on one thread while the other, done with the
 // hand's, waited. Bodies on the iterative or the reused solver take one share (their calls
 // write warm starts and kept columns).
-namespace {
-// The flesh system a body's responses are solved through, or none (rigid bodies)
-DeformableSystem* response_system(Body& b) {
-    if (b.kind == BodyKind::Soft) return b.tool.get();
-    if (b.kind == BodyKind::Hand) return &b.hand->hand.tool;
-    return nullptr;
-}
-}  // namespace
-
 int World::contact_body_parts(int bi) const {
-    const DeformableSystem* system = response_system(*bodies[bi]);
+    const DeformableSystem* system = bodies[bi]->response_system();
     return system && system->solver() == DeformableSolver::Cholesky ? kResponseShares : 1;
 }
 
@@ -300,7 +286,7 @@ void World::ready_contact_body(int bi) {
     // (the hand's with Eq. 12 on top)
     bool units = false;
     if (!cb.row_basis && b.kind == BodyKind::Hand) units = b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
-    if (!cb.row_basis && b.kind == BodyKind::Soft) units = b.tool->response_units(cb.touched, cb.K, b.beside);
+    if (!cb.row_basis && b.kind == BodyKind::Soft) units = b.soft.tool->response_units(cb.touched, cb.K, b.soft.beside);
     if (b.kind == BodyKind::Hand) {
         if (!cb.row_basis && !units) b.hand->hand.prepare_unit_columns(cb.touched);
         if (!handle_terms_apart(bi)) form_handle_terms(bi);
@@ -311,7 +297,7 @@ void World::ready_contact_body(int bi) {
     // columns in the factor's elimination order, each batch's units in one part of the tree
     // (on the 10x bunny the build went from ~11 to ~10.2 ms on one thread)
     build.unit_order.clear();
-    DeformableSystem* system = response_system(b);
+    DeformableSystem* system = b.response_system();
     if (system && system->prepare_concurrent_solves() && !cb.row_basis && build.first == 0) {
         const int base = b.kind == BodyKind::Hand ? 6 : 0;
         std::vector<std::pair<int, int>> keyed;  // (elimination position of the node, column)
@@ -369,7 +355,7 @@ void World::solve_contact_body(int bi, int part, int parts) {
             x.resize(cb.K.rows(), w);
             bool done = false;
             if (b.kind == BodyKind::Hand) done = b.hand->hand.apply_inverse_unit_columns(units, w, cb.touched, x);
-            if (b.kind == BodyKind::Soft) done = b.tool->solve_units(units, w, cb.touched, x.data(), x.rows());
+            if (b.kind == BodyKind::Soft) done = b.soft.tool->solve_units(units, w, cb.touched, x.data(), x.rows());
             if (done) {
                 for (int j = 0; j < w; ++j) cb.K.col(build.unit_order[first + j]) = x.col(j);
                 continue;
@@ -389,8 +375,8 @@ void World::solve_contact_body(int bi, int part, int parts) {
                 b.hand->hand.apply_inverse_many(rhs, x, &cb.touched);
                 cb.K.middleCols(first, w) = x;
                 continue;
-            case BodyKind::Soft: b.tool->solve_response(rhs, x, &build.touched_nodes); break;
-            default: x = Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
+            case BodyKind::Soft: b.soft.tool->solve_response(rhs, x, &build.touched_nodes); break;
+            default: x = Eigen::FullPivLU<Mat6>(b.mesh.system->A).solve(rhs);
         }
         for (size_t k = 0; k < cb.touched.size(); ++k) cb.K.block(k, first, 1, w) = x.block(cb.touched[k], 0, 1, w);
     }
@@ -415,7 +401,7 @@ void World::finish_contact_body(int bi) {
     } else {
         response = 0.5 * (cb.K + cb.K.transpose());
     }
-    if (kContactTrace) std::fprintf(stderr, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(cs.start));
+    if (contact_trace) std::fprintf(contact_trace, "[body %d built at %.2f ms] ", bi, 1e3 * seconds_since(cs.start));
 }
 
 // One group of coupled contacts (it shares no body with the other groups): its problem on its
@@ -532,12 +518,12 @@ void World::apply_contact_body(int bi) {
             // exact solve; on the reused one its lagged operator, and the impulses carried into
             // the next free solve, World::solve_free)
             MatX x;
-            b.tool->solve_response(rhs, x);
+            b.soft.tool->solve_response(rhs, x);
             b.v_new += x.col(0);
-            if (b.tool->solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
+            if (b.soft.tool->solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
             break;
         }
-        default: b.v_new += Eigen::FullPivLU<Mat6>(b.rigid_system->A).solve(rhs);
+        default: b.v_new += Eigen::FullPivLU<Mat6>(b.mesh.system->A).solve(rhs);
     }
 }
 
@@ -571,23 +557,23 @@ void World::finish_contacts() {
     contact_friction = cs.friction;
 }
 
-// The step's contact solve, for HH_CONTACT_TRACE: called once the step has summed its parts' times
+// The step's contact solve, to contact_trace: called once the step has summed its parts' times
 void World::trace_contacts() const {
-    if (!kContactTrace || !setup_) return;
+    if (!contact_trace || !setup_) return;
     const ContactSetup& cs = *setup_;
-    std::fprintf(stderr, "warm %d patch %d ", cs.warm_hits, cs.patch_hits);
+    std::fprintf(contact_trace, "warm %d patch %d ", cs.warm_hits, cs.patch_hits);
     double columns = 0;  // (of the sweeps' time)
     int formed = 0;
     for (const auto& gs : cs.group_solve) {
         for (double t : gs.form_seconds) columns += t;
         formed += gs.formed;
     }
-    std::fprintf(stderr, "contacts %zu groups %zu build %.2f sweeps %.2f (columns %.2f, formed %d) apply %.2f ms it %d |",
+    std::fprintf(contact_trace, "contacts %zu groups %zu build %.2f sweeps %.2f (columns %.2f, formed %d) apply %.2f ms it %d |",
                  contacts.size(), contact_groups.size(), 1e3 * stats.t_contact_build, 1e3 * stats.t_contact_sweeps, 1e3 * columns,
                  formed, 1e3 * stats.t_contact_apply, stats.iterations);
     for (const auto& e : contact_bodies)
-        std::fprintf(stderr, " body %d rows %zu touched %zu %s", e.first, e.second.rows.size(), e.second.touched.size(), e.second.row_basis ? "R" : "D");
-    std::fprintf(stderr, "\n");
+        std::fprintf(contact_trace, " body %d rows %zu touched %zu %s", e.first, e.second.rows.size(), e.second.touched.size(), e.second.row_basis ? "R" : "D");
+    std::fprintf(contact_trace, "\n");
 }
 
 MatX World::contact_delassus(const std::vector<int>& rows) const {

@@ -684,13 +684,7 @@ void solve_dispatch(const Factor<LT>& f, double* x, int w) {
 }
 
 
-// ---- supernodal solves --------------------------------------------------------------------
-// Per supernode, the rows it touches are copied into one contiguous buffer y (its own rows,
-// then its rows below), so that each column of the panel meets y as one contiguous run.
-// Forward (L y = b): columns in groups of 4, y_r -= sum_k P(r, c_k) y_{c_k} for the rows below
-// the group; backward (L^T x = y): the 4 dot products of the group's columns with the rows
-// below it, then the group's own triangle. The panel values are PT (double or float); the
-// arithmetic is double.
+// ---- supernodal solves (supernodal_pass) ---------------------------------------------------
 struct SupernodalFactor {
     int ns;
     const int *start, *rows_ptr, *rows;
@@ -747,191 +741,10 @@ template <typename V>
 __attribute__((always_inline)) inline void store_vector(void* p, V v) {
     __builtin_memcpy(p, &v, sizeof v);
 }
-template <int VL>
-__attribute__((always_inline)) inline typename Lanes<VL>::V load_y(const double* p) {
-    return load_vector<typename Lanes<VL>::V>(p);
-}
-template <int VL>
-__attribute__((always_inline)) inline void store_y(double* p, typename Lanes<VL>::V v) {
-    store_vector(p, v);
-}
-
-// W lanes per row (1, 4 or 8); VL: the SIMD width used along rows when W = 1.
-template <int W, int VL, typename PT>
-__attribute__((always_inline)) inline void supernodal_solve(const SupernodalFactor& f, const PT* val, const double* dinv_all,
-                                                            double* x, double* y) {
-    // W = 1: V has VL lanes along the rows. W = 4, 8: each row's W values are N vectors of
-    // LV lanes (LV = min(W, VL): two 4-lane vectors per row for W = 8 with AVX2).
-    constexpr int LV = W == 1 ? VL : (W < VL ? W : VL);
-    constexpr int N = W == 1 ? 1 : W / LV;
-    typedef typename Lanes<LV>::V V;
-    // columns per group: the group's values of every lane stay in registers (G x N vectors)
-    constexpr int G = W == 1 ? 4 : (W <= 8 ? 8 : 4);
-    for (int j = 0; j < (f.forward ? f.ns : 0); ++j) {  // L z = b
-        if (f.skips(j)) continue;
-        const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
-        const int* rows = f.rows + f.rows_ptr[j];
-        const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
-        const PT* p = val + f.val_ptr[j];
-        const double* dinv = dinv_all + f.diag_ptr[j];
-        double* xj = x + static_cast<size_t>(W) * 3 * c0;
-        {  // all of the supernode's values still zero: nothing to add below (see solve_permuted)
-            const size_t total = static_cast<size_t>(W) * m;
-            size_t e = 0;
-            while (e < total && xj[e] == 0) ++e;
-            if (e == total) continue;
-        }
-        std::copy(xj, xj + static_cast<size_t>(W) * m, y);
-        std::fill(y + static_cast<size_t>(W) * m, y + static_cast<size_t>(W) * ld, 0.0);
-        for (int c = 0; c < m; c += G) {
-            const int g = std::min(G, m - c);
-            const PT* col[G];
-            for (int k = 0; k < G; ++k) col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
-            for (int k = 0; k < g; ++k) {  // the group's triangle
-                double* yk = y + static_cast<size_t>(W) * (c + k);
-                for (int e = 0; e < W; ++e) yk[e] *= dinv[c + k];
-                for (int k2 = k + 1; k2 < g; ++k2) {
-                    const double l = panel_value(col[k] + c + k2);
-                    double* y2 = y + static_cast<size_t>(W) * (c + k2);
-                    for (int e = 0; e < W; ++e) y2[e] -= l * yk[e];
-                }
-            }
-            const int r0 = c + g;
-            if constexpr (W == 1) {
-                const double a0 = y[c], a1 = g > 1 ? y[c + 1] : 0.0, a2 = g > 2 ? y[c + 2] : 0.0, a3 = g > 3 ? y[c + 3] : 0.0;
-                int r = r0;
-                for (; r + VL <= ld; r += VL)
-                    store_y<VL>(y + r, load_y<VL>(y + r) - (load_panel<VL>(col[0] + r) * a0 + load_panel<VL>(col[1] + r) * a1 +
-                                                          load_panel<VL>(col[2] + r) * a2 + load_panel<VL>(col[3] + r) * a3));
-                for (; r < ld; ++r)
-                    y[r] -= panel_value(col[0] + r) * a0 + panel_value(col[1] + r) * a1 + panel_value(col[2] + r) * a2 +
-                            panel_value(col[3] + r) * a3;
-            } else {
-                V a[G][N];
-                for (int k = 0; k < G; ++k)
-                    for (int q = 0; q < N; ++q) a[k][q] = k < g ? load_y<LV>(y + W * (c + k) + LV * q) : V{} * 0.0;
-                for (int r = r0; r < ld; ++r) {
-                    double* yr = y + static_cast<size_t>(W) * r;
-                    for (int q = 0; q < N; ++q) {
-                        V t = panel_value(col[0] + r) * a[0][q];
-                        for (int k = 1; k < G; ++k) t += panel_value(col[k] + r) * a[k][q];
-                        store_y<LV>(yr + LV * q, load_y<LV>(yr + LV * q) - t);
-                    }
-                }
-            }
-        }
-        std::copy(y, y + static_cast<size_t>(W) * m, xj);
-        for (int t = m / 3; t < nr; ++t) {
-            double* to = x + static_cast<size_t>(W) * 3 * rows[t];
-            const double* from = y + static_cast<size_t>(W) * 3 * t;
-            for (int e = 0; e < 3 * W; ++e) to[e] += from[e];
-        }
-    }
-    for (int j = f.backward ? f.ns - 1 : -1; j >= 0; --j) {  // L^T x = z
-        if ((f.wanted && !f.wanted[j]) || f.skips(j)) continue;  // (see solve_permuted)
-        const int c0 = f.start[j], m = 3 * (f.start[j + 1] - c0);
-        const int* rows = f.rows + f.rows_ptr[j];
-        const int nr = f.rows_ptr[j + 1] - f.rows_ptr[j], ld = 3 * nr;
-        const PT* p = val + f.val_ptr[j];
-        const double* dinv = dinv_all + f.diag_ptr[j];
-        double* xj = x + static_cast<size_t>(W) * 3 * c0;
-        std::copy(xj, xj + static_cast<size_t>(W) * m, y);
-        for (int t = m / 3; t < nr; ++t) {
-            const double* from = x + static_cast<size_t>(W) * 3 * rows[t];
-            double* to = y + static_cast<size_t>(W) * 3 * t;
-            for (int e = 0; e < 3 * W; ++e) to[e] = from[e];  // inline: a call per row costs more
-        }
-        for (int c = ((m - 1) / G) * G; c >= 0; c -= G) {
-            const int g = std::min(G, m - c);
-            const PT* col[G];
-            for (int k = 0; k < G; ++k) col[k] = p + static_cast<size_t>(ld) * (c + std::min(k, g - 1));
-            const int r0 = c + g;
-            double acc[G][W];
-            if constexpr (W == 1) {
-                V s0 = V{} * 0.0, s1 = s0, s2 = s0, s3 = s0;
-                int r = r0;
-                for (; r + VL <= ld; r += VL) {
-                    const V yr = load_y<VL>(y + r);
-                    s0 += load_panel<VL>(col[0] + r) * yr;
-                    s1 += load_panel<VL>(col[1] + r) * yr;
-                    s2 += load_panel<VL>(col[2] + r) * yr;
-                    s3 += load_panel<VL>(col[3] + r) * yr;
-                }
-                double t0 = 0, t1 = 0, t2 = 0, t3 = 0;
-                for (int e = 0; e < VL; ++e) {
-                    t0 += s0[e];
-                    t1 += s1[e];
-                    t2 += s2[e];
-                    t3 += s3[e];
-                }
-                for (; r < ld; ++r) {
-                    t0 += panel_value(col[0] + r) * y[r];
-                    t1 += panel_value(col[1] + r) * y[r];
-                    t2 += panel_value(col[2] + r) * y[r];
-                    t3 += panel_value(col[3] + r) * y[r];
-                }
-                acc[0][0] = t0;
-                acc[1][0] = t1;
-                acc[2][0] = t2;
-                acc[3][0] = t3;
-            } else {
-                V sk[G][N];
-                for (int k = 0; k < G; ++k)
-                    for (int q = 0; q < N; ++q) sk[k][q] = V{} * 0.0;
-                for (int r = r0; r < ld; ++r)
-                    for (int q = 0; q < N; ++q) {
-                        const V yr = load_y<LV>(y + static_cast<size_t>(W) * r + LV * q);
-                        for (int k = 0; k < G; ++k) sk[k][q] += panel_value(col[k] + r) * yr;
-                    }
-                for (int k = 0; k < G; ++k)
-                    for (int q = 0; q < N; ++q) store_y<LV>(acc[k] + LV * q, sk[k][q]);
-            }
-            for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
-                double* yk = y + static_cast<size_t>(W) * (c + k);
-                double v[W];  // lanes innermost, so the loops vectorize (same order of operations per lane)
-                for (int e = 0; e < W; ++e) v[e] = yk[e] - acc[k][e];
-                for (int k2 = k + 1; k2 < g; ++k2) {
-                    const double l = panel_value(col[k] + c + k2);
-                    const double* y2 = y + static_cast<size_t>(W) * (c + k2);
-                    for (int e = 0; e < W; ++e) v[e] -= l * y2[e];
-                }
-                for (int e = 0; e < W; ++e) yk[e] = v[e] * dinv[c + k];
-            }
-        }
-        std::copy(y, y + static_cast<size_t>(W) * m, xj);
-    }
-}
-
-#ifdef HH_HAVE_SIMD_KERNELS
-template <int W, int VL, typename PT>
-__attribute__((target("avx2,fma"))) void supernodal_avx2(const SupernodalFactor& f, const PT* v, const double* d, double* x, double* y) {
-    supernodal_solve<W, VL, PT>(f, v, d, x, y);
-}
-template <int W, int VL, typename PT>
-__attribute__((target("avx512f,avx512vl,avx2,fma"))) void supernodal_avx512(const SupernodalFactor& f, const PT* v, const double* d,
-                                                                           double* x, double* y) {
-    supernodal_solve<W, VL, PT>(f, v, d, x, y);
-}
-#endif
 
 #ifdef HH_HAVE_F16C_KERNELS
-// The preconditioner passes in float arithmetic (x and y in float; the same passes as
-// supernodal_solve): 1, 4 or 8 lanes on the half panels, 4 or 8 on the float panels. The panels'
-// own rounding (2^-11 of each column's largest entry, or 2^-24) is at or above float's, and the
-// double kernels' time went to widening each value to a double:
-// - one lane: a conversion to float, one to double and a lane shuffle per 8 halves, against one
-//   conversion per 16 here. On the 17006-tet hand's factor a pass took 0.89-0.91 ms against
-//   1.15-1.22 (microbenchmark, both builds in turn, caches flushed or not: the same);
-// - 4 and 8 lanes: each panel value converted and broadcast to 8 doubles (a 512-bit FMA per
-//   value), against a broadcast load and a 256-bit FMA here. On the half panels each column's
-//   rows are converted 16 (AVX2: 8) at a time into a small float buffer, a chunk ahead of their
-//   use, and each value is then a broadcast load as on the float panels: the conversions cost
-//   one instruction per 16 values instead of one per value (the former double-arithmetic half
-//   kernels', which made the 8-lane half pass slower than the float one). On the 16826-tet
-//   hand's factor in a loop of its own an 8-lane pass takes 1.02-1.16x the float panels' time
-//   (two machine states); in the 10x bunny's frames, where b_t's one-lane passes stream the
-//   half copy beside it, the Schur columns' pass took 4.44-4.75 ms against 5.35-5.38
-//   (bench/README.md, twenty-fifth round).
+// The float passes' helpers (supernodal_pass with AT = float): float vectors of VL lanes, half
+// panels converted to floats.
 template <int VL> struct FloatLanes;
 template <> struct FloatLanes<4> { typedef float V __attribute__((vector_size(16))); };
 template <> struct FloatLanes<8> { typedef HalfFloat8 V; };
@@ -965,102 +778,153 @@ __attribute__((always_inline)) inline float panel_float(const PT* p) {
     if constexpr (std::is_same_v<PT, Half>) return half_float(*p);
     else return *p;
 }
-// W lanes per row (1, 4 or 8); VL: the SIMD width along the rows when W = 1, and the rows a
-// chunk of half panels (PT = Half) holds when W > 1 (half_chunks)
-template <int W, int VL, typename PT>
-__attribute__((always_inline)) inline void supernodal_solve_float(const SupernodalFactor& f, float* x, float* y) {
-    typedef typename FloatLanes<W == 1 ? VL : W>::V V;  // W = 1: VL rows; else one row's W lanes
-    constexpr int G = W == 1 ? 4 : 8;  // columns a group (see supernodal_solve)
-    constexpr bool kHalf = std::is_same_v<PT, Half>;
-    static_assert(kHalf || W > 1, "one lane on the half panels only");
-    constexpr int CH = VL;  // W > 1 on half panels: rows converted a chunk at a time
-    // supernode j: its m columns and nr rows (its own first), its panels, and x at its columns
+#endif
+
+// The supernodal passes, one template for both arithmetics. AT: the arithmetic of x and y,
+// double (the direct solves and the double-arithmetic preconditioner passes, on double or float
+// panels) or float (the preconditioner passes where the CPU has AVX2, on half or float panels:
+// the panels' own rounding, 2^-11 of each column's largest entry or 2^-24, is at or above
+// float's, and the double kernels' time went to widening each value to a double). W lanes per
+// row (1, 4, 8, 16 or 32; float: 1, 4 or 8); VL: the SIMD width along the rows when W = 1, and
+// for half panels with W > 1 the rows a chunk holds (half_chunks). PT: the panels' type; half
+// panels hold each column over its scale (f.scale), multiplied back as the values are used.
+//
+// Per supernode, the rows it touches are copied into one contiguous buffer y (its own rows,
+// then its rows below), so that each column of the panel meets y as one contiguous run.
+// Forward (L y = b): columns in groups of G, y_r -= sum_k P(r, c_k) y_{c_k} for the rows below
+// the group, the group's values of every lane in registers; backward (L^T x = y): the G dot
+// products of the group's columns with the rows below it, then the group's own triangle.
+template <typename AT, int L> struct PassLanes;
+template <int L> struct PassLanes<double, L> { typedef typename Lanes<L>::V V; };
+#ifdef HH_HAVE_F16C_KERNELS
+template <int L> struct PassLanes<float, L> { typedef typename FloatLanes<L>::V V; };
+#endif
+// VL consecutive panel values as the arithmetic's vector, and one as its scalar
+template <typename AT, int VL, typename PT>
+__attribute__((always_inline)) inline typename PassLanes<AT, VL>::V load_rows(const PT* p) {
+    if constexpr (std::is_same_v<AT, double>) return load_panel<VL>(p);
+#ifdef HH_HAVE_F16C_KERNELS
+    else return load_half_floats<VL>(p);  // (float arithmetic takes one lane on the half panels only)
+#endif
+}
+template <typename AT, typename PT>
+__attribute__((always_inline)) inline AT panel_scalar(const PT* p) {
+    if constexpr (std::is_same_v<AT, double>) return panel_value(p);
+#ifdef HH_HAVE_F16C_KERNELS
+    else return panel_float(p);
+#endif
+}
+
+template <typename AT, int W, int VL, typename PT>
+__attribute__((always_inline)) inline void supernodal_pass(const SupernodalFactor& f, const PT* val, const double* dinv_all,
+                                                           AT* x, AT* y) {
+    constexpr bool kFloat = std::is_same_v<AT, float>;
+    constexpr bool kScaled = std::is_same_v<PT, Half>;
+    static_assert(!kFloat || kScaled || W > 1, "one lane in float on the half panels only");
+    // W = 1: V has VL lanes along the rows. W > 1: each row's W values are N vectors of LV
+    // lanes (double: LV = min(W, VL), two 4-lane vectors per row for W = 8 with AVX2; float: one)
+    constexpr int LV = W == 1 ? VL : (kFloat ? W : (W < VL ? W : VL));
+    constexpr int N = W == 1 ? 1 : W / LV;
+    typedef typename PassLanes<AT, LV>::V V;
+    // columns per group: the group's values of every lane stay in registers (G x N vectors)
+    constexpr int G = W == 1 ? 4 : (W <= 8 ? 8 : 4);
+    constexpr int CH = VL;  // half panels, W > 1: rows converted a chunk at a time
+    // a value times its column's scale (half panels; the other panels hold the values themselves)
+    auto scaled = [](auto v, float s) {
+        if constexpr (kScaled) return v * s;
+        else return v;
+    };
+    // supernode j: its m columns and nr rows (its own first), its panels, 1 / L(c, c), scales, x
     struct Supernode {
         int m, nr;
         const int* rows;
         const PT* p;
         const double* dinv;
         const float* scale;
-        float* xj;
+        AT* xj;
     };
     auto supernode = [&](int j) {
         const int c0 = f.start[j];
-        const PT* panels;
-        if constexpr (kHalf) panels = f.val_half + f.val_ptr[j];
-        else panels = f.val_single + f.val_ptr[j];
-        return Supernode{3 * (f.start[j + 1] - c0), f.rows_ptr[j + 1] - f.rows_ptr[j], f.rows + f.rows_ptr[j], panels,
-                         f.diag_inverse_single + f.diag_ptr[j], kHalf ? f.scale + f.diag_ptr[j] : nullptr,
-                         x + static_cast<size_t>(3) * W * c0};
+        return Supernode{3 * (f.start[j + 1] - c0), f.rows_ptr[j + 1] - f.rows_ptr[j], f.rows + f.rows_ptr[j],
+                         val + f.val_ptr[j], dinv_all + f.diag_ptr[j], kScaled ? f.scale + f.diag_ptr[j] : nullptr,
+                         x + static_cast<size_t>(W) * 3 * c0};
     };
-    // the g (<= G) columns from c: their panels and scales (1: float panels; the last repeated up to G)
+    // the g (<= G) columns from c: their panels and scales (the last repeated up to G)
     auto group = [&](const Supernode& n, int c, int g, const PT** col, float* s) {
         for (int k = 0; k < G; ++k) {
             col[k] = n.p + static_cast<size_t>(3 * n.nr) * (c + std::min(k, g - 1));
-            s[k] = kHalf ? n.scale[c + std::min(k, g - 1)] : 1.0f;
+            s[k] = kScaled ? n.scale[c + std::min(k, g - 1)] : 1.0f;
         }
     };
     for (int j = 0; j < (f.forward ? f.ns : 0); ++j) {  // L z = b
         if (f.skips(j)) continue;
         const Supernode n = supernode(j);
         const int m = n.m, nr = n.nr, ld = 3 * nr;
-        float* xj = n.xj;
+        AT* xj = n.xj;
         {  // all of the supernode's values still zero: nothing to add below (see solve_permuted)
-            int e = 0;
-            while (e < W * m && xj[e] == 0) ++e;
-            if (e == W * m) continue;
+            const size_t total = static_cast<size_t>(W) * m;
+            size_t e = 0;
+            while (e < total && xj[e] == 0) ++e;
+            if (e == total) continue;
         }
-        std::copy(xj, xj + W * m, y);
-        std::fill(y + W * m, y + W * ld, 0.0f);
+        std::copy(xj, xj + static_cast<size_t>(W) * m, y);
+        std::fill(y + static_cast<size_t>(W) * m, y + static_cast<size_t>(W) * ld, AT(0));
         for (int c = 0; c < m; c += G) {
             const int g = std::min(G, m - c);
             const PT* col[G];
             float s[G];
             group(n, c, g, col, s);
             for (int k = 0; k < g; ++k) {  // the group's triangle
-                float* yk = y + W * (c + k);
-                const float d = static_cast<float>(n.dinv[c + k]);
+                AT* yk = y + static_cast<size_t>(W) * (c + k);
+                const AT d = static_cast<AT>(n.dinv[c + k]);
                 for (int e = 0; e < W; ++e) yk[e] *= d;
                 for (int k2 = k + 1; k2 < g; ++k2) {
-                    const float l = panel_float(col[k] + c + k2) * s[k];
-                    float* y2 = y + W * (c + k2);
+                    const AT l = scaled(panel_scalar<AT>(col[k] + c + k2), s[k]);
+                    AT* y2 = y + static_cast<size_t>(W) * (c + k2);
                     for (int e = 0; e < W; ++e) y2[e] -= l * yk[e];
                 }
             }
+            int r = c + g;
             if constexpr (W == 1) {
-                float a[G];
-                for (int k = 0; k < G; ++k) a[k] = k < g ? y[c + k] * s[k] : 0.0f;
-                int r = c + g;
+                AT a[G];
+                for (int k = 0; k < G; ++k) a[k] = k < g ? scaled(y[c + k], s[k]) : AT(0);
                 for (; r + VL <= ld; r += VL) {
-                    const V t = load_half_floats<VL>(col[0] + r) * a[0] + load_half_floats<VL>(col[1] + r) * a[1] +
-                                load_half_floats<VL>(col[2] + r) * a[2] + load_half_floats<VL>(col[3] + r) * a[3];
+                    const V t = load_rows<AT, VL>(col[0] + r) * a[0] + load_rows<AT, VL>(col[1] + r) * a[1] +
+                                load_rows<AT, VL>(col[2] + r) * a[2] + load_rows<AT, VL>(col[3] + r) * a[3];
                     store_vector(y + r, load_vector<V>(y + r) - t);
                 }
                 for (; r < ld; ++r)
-                    y[r] -= panel_float(col[0] + r) * a[0] + panel_float(col[1] + r) * a[1] + panel_float(col[2] + r) * a[2] +
-                            panel_float(col[3] + r) * a[3];
+                    y[r] -= panel_scalar<AT>(col[0] + r) * a[0] + panel_scalar<AT>(col[1] + r) * a[1] +
+                            panel_scalar<AT>(col[2] + r) * a[2] + panel_scalar<AT>(col[3] + r) * a[3];
             } else {
-                V a[G];
-                for (int k = 0; k < G; ++k) a[k] = k < g ? load_vector<V>(y + W * (c + k)) * s[k] : V{} * 0.0f;
-                int r = c + g;
-                if constexpr (kHalf)
+                V a[G][N];
+                for (int k = 0; k < G; ++k)
+                    for (int q = 0; q < N; ++q)
+                        a[k][q] = k < g ? scaled(load_vector<V>(y + W * (c + k) + LV * q), s[k]) : V{} * AT(0);
+#ifdef HH_HAVE_F16C_KERNELS
+                if constexpr (kScaled)
                     r = half_chunks<CH, G>(col, r, ld, [&](int r0, const float (&v)[G][CH]) {
                         for (int q = 0; q < CH; ++q) {
-                            V t = v[0][q] * a[0];
-                            for (int k = 1; k < G; ++k) t += v[k][q] * a[k];
+                            V t = v[0][q] * a[0][0];
+                            for (int k = 1; k < G; ++k) t += v[k][q] * a[k][0];
                             store_vector(y + W * (r0 + q), load_vector<V>(y + W * (r0 + q)) - t);
                         }
                     });
+#endif
                 for (; r < ld; ++r) {
-                    V t = panel_float(col[0] + r) * a[0];
-                    for (int k = 1; k < G; ++k) t += panel_float(col[k] + r) * a[k];
-                    store_vector(y + W * r, load_vector<V>(y + W * r) - t);
+                    AT* yr = y + static_cast<size_t>(W) * r;
+                    for (int q = 0; q < N; ++q) {
+                        V t = panel_scalar<AT>(col[0] + r) * a[0][q];
+                        for (int k = 1; k < G; ++k) t += panel_scalar<AT>(col[k] + r) * a[k][q];
+                        store_vector(yr + LV * q, load_vector<V>(yr + LV * q) - t);
+                    }
                 }
             }
         }
-        std::copy(y, y + W * m, xj);
+        std::copy(y, y + static_cast<size_t>(W) * m, xj);
         for (int t = m / 3; t < nr; ++t) {
-            float* to = x + static_cast<size_t>(3) * W * n.rows[t];
-            const float* from = y + static_cast<size_t>(3) * W * t;
+            AT* to = x + static_cast<size_t>(W) * 3 * n.rows[t];
+            const AT* from = y + static_cast<size_t>(W) * 3 * t;
             for (int e = 0; e < 3 * W; ++e) to[e] += from[e];
         }
     }
@@ -1068,80 +932,113 @@ __attribute__((always_inline)) inline void supernodal_solve_float(const Supernod
         if ((f.wanted && !f.wanted[j]) || f.skips(j)) continue;  // (see solve_permuted)
         const Supernode n = supernode(j);
         const int m = n.m, nr = n.nr, ld = 3 * nr;
-        float* xj = n.xj;
-        std::copy(xj, xj + W * m, y);
+        AT* xj = n.xj;
+        std::copy(xj, xj + static_cast<size_t>(W) * m, y);
         for (int t = m / 3; t < nr; ++t) {
-            const float* from = x + static_cast<size_t>(3) * W * n.rows[t];
-            float* to = y + static_cast<size_t>(3) * W * t;
-            for (int e = 0; e < 3 * W; ++e) to[e] = from[e];
+            const AT* from = x + static_cast<size_t>(W) * 3 * n.rows[t];
+            AT* to = y + static_cast<size_t>(W) * 3 * t;
+            for (int e = 0; e < 3 * W; ++e) to[e] = from[e];  // inline: a call per row costs more
         }
         for (int c = ((m - 1) / G) * G; c >= 0; c -= G) {
             const int g = std::min(G, m - c);
             const PT* col[G];
             float s[G];
             group(n, c, g, col, s);
-            float acc[G][W];
+            int r = c + g;
+            AT acc[G][W];
             if constexpr (W == 1) {
-                V s0 = V{} * 0.0f, s1 = s0, s2 = s0, s3 = s0;
-                int r = c + g;
+                V s0 = V{} * AT(0), s1 = s0, s2 = s0, s3 = s0;
                 for (; r + VL <= ld; r += VL) {
                     const V yr = load_vector<V>(y + r);
-                    s0 += load_half_floats<VL>(col[0] + r) * yr;
-                    s1 += load_half_floats<VL>(col[1] + r) * yr;
-                    s2 += load_half_floats<VL>(col[2] + r) * yr;
-                    s3 += load_half_floats<VL>(col[3] + r) * yr;
+                    s0 += load_rows<AT, VL>(col[0] + r) * yr;
+                    s1 += load_rows<AT, VL>(col[1] + r) * yr;
+                    s2 += load_rows<AT, VL>(col[2] + r) * yr;
+                    s3 += load_rows<AT, VL>(col[3] + r) * yr;
                 }
-                float t[G] = {0, 0, 0, 0};
+                AT t[G] = {0, 0, 0, 0};
                 for (int e = 0; e < VL; ++e) {
                     t[0] += s0[e];
                     t[1] += s1[e];
                     t[2] += s2[e];
                     t[3] += s3[e];
                 }
+                // the rows left: in float each product is rounded before its sum, as the float
+                // passes have always computed them (whether the compiler fuses the two depends on
+                // how it vectorizes this loop; the barrier keeps the results the same bit for bit)
                 for (; r < ld; ++r)
-                    for (int k = 0; k < G; ++k) t[k] += panel_float(col[k] + r) * y[r];
-                for (int k = 0; k < G; ++k) acc[k][0] = t[k] * s[k];
+                    for (int k = 0; k < G; ++k) {
+                        AT product = panel_scalar<AT>(col[k] + r) * y[r];
+#ifdef HH_HAVE_F16C_KERNELS
+                        if constexpr (kFloat) asm("" : "+x"(product));
+#endif
+                        t[k] += product;
+                    }
+                for (int k = 0; k < G; ++k) acc[k][0] = scaled(t[k], s[k]);
             } else {
-                V sk[G];
-                for (int k = 0; k < G; ++k) sk[k] = V{} * 0.0f;
-                int r = c + g;
-                if constexpr (kHalf)
+                V sk[G][N];
+                for (int k = 0; k < G; ++k)
+                    for (int q = 0; q < N; ++q) sk[k][q] = V{} * AT(0);
+#ifdef HH_HAVE_F16C_KERNELS
+                if constexpr (kScaled)
                     r = half_chunks<CH, G>(col, r, ld, [&](int r0, const float (&v)[G][CH]) {
                         for (int q = 0; q < CH; ++q) {
                             const V yr = load_vector<V>(y + W * (r0 + q));
-                            for (int k = 0; k < G; ++k) sk[k] += v[k][q] * yr;
+                            for (int k = 0; k < G; ++k) sk[k][0] += v[k][q] * yr;
                         }
                     });
-                for (; r < ld; ++r) {
-                    const V yr = load_vector<V>(y + W * r);
-                    for (int k = 0; k < G; ++k) sk[k] += panel_float(col[k] + r) * yr;
-                }
-                for (int k = 0; k < G; ++k) store_vector(acc[k], sk[k] * s[k]);
+#endif
+                for (; r < ld; ++r)
+                    for (int q = 0; q < N; ++q) {
+                        const V yr = load_vector<V>(y + static_cast<size_t>(W) * r + LV * q);
+                        for (int k = 0; k < G; ++k) sk[k][q] += panel_scalar<AT>(col[k] + r) * yr;
+                    }
+                for (int k = 0; k < G; ++k)
+                    for (int q = 0; q < N; ++q) store_vector(acc[k] + LV * q, scaled(sk[k][q], s[k]));
             }
             for (int k = g - 1; k >= 0; --k) {  // the group's triangle, last column first
-                float* yk = y + W * (c + k);
-                float v[W];
+                AT* yk = y + static_cast<size_t>(W) * (c + k);
+                AT v[W];  // lanes innermost, so the loops vectorize (same order of operations per lane)
                 for (int e = 0; e < W; ++e) v[e] = yk[e] - acc[k][e];
                 for (int k2 = k + 1; k2 < g; ++k2) {
-                    const float l = panel_float(col[k] + c + k2) * s[k];
-                    const float* y2 = y + W * (c + k2);
+                    const AT l = scaled(panel_scalar<AT>(col[k] + c + k2), s[k]);
+                    const AT* y2 = y + static_cast<size_t>(W) * (c + k2);
                     for (int e = 0; e < W; ++e) v[e] -= l * y2[e];
                 }
-                const float d = static_cast<float>(n.dinv[c + k]);
+                const AT d = static_cast<AT>(n.dinv[c + k]);
                 for (int e = 0; e < W; ++e) yk[e] = v[e] * d;
             }
         }
-        std::copy(y, y + W * m, xj);
+        std::copy(y, y + static_cast<size_t>(W) * m, xj);
     }
+}
+
+#ifdef HH_HAVE_SIMD_KERNELS
+template <int W, int VL, typename PT>
+__attribute__((target("avx2,fma"))) void supernodal_avx2(const SupernodalFactor& f, const PT* v, const double* d, double* x, double* y) {
+    supernodal_pass<double, W, VL, PT>(f, v, d, x, y);
+}
+template <int W, int VL, typename PT>
+__attribute__((target("avx512f,avx512vl,avx2,fma"))) void supernodal_avx512(const SupernodalFactor& f, const PT* v, const double* d,
+                                                                           double* x, double* y) {
+    supernodal_pass<double, W, VL, PT>(f, v, d, x, y);
+}
+#endif
+
+#ifdef HH_HAVE_F16C_KERNELS
+// the float passes' panels: the half copy or the single one
+template <typename PT>
+const PT* float_panels(const SupernodalFactor& f) {
+    if constexpr (std::is_same_v<PT, Half>) return f.val_half;
+    else return f.val_single;
 }
 template <int W, int VL, typename PT>
 __attribute__((target("avx2,fma,f16c"), flatten)) void supernodal_avx2_float(const SupernodalFactor& f, float* x, float* y) {
-    supernodal_solve_float<W, VL, PT>(f, x, y);
+    supernodal_pass<float, W, VL, PT>(f, float_panels<PT>(f), f.diag_inverse_single, x, y);
 }
 template <int W, int VL, typename PT>
 __attribute__((target("avx512f,avx512vl,avx2,fma,f16c"), flatten)) void supernodal_avx512_float(const SupernodalFactor& f,
                                                                                              float* x, float* y) {
-    supernodal_solve_float<W, VL, PT>(f, x, y);
+    supernodal_pass<float, W, VL, PT>(f, float_panels<PT>(f), f.diag_inverse_single, x, y);
 }
 // false when the kernels cannot run here (no AVX2)
 bool supernodal_float(const SupernodalFactor& f, float* x, int w, float* y) {
@@ -1182,11 +1079,11 @@ void supernodal_dispatch_typed(const SupernodalFactor& f, const PT* v, const dou
         return supernodal_avx2<8, 4, PT>(f, v, d, x, y);
     }
 #endif
-    if (w == 1) supernodal_solve<1, 4, PT>(f, v, d, x, y);
-    else if (w == 4) supernodal_solve<4, 4, PT>(f, v, d, x, y);
-    else if (w == 16) supernodal_solve<16, 4, PT>(f, v, d, x, y);
-    else if (w == 32) supernodal_solve<32, 4, PT>(f, v, d, x, y);
-    else supernodal_solve<8, 4, PT>(f, v, d, x, y);
+    if (w == 1) supernodal_pass<double, 1, 4, PT>(f, v, d, x, y);
+    else if (w == 4) supernodal_pass<double, 4, 4, PT>(f, v, d, x, y);
+    else if (w == 16) supernodal_pass<double, 16, 4, PT>(f, v, d, x, y);
+    else if (w == 32) supernodal_pass<double, 32, 4, PT>(f, v, d, x, y);
+    else supernodal_pass<double, 8, 4, PT>(f, v, d, x, y);
 }
 
 void supernodal_solve_dispatch(const SupernodalFactor& f, double* x, int w, double* y) {
@@ -1441,9 +1338,8 @@ void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& row
     }
     // Up to 16 unit columns a pass on the up-looking factor (8 for its other solves): the
     // paper-size hands' factors stay in cache, so a pass is bound by its arithmetic, and two
-    // vectors of lanes per row give each 3x3 block's loads twice the work. Measured on the paper
-    // bunny with the 1695-tet hand (four alternating pairs, against the sweeps in the same run):
-    // the contact build 6-7% cheaper than with 8 (bench/README.md, twenty-third round).
+    // vectors of lanes per row give each 3x3 block's loads twice the work (the paper bunny's
+    // contact build is a few percent cheaper than with 8).
     const int most = supernodal_ ? kWidestSolve : 16;
     // The right-hand sides stay zero between calls: each batch clears the dirty nodes it leaves
     // nonzero. Clearing all 3n x w values per call instead (the calls mostly take one batch)

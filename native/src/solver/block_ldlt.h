@@ -14,15 +14,12 @@
 #include "common/simd.h"
 #include "common/types.h"
 #include "solver/half.h"
+#include "solver/panels.h"
 
 namespace hh {
 
 // Most right-hand sides one solve pass takes (supernodal form; the up-looking form takes 8).
 constexpr int kWidestSolve = 32;
-
-// The factor's values a solve pass reads: its own (double), or a copy in single or half
-// precision (set_keep_single, set_keep_half), for passes that precondition rather than solve.
-enum class Panels { Double, Single, Half };
 
 class BlockLDLT {
 public:

@@ -4,9 +4,6 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
-#include <string>
 
 #include "fem/corotational.h"
 #include "rigid/quaternion.h"
@@ -112,23 +109,16 @@ struct DeformableSystem::Impl {
     std::vector<Mat3> node_r, node_r_factor, warp;  // this step's, at the factorization, and R R_factor^T
     bool have_rotations = false;
     bool block_pattern = false;  // At's pattern suits the block kernel of multiply_node_major
-    // A/B switches for measurements: HH_REUSE_PANELS=double|single|half (the preconditioner
-    // passes' panels; default half, where the CPU converts halves, else single),
-    // HH_REUSE_UPLOOKING (the up-looking block LDL^T instead of the supernodal form)
-    Panels preconditioner = [] {
-        const char* v = std::getenv("HH_REUSE_PANELS");
-        const std::string panels = v ? v : "";
-        return panels == "double" ? Panels::Double : panels == "single" ? Panels::Single : Panels::Half;
-    }();
-    bool supernodal = std::getenv("HH_REUSE_UPLOOKING") == nullptr;
+    FactorForms forms;
     // The panels a preconditioner pass of `width` lanes reads: the narrowest copy the factor
     // keeps (see pcg_block). The half copy's rounding bounds an iteration's contraction at ~5e-4
     // even on an exact factor, so a wider block asked for a relative residual below 1e-8 (from
     // warm starts 1e-4 to 1e-5 off, two iterations instead of one) reads the float copy: its
     // iterations cost several one-lane passes each.
     Panels pass_panels(int width, double tolerance) const {
-        if (preconditioner == Panels::Half && cholesky.has_half() && (width == 1 || tolerance >= 1e-8)) return Panels::Half;
-        return preconditioner != Panels::Double && cholesky.has_single() ? Panels::Single : Panels::Double;
+        if (forms.preconditioner == Panels::Half && cholesky.has_half() && (width == 1 || tolerance >= 1e-8))
+            return Panels::Half;
+        return forms.preconditioner != Panels::Double && cholesky.has_single() ? Panels::Single : Panels::Double;
     }
     // Cost bookkeeping of the refactorization policy, in work units (one unit: a one-lane pass
     // over the factor), counted, not timed: the policy does not depend on the machine's load,
@@ -182,9 +172,9 @@ struct DeformableSystem::Impl {
         if (!cholesky.analysed()) {
             // many preconditioner passes per factorization: the supernodal form's dense panel
             // kernels (and its single-precision copy) pay off
-            cholesky.set_supernodal(supernodal);
-            cholesky.set_keep_single(preconditioner != Panels::Double);
-            cholesky.set_keep_half(preconditioner == Panels::Half);
+            cholesky.set_supernodal(forms.reused_supernodal);
+            cholesky.set_keep_single(forms.preconditioner != Panels::Double);
+            cholesky.set_keep_half(forms.preconditioner == Panels::Half);
             cholesky.analyze(sys.A);
             block_pattern = has_node_block_pattern(sys.A);
             // a factorization against a one-lane pass over its result: flops against stored
@@ -231,18 +221,13 @@ struct DeformableSystem::Impl {
     // supernodal): 1700 tets (4.6e6) 0.65 / 0.43 ms, 4101 tets (1.9e7) 2.4 / 1.7 ms, 17208 tets
     // (4.6e8) 55 / 26 ms; in the contact scenes the supernodal solves cost a little more, so the
     // paper's hands (1700 tets: as fast either way) stay up-looking, the 10x bunny scene's 4101-
-    // and 2594-tet bodies gain ~2 ms a frame on one thread.
-    // HH_CHOLESKY_FORM=uplooking|supernodal forces one (to measure).
+    // and 2594-tet bodies gain ~2 ms a frame on one thread. (FactorForms::per_step forces one.)
     static constexpr double kSupernodalFlops = 1e7;
     void analyze_per_step(const SpMat& a) {
-        const char* form = std::getenv("HH_CHOLESKY_FORM");
-        const std::string forced = form ? form : "";
+        using PerStep = FactorForms::PerStep;
         cholesky.analyze(a);
         const bool big = cholesky.factor_flops() > kSupernodalFlops;
-        if (std::getenv("HH_CHOLESKY_TRACE"))
-            std::fprintf(stderr, "per-step Cholesky: %d nodes, %.3g flops per factorization\n", cholesky.nodes(),
-                         cholesky.factor_flops());
-        if (forced == "supernodal" || (forced != "uplooking" && big)) {
+        if (forms.per_step == PerStep::Supernodal || (forms.per_step == PerStep::Auto && big)) {
             cholesky = BlockLDLT();
             cholesky.set_supernodal(true);
             cholesky.analyze(a);
@@ -257,6 +242,7 @@ struct DeformableSystem::Impl {
     // and reports the factor stale. pass_beside: the one-lane passes through the factor's two
     // parts, and the products with At in two halves of its rows, as two jobs for it
     // (BlockLDLT::solve_node_major_split; see pcg)
+    struct PcgBlock;
     void pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count, PcgWork& ws,
                    PcgTally& tally, const std::vector<Mat3>* w, bool may_renew, const Beside* pass_beside = nullptr);
 };
@@ -275,6 +261,17 @@ void DeformableSystem::configure(DeformableSolver solver, double cg_tolerance, i
 }
 
 DeformableSolver DeformableSystem::solver() const { return impl_->solver; }
+
+void DeformableSystem::set_factor_forms(const FactorForms& forms) {
+    Impl& m = *impl_;
+    m.forms = forms;
+    m.cholesky = BlockLDLT();  // (analysed again, in the new forms, by the next solve)
+    m.have_factor = m.factor_current = false;
+    m.drop_blocks();
+    factor_valid_ = false;
+}
+
+const FactorForms& DeformableSystem::factor_forms() const { return impl_->forms; }
 
 void DeformableSystem::matrix_changed() {
     Impl& m = *impl_;
@@ -691,100 +688,107 @@ void DeformableSystem::Impl::pcg(DeformableSystem& sys, const MatX& b, MatX& x, 
     }
 }
 
-void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count,
-                                       PcgWork& ws, PcgTally& tally, const std::vector<Mat3>* w, bool may_renew,
-                                       const Beside* pass_beside) {
-    std::vector<double>&nb = ws.nb, &nx = ws.nx, &nr = ws.nr, &nz = ws.nz, &np = ws.np, &nq = ws.nq;
-    const int n3 = static_cast<int>(sys.A.rows());
-    auto tol_of = [&](int col) {
-        const int slot = first_slot + col;
-        const double scale = slot < static_cast<int>(tolerance_scale.size()) ? tolerance_scale[slot] : 1.0;
-        return cg_tolerance * scale;
-    };
-    // Every pass through the factor's narrowest copy (pass_panels): the passes are memory
-    // bound, and in the world two groups of lanes stream the factor at once
-    // (solve_many_split), b_t's one-lane passes beside the Schur columns' 8-lane ones. On the
-    // 17006-tet hand pressing the 10x bunny (alternating runs) the frame rate rose 8-11% on
-    // two threads once both read the one float copy instead of the columns' passes reading
-    // the double panels, 7-12% on one thread (likely the working set: its panels are 7.8 MB
-    // in float, 15.5 in double, At another ~7, against a 32 MB cache shared by both threads
-    // and, on a virtual machine, with its neighbours; in a loop of its own an 8-lane pass is
-    // only ~12% faster in float). The preconditioner is the stale warped factor anyway: float
-    // round-off of its panels cost the columns' 1e-9 tolerance ~10% more lane-iterations
-    // (6.1 -> 6.8 a step).
-    // The passes read the half-precision copy where there is one: a quarter of the double
-    // traffic. On that hand, factor out of cache, a one-lane pass took 1.1-1.5 ms against
-    // 1.9-2.3 in float (in cache, as fast); the frame rate on one thread +7% (6 alternating
-    // pairs), on two within the noise (8 pairs: median 0.97, mean 1.01). The 4- and 8-lane
-    // passes stayed on the float copy while their half kernels converted every entry on its
-    // own (2.8-3.6 ms against 2.3-2.6 in cache); since they convert a chunk of rows at a time
-    // (BlockLDLT's float kernels) the Schur columns' 8-lane pass in the 10x bunny's frames took
-    // 4.44-4.75 ms against 5.35-5.38 on the float copy (three alternating pairs, the same
-    // lane-iterations: 345 against 346 in 53 frames), and b_t's and the columns' passes now
-    // stream one copy. Its rounding (2^-11 of each column's largest entry) limits CG's
-    // contraction to ~5e-4 an iteration on an exact factor, far below what the staleness of a
-    // reused one allows (0.2-0.3 an iteration on that hand).
-    // Every pass's arithmetic is float where the CPU has AVX2 (BlockLDLT::float_passes; the
-    // residuals and products with At stay double, and CG's flexible beta takes the float
-    // round-off like any change of preconditioner). In the 10x bunny's frames (both ways
-    // alternating in one run) a one-lane pass took 0.78-1.11 ms against 1.05-1.57 in double;
-    // with the 4- and 8-lane passes too, the hand's solve took 15.1-16.7 ms a frame against
-    // 17.6-21.1 (three pairs of 60-frame runs, slow state), iterations no more (11.5 a frame
-    // for both groups against 11.9).
-    // lanes[l] = column of b held in lane l (-1: an idle lane, all zeros)
-    std::vector<int> lanes;
-    std::vector<double> bnorm(count, 0.0);
-    for (int j = 0; j < count; ++j) {
-        const int col = first + j;
-        bnorm[j] = b.col(col).norm();
-        if (bnorm[j] == 0) x.col(col).setZero();
-        else lanes.push_back(col);
-    }
-    if (lanes.empty()) return;
-    int wd = padded_width(static_cast<int>(lanes.size()));
-    lanes.resize(wd, -1);
-    // the norms the lanes' relative residuals are measured against (set_reference_norm)
-    std::vector<double> rnorm(count, 0.0);
-    for (int j = 0; j < count; ++j) rnorm[j] = residual_norm(first_slot + first + j, bnorm[j]);
-    auto lane_norm_b = [&](int l) { return rnorm[lanes[l] - first]; };
+// One block of up to 8 columns of pcg, in the steps of one preconditioned CG iteration.
+//
+// Every pass through the factor reads its narrowest copy (pass_panels): the passes are memory
+// bound, and in the world two groups of lanes stream the factor at once (solve_many_split),
+// b_t's one-lane passes beside the Schur columns' 8-lane ones. The half-precision copy is a
+// quarter of the double traffic; its rounding (2^-11 of each column's largest entry) limits
+// CG's contraction to ~5e-4 an iteration on an exact factor, far below what the staleness of a
+// reused one allows (0.2-0.3 an iteration on the ~17000-tet hand). The passes' arithmetic is
+// float where the CPU has AVX2 (BlockLDLT::float_passes; the residuals and products with At stay
+// double, and CG's flexible beta takes the float round-off like any change of preconditioner).
+// The preconditioner is the stale warped factor anyway.
+struct DeformableSystem::Impl::PcgBlock {
+    Impl& m;
+    DeformableSystem& sys;
+    const MatX& b;
+    MatX& x;
+    const int first_slot, first, count;
+    std::vector<double>&nb, &nx, &nr, &nz, &np, &nq;  // node-major blocks of wd lanes (PcgWork)
+    PcgTally& tally;
+    const std::vector<Mat3>* w;  // the warp (null after a renewal)
+    const bool may_renew;
+    const Beside* pass_beside;
+    const int n3;
+    std::vector<int> lanes;  // lanes[l] = column of b held in lane l (-1: an idle lane, all zeros)
+    int wd = 0;              // the block's width: 1, 4 or 8 lanes
+    std::vector<double> bnorm, rnorm;  // per column: |b|, and the norm its relative residual is measured against
     double tightest = 1;  // the block's smallest tolerance (pass_panels)
-    for (int c : lanes)
-        if (c >= 0) tightest = std::min(tightest, tol_of(c));
-    const size_t size = static_cast<size_t>(n3) * 8;
-    for (std::vector<double>* v : {&nb, &nx, &nr, &nz, &np, &nq}) v->resize(size);
+    double rnorm2[8], rz_new[8], pq[8], qz[8];
+    std::vector<double> rz, cross;  // per column (lanes move when the block narrows)
+    std::vector<int> its;
+    bool restarted = false, fresh = true;
+
+    PcgBlock(Impl& m, DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count, PcgWork& ws,
+             PcgTally& tally, const std::vector<Mat3>* w, bool may_renew, const Beside* pass_beside)
+        : m(m), sys(sys), b(b), x(x), first_slot(first_slot), first(first), count(count), nb(ws.nb), nx(ws.nx), nr(ws.nr),
+          nz(ws.nz), np(ws.np), nq(ws.nq), tally(tally), w(w), may_renew(may_renew), pass_beside(pass_beside),
+          n3(static_cast<int>(sys.A.rows())), bnorm(count, 0.0), rnorm(count, 0.0), rz(count, 0.0), cross(count, 0.0),
+          its(count, 0) {}
+
+    void run() {
+        if (!take_lanes()) return;
+        start();
+        for (;;) {
+            compact();
+            bool any = false;
+            for (int c : lanes) any |= c >= 0;
+            if (!any) break;
+            precondition();
+            update_directions();
+            multiply_directions();
+            const int worst = step_lanes();
+            if (worst >= sys.reuse_iteration_limit && !restarted) {
+                if (!may_renew) {
+                    // (another group may be reading the factor: pcg renews it once both are done,
+                    // and solves this block's columns again on it)
+                    tally.stale = true;
+                    break;
+                }
+                renew();
+            }
+        }
+    }
+
+private:
+    double tol_of(int col) const {
+        const int slot = first_slot + col;
+        const double scale = slot < static_cast<int>(m.tolerance_scale.size()) ? m.tolerance_scale[slot] : 1.0;
+        return m.cg_tolerance * scale;
+    }
+    double lane_norm_b(int l) const { return rnorm[lanes[l] - first]; }
+    // per-lane sums over node-major blocks
+    void lane_dot(const std::vector<double>& u, const std::vector<double>& v, double* out) const {
+        hh::lane_dot(wd, u.data(), v.data(), static_cast<size_t>(n3), out);
+    }
     // node-major loads, a whole row of lanes at a time (lane-by-lane strided writes touched a
     // cache line per entry and lane)
-    auto load = [&](auto column_of, std::vector<double>& to) {
+    template <class ColumnOf>
+    void load(ColumnOf column_of, std::vector<double>& to) const {
         const double* from[8] = {};
         for (int l = 0; l < wd; ++l)
             if (lanes[l] >= 0) from[l] = column_of(lanes[l]);
         for (int e = 0; e < n3; ++e)
             for (int l = 0; l < wd; ++l) to[static_cast<size_t>(wd) * e + l] = from[l] ? from[l][e] : 0.0;
-    };
-    load([&](int col) { return b.col(col).data(); }, nb);
-    load([&](int col) { return warm[first_slot + col].data(); }, nx);
-    load([&](int col) { return warm2[first_slot + col].data(); }, np);
-    // per-lane sums over node-major blocks
-    auto lane_dot = [&](const std::vector<double>& u, const std::vector<double>& v, double* out) {
-        hh::lane_dot(wd, u.data(), v.data(), static_cast<size_t>(n3), out);
-    };
-    auto residual = [&]() {  // r = b - A x
-        multiply_any(sys.A, block_pattern, nx.data(), nq.data(), wd);
+    }
+    void residual() {  // r = b - A x
+        multiply_any(sys.A, m.block_pattern, nx.data(), nq.data(), wd);
         const size_t total = static_cast<size_t>(n3) * wd;
         for (size_t e = 0; e < total; ++e) nr[e] = nb[e] - nq[e];
-    };
+    }
     // A finished lane is left as it is: its alpha and beta stay 0 from then on, so its x and r
     // no longer change and p = M^-1 r stays finite; the lanes never mix, so it cannot disturb
-    // the others, and compact() drops it when the block narrows. (Zeroing it touched a cache
+    // the others, and compact() drops it when the block narrows. (Zeroing it would touch a cache
     // line per entry in four vectors.)
-    auto finish_lane = [&](int l, double rel) {
+    void finish_lane(int l, double rel) {
         const int col = lanes[l];
         for (int e = 0; e < n3; ++e) x(e, col) = nx[static_cast<size_t>(wd) * e + l];
         tally.max_residual = std::max(tally.max_residual, rel);
         lanes[l] = -1;
-    };
+    }
     // narrow the block when the live lanes fit in a smaller width
-    auto compact = [&]() {
+    void compact() {
         int live = 0;
         for (int c : lanes) live += c >= 0;
         const int nw = padded_width(std::max(live, 1));
@@ -795,24 +799,48 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
         for (std::vector<double>* v : {&nb, &nx, &nr, &np}) {
             std::vector<double>& a = *v;
             for (int e = 0; e < n3; ++e)  // in place: the new layout never overtakes the old
-                for (int m = 0; m < nw; ++m)
-                    a[static_cast<size_t>(nw) * e + m] = m < static_cast<int>(keep.size()) ? a[static_cast<size_t>(wd) * e + keep[m]] : 0.0;
+                for (int k = 0; k < nw; ++k)
+                    a[static_cast<size_t>(nw) * e + k] = k < static_cast<int>(keep.size()) ? a[static_cast<size_t>(wd) * e + keep[k]] : 0.0;
         }
         std::vector<int> nl(nw, -1);
-        for (size_t m = 0; m < keep.size(); ++m) nl[m] = lanes[keep[m]];
+        for (size_t k = 0; k < keep.size(); ++k) nl[k] = lanes[keep[k]];
         lanes.swap(nl);
         wd = nw;
-    };
-    double rnorm2[8], rz_new[8], pq[8], qz[8];
-    std::vector<double> rz(count, 0.0), cross(count, 0.0);  // per column (lanes move when the block narrows)
-    std::vector<int> its(count, 0);
+    }
+
+    // The block's columns with a nonzero right-hand side as lanes (the others' solutions are 0),
+    // their norms, and b and the slots' last two solutions in node-major blocks. False when no
+    // column is left.
+    bool take_lanes() {
+        for (int j = 0; j < count; ++j) {
+            const int col = first + j;
+            bnorm[j] = b.col(col).norm();
+            if (bnorm[j] == 0) x.col(col).setZero();
+            else lanes.push_back(col);
+        }
+        if (lanes.empty()) return false;
+        wd = padded_width(static_cast<int>(lanes.size()));
+        lanes.resize(wd, -1);
+        // the norms the lanes' relative residuals are measured against (set_reference_norm)
+        for (int j = 0; j < count; ++j) rnorm[j] = m.residual_norm(first_slot + first + j, bnorm[j]);
+        for (int c : lanes)
+            if (c >= 0) tightest = std::min(tightest, tol_of(c));
+        const size_t size = static_cast<size_t>(n3) * 8;
+        for (std::vector<double>* v : {&nb, &nx, &nr, &nz, &np, &nq}) v->resize(size);
+        load([&](int col) { return b.col(col).data(); }, nb);
+        load([&](int col) { return m.warm[first_slot + col].data(); }, nx);
+        load([&](int col) { return m.warm2[first_slot + col].data(); }, np);
+        return true;
+    }
+
     // Initial guess: the Galerkin (A-norm optimal) combination c1 h1 + c2 h2 of the slot's last
     // two solutions h1, h2: it contains the plain warm start (1, 0), the linear extrapolation
-    // (2, -1) and zero, so it is never worse than any of them in the A-norm.
-    {
+    // (2, -1) and zero, so it is never worse than any of them in the A-norm. Lanes already within
+    // their tolerance finish.
+    void start() {
         const size_t total = static_cast<size_t>(n3) * wd;
-        multiply_any(sys.A, block_pattern, nx.data(), nq.data(), wd);  // A h1
-        multiply_any(sys.A, block_pattern, np.data(), nz.data(), wd);  // A h2 (h2 loaded in np)
+        multiply_any(sys.A, m.block_pattern, nx.data(), nq.data(), wd);  // A h1
+        multiply_any(sys.A, m.block_pattern, np.data(), nz.data(), wd);  // A h2 (h2 loaded in np)
         double a11[8], a12[8], a22[8], b1[8], b2[8];
         lane_dot(nx, nq, a11);
         lane_dot(nx, nz, a12);
@@ -836,45 +864,56 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
                 nr[e + l] = nb[e + l] - c1[l] * nq[e + l] - c2[l] * nz[e + l];
             }
         std::fill(np.begin(), np.begin() + total, 0.0);
+        lane_dot(nr, nr, rnorm2);
+        for (int l = 0; l < wd; ++l) {
+            if (lanes[l] < 0) continue;
+            const double bn = lane_norm_b(l);
+            if (std::sqrt(rnorm2[l]) <= tol_of(lanes[l]) * bn) finish_lane(l, std::sqrt(rnorm2[l]) / bn);
+        }
     }
-    lane_dot(nr, nr, rnorm2);
-    for (int l = 0; l < wd; ++l) {
-        if (lanes[l] < 0) continue;
-        const double bn = lane_norm_b(l);
-        if (std::sqrt(rnorm2[l]) <= tol_of(lanes[l]) * bn) finish_lane(l, std::sqrt(rnorm2[l]) / bn);
-    }
-    bool restarted = false, fresh = true;
-    for (;;) {
-        compact();
-        bool any = false;
-        for (int c : lanes) any |= c >= 0;
-        if (!any) break;
+
+    // z = M^-1 r: a pass through the (warped) factor; one lane's in two jobs for pass_beside
+    void precondition() {
         const size_t total = static_cast<size_t>(n3) * wd;
-        std::copy(nr.begin(), nr.begin() + total, nz.begin());  // z = M^-1 r
-        if (wd == 1 && pass_beside && *pass_beside) cholesky.solve_node_major_split(nz.data(), 1, w, pass_panels(1, tightest), *pass_beside);
-        else cholesky.solve_node_major(nz.data(), wd, w, pass_panels(wd, tightest));
+        std::copy(nr.begin(), nr.begin() + total, nz.begin());
+        if (wd == 1 && pass_beside && *pass_beside)
+            m.cholesky.solve_node_major_split(nz.data(), 1, w, m.pass_panels(1, tightest), *pass_beside);
+        else
+            m.cholesky.solve_node_major(nz.data(), wd, w, m.pass_panels(wd, tightest));
         tally.units += pass_units(wd);
+    }
+
+    // p = z + beta p. Polak-Ribiere (flexible) CG: beta = r_new . (z_new - z_old) / (r_old . z_old),
+    // with r_new . z_old = r_old . z_old - alpha q . z_old. It equals Fletcher-Reeves for a fixed
+    // preconditioner and stays robust were the preconditioner to change between iterations
+    // (single and double passes were mixed once; the renewal restarts).
+    void update_directions() {
         lane_dot(nr, nz, rz_new);
         double beta[8] = {};
         for (int l = 0; l < wd; ++l) {
             if (lanes[l] < 0) continue;
             const int j = lanes[l] - first;
-            // Polak-Ribiere (flexible) CG: beta = r_new . (z_new - z_old) / (r_old . z_old), with
-            // r_new . z_old = r_old . z_old - alpha q . z_old. It equals Fletcher-Reeves for a
-            // fixed preconditioner and stays robust were the preconditioner to change between
-            // iterations (single and double passes were mixed once; the renewal restarts).
             beta[l] = fresh ? 0.0 : std::max(0.0, (rz_new[l] - cross[j]) / rz[j]);
             rz[j] = rz_new[l];
         }
         p_update(wd, np.data(), nz.data(), beta, static_cast<size_t>(n3));
         fresh = false;
-        if (wd == 1 && block_pattern && pass_beside && *pass_beside) {  // (the nodes' rows in two halves)
+    }
+
+    // q = A p; one lane's in two jobs for pass_beside (the nodes' rows in two halves)
+    void multiply_directions() {
+        if (wd == 1 && m.block_pattern && pass_beside && *pass_beside) {
             const int n = n3 / 3;
             (*pass_beside)([&] { multiply_node_major(sys.A, np.data(), nq.data(), 1, 0, n / 2); },
                            [&] { multiply_node_major(sys.A, np.data(), nq.data(), 1, n / 2, n); });
         } else {
-            multiply_any(sys.A, block_pattern, np.data(), nq.data(), wd);
+            multiply_any(sys.A, m.block_pattern, np.data(), nq.data(), wd);
         }
+    }
+
+    // x += alpha p, r -= alpha q; the lanes within their tolerance (or out of iterations)
+    // finish. Returns the most iterations a lane still running has taken.
+    int step_lanes() {
         lane_dot(np, nq, pq);
         lane_dot(nq, nz, qz);
         double alpha[8] = {};
@@ -894,26 +933,29 @@ void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, Mat
             ++tally.iterations;
             const double rel = std::sqrt(acc[l]) / rnorm[j];
             if (rel <= tol_of(lanes[l])) finish_lane(l, rel);
-            else if (its[j] >= std::max(cg_max_iterations, sys.reuse_iteration_limit + 5)) finish_lane(l, rel);  // give up
+            else if (its[j] >= std::max(m.cg_max_iterations, sys.reuse_iteration_limit + 5)) finish_lane(l, rel);  // give up
             else worst = std::max(worst, its[j]);
         }
-        if (worst >= sys.reuse_iteration_limit && !restarted && !may_renew) {
-            // (another group may be reading the factor: pcg renews it once both are done)
-            tally.stale = true;  // (its columns are solved again on the renewed factor)
-            break;
-        }
-        if (worst >= sys.reuse_iteration_limit && !restarted) {
-            // the factor is too stale: renew it with this step's At and restart CG from the
-            // current iterates (with the exact factor one or two iterations reach the tolerance)
-            add_units(tally.units);  // (the passes so far count in the closing epoch, as the step's)
-            tally.units = 0;
-            factor(sys);
-            w = nullptr;
-            restarted = true;
-            fresh = true;
-            residual();
-        }
+        return worst;
     }
+
+    // The factor is too stale: renewed with this step's At, and CG restarted from the current
+    // iterates (with the exact factor one or two iterations reach the tolerance)
+    void renew() {
+        m.add_units(tally.units);  // (the passes so far count in the closing epoch, as the step's)
+        tally.units = 0;
+        m.factor(sys);
+        w = nullptr;
+        restarted = true;
+        fresh = true;
+        residual();
+    }
+};
+
+void DeformableSystem::Impl::pcg_block(DeformableSystem& sys, const MatX& b, MatX& x, int first_slot, int first, int count,
+                                       PcgWork& ws, PcgTally& tally, const std::vector<Mat3>* w, bool may_renew,
+                                       const Beside* pass_beside) {
+    PcgBlock(*this, sys, b, x, first_slot, first, count, ws, tally, w, may_renew, pass_beside).run();
 }
 
 }  // namespace hh

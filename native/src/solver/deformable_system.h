@@ -23,10 +23,23 @@
 
 #include "common/beside.h"
 #include "solver/linear_system.h"
+#include "solver/panels.h"
 
 namespace hh {
 
 enum class DeformableSolver { Cholesky, ConjugateGradient, ReusedCholesky };
+
+// How a DeformableSystem keeps its factor. The defaults are the forms measured fastest; the
+// others are there for benchmarks and tests to compare against (C++ only: no user setting).
+struct FactorForms {
+    // ReusedCholesky: the copy its preconditioner passes read (Half where the CPU converts
+    // halves, else Single; the direct solves always read the double panels)
+    Panels preconditioner = Panels::Half;
+    bool reused_supernodal = true;  // ReusedCholesky: the supernodal form (false: up-looking)
+    // Cholesky: the up-looking block LDL^T below kSupernodalFlops a factorization, the
+    // supernodal form above (Auto), or one of them always
+    enum class PerStep { Auto, UpLooking, Supernodal } per_step = PerStep::Auto;
+};
 
 
 class DeformableSystem : public LinearSystem {
@@ -39,6 +52,9 @@ public:
     // Keeps the reused factor when nothing changes (it is called before every step).
     void configure(DeformableSolver solver, double cg_tolerance, int cg_max_iterations);
     DeformableSolver solver() const;
+    // The factor's forms (FactorForms); setting them drops any factor made so far.
+    void set_factor_forms(const FactorForms& forms);
+    const FactorForms& factor_forms() const;
     // Warm-start slot for CG: the Schur solve uses slots 0-6 (b_t and the 6 columns of Ath).
     void select_slot(int slot);
     // ReusedCholesky: the tolerance of a slot's solves is cg_tolerance * scale

@@ -1,0 +1,147 @@
+#include "sim/body.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "rigid/quaternion.h"
+
+namespace hh {
+
+int Body::dofs() const {
+    switch (kind) {
+        case BodyKind::Hand: return 6 + 3 * hand_model->mesh.n_nodes;
+        case BodyKind::Soft: return 3 * soft.flesh->mesh.n_nodes;
+        case BodyKind::Rigid: return 6;
+        default: return 0;
+    }
+}
+
+DeformableSystem* Body::response_system() {
+    if (kind == BodyKind::Soft) return soft.tool.get();
+    if (kind == BodyKind::Hand) return &hand->hand.tool;
+    return nullptr;
+}
+
+void Body::update_points() {
+    switch (kind) {
+        case BodyKind::Hand:
+        case BodyKind::Soft: {
+            const VecX& x = kind == BodyKind::Hand ? hand->x : state.x;
+            points.resize(x.size() / 3);
+            for (size_t i = 0; i < points.size(); ++i) points[i] = x.segment<3>(3 * i);
+            break;
+        }
+        case BodyKind::Rigid:
+        case BodyKind::Kinematic:
+        case BodyKind::Static: {
+            const Mat3 r = quat_to_matrix(rigid.q);
+            points.resize(mesh.local.size());
+            for (size_t i = 0; i < mesh.local.size(); ++i) points[i] = rigid.x_com + r * mesh.local[i];
+            break;
+        }
+        case BodyKind::Plane: break;
+    }
+}
+
+void Body::update_surface_positions() {
+    if (!has_surface) return;
+    for (int v = 0; v < surface.n_vertices(); ++v) {
+        Vec3 p = Vec3::Zero();
+        for (int k = 0; k < 4; ++k)
+            if (surface.weights[v][k] != 0) p += surface.weights[v][k] * points[surface.nodes[v][k]];
+        surface.x[v] = p;
+    }
+}
+
+double Body::fastest_speed() const {
+    double speed = 0;
+    if (kind == BodyKind::Hand || kind == BodyKind::Soft) {
+        const VecX& v = kind == BodyKind::Hand ? hand->v : state.v;
+        for (Eigen::Index k = 0; k + 2 < v.size(); k += 3) speed = std::max(speed, v.segment<3>(k).squaredNorm());
+        speed = std::sqrt(speed);
+    } else if (kind == BodyKind::Rigid || kind == BodyKind::Kinematic) {
+        double arm = 0;  // farthest surface point from the centre of mass
+        for (const Vec3& p : mesh.local) arm = std::max(arm, p.norm());
+        speed = rigid.v_com.norm() + rigid.omega.norm() * arm;
+    }
+    return speed;
+}
+
+void SoftParts::solve_free(FleshState& state, double dt, const Vec3& gravity, const VecX& carried, VecX& v_free) {
+    const int n3 = 3 * flesh->mesh.n_nodes;
+    rhs.resize(n3);
+    formulate_flesh(*flesh, state, dt, gravity, alpha, beta, *tool, rhs);
+    // fixed nodes: identity rows and columns, zero right-hand side (velocity 0)
+    double* values = tool->A.valuePtr();
+    for (int off : fixed_entries) values[off] = 0;
+    for (int i = 0; i < flesh->mesh.n_nodes; ++i)
+        if (fixed[i]) {
+            add_node_block(*flesh, i, Mat3::Identity(), values);
+            rhs.segment<3>(3 * i).setZero();
+        }
+    // On the reused factor, as the hand's (World::solve_free): the last step's contact impulses
+    // f in the free solve, and P f taken out again, so that only their change sees the lag
+    tool->r = rhs;
+    if (carried.size()) {
+        tool->set_reference_norm(0, rhs.norm());
+        tool->r += carried;
+    }
+    tool->select_slot(0);
+    tool->solve();
+    v_free = tool->s;
+    if (carried.size()) {
+        VecX response;
+        tool->solve_response_single(carried, response);
+        v_free -= response;
+    }
+}
+
+void SoftParts::integrate(FleshState& state, const VecX& v, double dt) const {
+    state.v = v;
+    for (int i = 0; i < flesh->mesh.n_nodes; ++i)
+        if (fixed[i]) state.v.segment<3>(3 * i).setZero();
+    state.x += dt * state.v;
+}
+
+void MeshParts::solve_free(const RigidState& state, double dt, const Vec3& gravity, VecX& v_free) const {
+    const Mat3 r = quat_to_matrix(state.q);
+    const Mat3 inertia = r * inertia_body * r.transpose();
+    RigidSystem& rs = *system;
+    rs.A.setZero();
+    rs.A.topLeftCorner<3, 3>() = mass * Mat3::Identity();
+    rs.A.bottomRightCorner<3, 3>() = inertia;
+    rs.r.head<3>() = mass * (state.v_com + dt * gravity);
+    rs.r.tail<3>() = inertia * state.omega - dt * state.omega.cross(inertia * state.omega);
+    rs.solve();
+    v_free = rs.s;
+}
+
+void MeshParts::integrate(RigidState& state, const VecX& v, double dt) {
+    state.v_com = v.head<3>();
+    state.omega = v.tail<3>();
+    state.x_com += dt * state.v_com;
+    state.q = quat_multiply(quat_from_rotation_vector(dt * state.omega), state.q).normalized();
+}
+
+void mesh_mass_properties(const std::vector<Vec3>& x, const std::vector<Eigen::Vector3i>& triangles, double density,
+                          double& mass, Vec3& com, Mat3& inertia) {
+    double volume = 0;
+    Vec3 first = Vec3::Zero();
+    Mat3 second = Mat3::Zero();  // integral of x x^T over the solid
+    for (const auto& t : triangles) {
+        const Vec3 &a = x[t[0]], &b = x[t[1]], &c = x[t[2]];
+        const double v = a.dot(b.cross(c)) / 6.0;  // tet (0, a, b, c)
+        const Vec3 s = a + b + c;
+        volume += v;
+        first += v * s / 4.0;
+        second += v / 20.0 * (a * a.transpose() + b * b.transpose() + c * c.transpose() + s * s.transpose());
+    }
+    if (!(volume > 0))
+        throw InvalidArgument("the rigid body's mesh encloses no positive volume: it must be closed and wound outward");
+    mass = density * volume;
+    com = first / volume;
+    const Mat3 central = density * (second - volume * com * com.transpose());
+    inertia = central.trace() * Mat3::Identity() - central;
+}
+
+}  // namespace hh

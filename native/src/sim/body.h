@@ -1,0 +1,114 @@
+// One body of a World (sim/world.h): what every kind has (kind, friction, collision surface,
+// the step's velocities and contact force) and each kind's own component: the hand's model and
+// state (sim/data.h) with its step's bookkeeping, a soft body's FEM system (SoftParts), a mesh
+// body's rigid parts (MeshParts), a plane's point and normal.
+#pragma once
+#include <memory>
+#include <vector>
+
+#include "common/beside.h"
+#include "contact/detection.h"
+#include "sim/data.h"
+#include "sim/keyframes.h"
+
+namespace hh {
+
+enum class BodyKind { Hand, Soft, Rigid, Kinematic, Static, Plane };
+
+// A rigid body's pose and velocity: the same four quantities as the hand's handle.
+using RigidState = HandleState;
+
+// The hand's step as World::step's tasks run it: the element pass's parts (formulate_begin,
+// parts 0 and 1) and, for a large hand, its assembly and the factor's two parts side by side
+// before its free solve (World::solve_free reads their times).
+struct HandStep {
+    double pass_seconds[3] = {0, 0, 0};  // s, this step: formulate_begin, element pass parts 0 and 1
+    bool assemble_apart = false;         // assembled by its own task, with the factor's parts between
+    double assembly_seconds = 0, factor_part_seconds[2] = {0, 0};
+};
+
+// A soft FEM body (BodyKind::Soft): its mesh and material, its implicit system At (Eq. 7
+// without the handle), the nodes held still, and its free solve (sim/body.cpp).
+struct SoftParts {
+    std::unique_ptr<Flesh> flesh;
+    std::unique_ptr<DeformableSystem> tool;
+    std::vector<char> fixed;         // per node
+    std::vector<int> fixed_entries;  // offsets in At's values zeroed for fixed nodes
+    double alpha = 0, beta = 0;      // Rayleigh damping
+    VecX rhs;                        // the step's right-hand side
+    // on the reused factor, during World::step: its fresh response columns in two shares that
+    // may run side by side (DeformableSystem::response_units); empty otherwise
+    Beside beside;
+
+    // v_free = At^-1 (b + carried) - P^-1 carried for the step from state (P: the reused
+    // factor's response operator; carried: the last step's contact impulses, empty without)
+    void solve_free(FleshState& state, double dt, const Vec3& gravity, const VecX& carried, VecX& v_free);
+    // state advanced by the velocities v (the fixed nodes' held at zero)
+    void integrate(FleshState& state, const VecX& v, double dt) const;
+};
+
+// A mesh body (Rigid, Kinematic, Static): its vertices in the body frame (origin at the centre
+// of mass) and, for a free rigid body, its mass properties and 6x6 system.
+struct MeshParts {
+    std::vector<Vec3> local;
+    double mass = 0;
+    Mat3 inertia_body = Mat3::Zero();
+    std::unique_ptr<RigidSystem> system;
+
+    // the free rigid body's velocities (v, omega) after one implicit step of dt from `state`
+    void solve_free(const RigidState& state, double dt, const Vec3& gravity, VecX& v_free) const;
+    // the free rigid body's state advanced by the velocities v = (v, omega)
+    static void integrate(RigidState& state, const VecX& v, double dt);
+};
+
+struct Body {
+    BodyKind kind = BodyKind::Static;
+    double friction = 0.5;          // static Coulomb coefficient
+    double kinetic_friction = 0.5;  // kinetic coefficient, at most the static one
+    bool self_collision = false;
+    SelfExclusions self_exclusions;  // self-collision pairs already in contact at rest
+    bool has_surface = false;
+    CollisionSurface surface;
+    std::vector<Vec3> points;  // the points the surface is made of, this step (world frame)
+
+    // hand
+    std::unique_ptr<Model> hand_model;
+    std::unique_ptr<Data> hand;
+    HandStep hand_step;
+    // soft body: its nodes' state and its FEM parts
+    FleshState state;
+    SoftParts soft;
+    // rigid, kinematic, static mesh
+    RigidState rigid;
+    RigidState target;  // kinematic: the pose and velocity at the end of the next step
+    Keyframes script;   // kinematic: when set, the world moves the body along it (target = script at t + dt)
+    MeshParts mesh;
+    // plane
+    Vec3 plane_point = Vec3::Zero(), plane_normal = Vec3::UnitZ();
+
+    // last step
+    VecX v_free, v_new;     // velocities of the body's unknowns (dofs())
+    Vec3 contact_force = Vec3::Zero();  // N, total over the last step
+    // A hand or soft body whose contact responses come from a lagged operator (ReusedCholesky):
+    // the last step's contact impulses on its unknowns (J^T lambda, N s), which its next free
+    // solve takes as a known load (World::solve_free); empty when it had no contact.
+    VecX carried_impulse;
+
+    bool dynamic() const { return kind == BodyKind::Hand || kind == BodyKind::Soft || kind == BodyKind::Rigid; }
+    int dofs() const;
+    // The flesh system its contact responses are solved through (hand, soft body), or null
+    DeformableSystem* response_system();
+    // points from the body's state (the surface's points: flesh nodes or mesh vertices)
+    void update_points();
+    // the surface's vertex positions from the points (normals and boxes: the next detection)
+    void update_surface_positions();
+    // m/s: the speed of its fastest point (flesh nodes; a mesh body's |v| + |omega| r_max)
+    double fastest_speed() const;
+};
+
+// Mass, centre of mass and inertia about it of a closed, outward-wound triangle mesh of
+// uniform density (divergence theorem over the tetrahedra it makes with the origin).
+void mesh_mass_properties(const std::vector<Vec3>& vertices, const std::vector<Eigen::Vector3i>& triangles,
+                          double density, double& mass, Vec3& com, Mat3& inertia);
+
+}  // namespace hh
