@@ -1,32 +1,66 @@
-"""Command line: `python -m haptic_hand simulate | check-rig | demo` (no Blender needed)."""
+"""Command line: `python -m haptic_hand simulate | check-rig | demo` (no Blender needed).
+
+Bad input ends with `error: <what is wrong and the fix>` on stderr and exit code 2 (check-rig:
+its report, exit code 1), never a traceback; an interrupt (Ctrl-C, SIGTERM) leaves no partial
+file and exits 130."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import signal
 import sys
 from pathlib import Path
 
-from .engine import mesh as meshing
-from .engine import native, rig_check, simulate
+from .engine import rig_check, simulate
 from .engine import scene as scenes
 
 SAMPLE_SCENE = Path(__file__).resolve().parent / "engine" / "sample_scenes" / "hand_wave.json"
-USER_ERRORS = (scenes.SceneError, meshing.MeshError, native.NativeError, OSError)
+USER_ERRORS = rig_check.USER_ERRORS
+EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED = 2, 3, 130
+
+
+def check_output(out: Path, scene_path: Path, scene: scenes.Scene) -> None:
+    """Refuses a result path that is a directory or one of the run's inputs (it would be
+    replaced by the result)."""
+    if out.is_dir():
+        raise scenes.SceneError(f"--out {out} is a directory: give a file name, e.g. {out / 'result.npz'}")
+    inputs = [("the scene file", scene_path)] + scenes.input_files(scene)
+    for what, path in inputs:
+        same = out.resolve() == path.resolve() or (out.exists() and path.exists() and os.path.samefile(out, path))
+        if same:
+            raise scenes.SceneError(f"--out {out} is {what} ({path}), an input of this run: writing the result "
+                                    "would replace it; give another file name")
 
 
 def cmd_simulate(args) -> int:
     scene = scenes.load(args.scene)
-    result = simulate.run(scene, progress=None if args.quiet else simulate.text_progress)
-    out = simulate.write(result, args.out)
+    out = Path(args.out)
+    check_output(out, Path(args.scene), scene)
+    simulate.remove_partial(out)  # left by a run killed while writing
+    progress = None if args.quiet else simulate.text_progress
+    scenes.load_hand_geometry(scene, (lambda f, m: progress(0.2 * f, m)) if progress else None)
+    for warning in scene.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    scenes.check_memory(scene, len(scene.nodes))
+    result = simulate.run(scene, progress=progress)
+    written = simulate.write(result, out)
     print(simulate.summary(result))
-    print(f"result written to {out}")
+    print(f"result written to {written}")
     return 0
 
 
 def cmd_check_rig(args) -> int:
-    scene = scenes.load(args.scene)
-    report = rig_check.check(scene)
+    try:
+        scene = scenes.load(args.scene)
+    except USER_ERRORS as e:
+        if not args.json:
+            raise
+        scene = None
+        report = {"ok": False, "checks": [{"name": "scene", "ok": False, "detail": str(e)}], "warnings": []}
+    if scene is not None:
+        report = rig_check.check(scene)
     print(json.dumps(report, indent=2) if args.json else rig_check.format_report(report))
     return 0 if report["ok"] else 1
 
@@ -49,6 +83,10 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt  # so the write's clean-up runs (SIGTERM's default would skip it)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="haptic_hand", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -57,19 +95,34 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True, help="result file (.npz)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(fn=cmd_simulate)
-    p = sub.add_parser("check-rig", help="check a hand rig and cross-check the Schur solve")
+    p = sub.add_parser("check-rig", help="check a hand rig: surface, tets, handle, droop, the Schur solve")
     p.add_argument("scene")
-    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument("--json", action="store_true", help="print the report as JSON (always, errors included)")
     p.set_defaults(fn=cmd_check_rig)
     p = sub.add_parser("demo", help="run the bundled sample scene, write result, summary and plot")
     p.add_argument("--out", default="out/demo")
     p.set_defaults(fn=cmd_demo)
     args = parser.parse_args(argv)
+    as_json = getattr(args, "json", False)
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         return args.fn(args)
     except USER_ERRORS as e:
         print(f"error: {e}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("\ninterrupted: nothing written (an earlier result file is unchanged)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as e:  # a bug: say so plainly; HAPTIC_HAND_TRACEBACK=1 shows where
+        if os.environ.get("HAPTIC_HAND_TRACEBACK"):
+            raise
+        message = f"internal error ({type(e).__name__}: {e}): please report it with the scene file"
+        if as_json:
+            print(json.dumps({"ok": False, "checks": [{"name": "internal", "ok": False, "detail": message}]}))
+        print(f"error: {message}", file=sys.stderr)
+        return EXIT_INTERNAL
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -18,6 +18,9 @@ from . import mesh as meshing
 from . import native_world as W
 from . import params, shapes
 
+MAX_BOX_TETS = 200_000  # a box body's tets (6 a cell): beyond, a step takes seconds and memory runs out
+_DEPTH_SAMPLES = 256  # inside points whose depth is measured
+
 TYPES = {"soft": W.SOFT, "rigid": W.RIGID, "kinematic": W.KINEMATIC, "static": W.STATIC, "plane": W.PLANE}
 
 class BodyError(ValueError):
@@ -47,7 +50,7 @@ def defaults() -> dict:
 
 
 def parse(specs: list, base_dir: Path) -> list[dict]:
-    from .scene import SceneError, _merge, check_fields
+    from .scene import SceneError, _merge, check_fields, timed_poses
 
     if not isinstance(specs, list):
         raise BodyError("'bodies' must be a list of body descriptions")
@@ -58,7 +61,7 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
         label = f"bodies[{i}]" + (f" ('{given['name']}')" if isinstance(given.get("name"), str) else "")
         try:
             spec = _merge(defaults(), given, f"{label}.")
-            if spec["type"] not in TYPES:
+            if not isinstance(spec["type"], str) or spec["type"] not in TYPES:
                 raise BodyError(f"{label} has type {json.dumps(spec['type'])}: use one of {', '.join(TYPES)}")
             check_fields(spec, body=True, where=lambda p: f"{label}.{p.json[len(params.BODY):]}")
         except SceneError as e:
@@ -71,6 +74,15 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
             raise BodyError(f"body '{spec['name']}' needs a 'mesh' (procedural:bunny, procedural:letter:H, box, "
                             "or an .obj path)")
         _refuse_fields_of_other_types(spec, given)
+        _check_fixed(spec)
+        if spec["type"] != "plane" and spec["mesh"] == "box" and 6 * int(np.prod(spec["cells"])) > MAX_BOX_TETS:
+            raise BodyError(f"body '{spec['name']}': cells {spec['cells']} make {6 * int(np.prod(spec['cells'])):,} "
+                            f"tets, over {MAX_BOX_TETS:,}: use fewer cells (a few per centimetre)")
+        if spec["type"] == "kinematic" and spec["trajectory"]:
+            try:
+                timed_poses(spec["trajectory"], f"body '{spec['name']}': trajectory")
+            except SceneError as e:
+                raise BodyError(str(e)) from None
         spec["_base_dir"] = str(base_dir)
         out.append(spec)
     return out
@@ -86,12 +98,25 @@ def _refuse_fields_of_other_types(spec: dict, given: dict) -> None:
                             f"(this one is {spec['type']}): remove it")
 
 
+def _check_fixed(spec: dict) -> None:
+    rule = spec["fixed"]
+    if rule is None or rule == "bottom":
+        return
+    whole = isinstance(rule, list) and all(isinstance(i, int) and not isinstance(i, bool) for i in rule)
+    if not whole:
+        raise BodyError(f"body '{spec['name']}': fixed = {json.dumps(rule)[:60]} is invalid: use null, \"bottom\" "
+                        "(its lowest nodes) or a list of node indices (whole numbers)")
+
+
 def _surface(spec: dict) -> tuple[np.ndarray, np.ndarray]:
     source = spec["mesh"]
     if source == "procedural:bunny":
         return shapes.procedural_bunny()
     if isinstance(source, str) and source.startswith("procedural:letter:"):
-        return shapes.procedural_letter(source.split(":", 2)[2])
+        try:
+            return shapes.procedural_letter(source.split(":", 2)[2])
+        except ValueError as e:
+            raise BodyError(f"body '{spec['name']}': mesh {source!r}: {e}") from None
     if source == "box":
         nodes, tets = meshing.structured_box(spec["size"], spec["cells"], -0.5 * np.asarray(spec["size"], float))
         faces = meshing.tet_boundary_faces(tets)
@@ -102,13 +127,18 @@ def _surface(spec: dict) -> tuple[np.ndarray, np.ndarray]:
     path = Path(spec["_base_dir"]) / str(source)
     if not path.is_file():
         raise BodyError(f"body '{spec['name']}': mesh file {path} does not exist (paths are relative to the scene)")
-    return meshing.load_obj(path)
+    v, f = meshing.load_obj(path)
+    if spec["type"] in ("soft", "rigid"):  # they need a closed solid: its volume, its inside
+        try:
+            meshing.check_closed_surface(v, f)
+        except meshing.MeshError as e:
+            raise meshing.MeshError(f"body '{spec['name']}' ({path.name}): {e}") from None
+    return v, f
 
 
 def _soft_tets(spec: dict, v: np.ndarray, f: np.ndarray, progress=None) -> tuple[np.ndarray, np.ndarray]:
     if spec["tets"]:
-        stored = np.load(Path(spec["_base_dir"]) / spec["tets"])
-        return stored["nodes"], stored["tets"]
+        return meshing.load_tets(Path(spec["_base_dir"]) / spec["tets"], f"body '{spec['name']}': tets")
     source = spec["mesh"]
     if source == "procedural:bunny":
         return shapes.procedural_bunny_coarse_tets()
@@ -122,6 +152,8 @@ def _soft_tets(spec: dict, v: np.ndarray, f: np.ndarray, progress=None) -> tuple
 
 
 def prepare(spec: dict, progress=None) -> PreparedBody:
+    from .scene import check_embedding
+
     kind = TYPES[spec["type"]]
     body = PreparedBody(spec, kind)
     if kind == W.PLANE:
@@ -132,7 +164,9 @@ def prepare(spec: dict, progress=None) -> PreparedBody:
     if kind == W.SOFT:
         nodes, tets = _soft_tets(spec, v, f, progress)
         body.nodes, body.tets = np.asarray(nodes, float) + offset, np.asarray(tets, np.int32)
-        body.tet_index, body.weights = meshing.embed_points(body.nodes, body.tets, body.vertices)
+        body.tet_index, body.weights = check_embedding(body.nodes, body.tets, body.vertices,
+                                                       float(spec["tetrahedralize"]["epsilon"]),
+                                                       f"body '{spec['name']}'", "its tets")
     return body
 
 
@@ -143,7 +177,7 @@ def fixed_nodes(body: PreparedBody) -> np.ndarray:
     if rule == "bottom":
         z = body.nodes[:, 2]
         return np.flatnonzero(z <= z.min() + 1e-6).astype(np.int32)
-    ids = np.asarray(rule, dtype=np.int64).reshape(-1)
+    ids = np.asarray(rule, dtype=np.int64).reshape(-1)  # whole numbers (parse checked)
     if ids.size and (ids.min() < 0 or ids.max() >= len(body.nodes)):
         raise BodyError(f"body '{body.name}': fixed node indices must be in 0..{len(body.nodes) - 1}")
     return ids.astype(np.int32)
@@ -166,3 +200,52 @@ def add_to_world(world: W.World, body: PreparedBody) -> int:
     if spec["kinetic_friction"] is not None:
         world.set_friction(body.index, friction, float(spec["kinetic_friction"]))
     return body.index
+
+
+def check_overlaps(hand_vertices: np.ndarray, hand_faces: np.ndarray, prepared: list, thickness: float) -> None:
+    """Refuses a scene in which two bodies (the hand among them) start inside each other deeper
+    than the contact thickness, naming the pair and the depth. The contact solve would push them
+    apart in one step, as hard as it can; they are refused rather than separated."""
+    surfaces = [("the hand", hand_vertices, np.asarray(hand_faces), True)]
+    surfaces += [(f"body '{b.name}'", b.vertices, b.faces, b.kind in (W.SOFT, W.RIGID))
+                 for b in prepared if b.kind != W.PLANE]
+    planes = [b for b in prepared if b.kind == W.PLANE]
+    for i, (name_a, va, fa, moves_a) in enumerate(surfaces):
+        for plane in planes:
+            normal = np.asarray(plane.spec["normal"], float)
+            depth = -((va - np.asarray(plane.spec["point"], float)) @ normal) / np.linalg.norm(normal)
+            _refuse_overlap(name_a, f"plane '{plane.name}'", depth, np.argmax(depth), thickness)
+        for name_b, vb, fb, moves_b in surfaces[i + 1:]:
+            if not (moves_a or moves_b):
+                continue  # kinematic and static bodies never push each other
+            for (n1, v1, _), (n2, v2, f2) in (((name_a, va, fa), (name_b, vb, fb)), ((name_b, vb, fb), (name_a, va, fa))):
+                depth = _depth_inside(v1, v2, f2)
+                if len(depth):
+                    _refuse_overlap(n1, n2, depth, int(np.argmax(depth)), thickness)
+
+
+def _refuse_overlap(inner: str, outer: str, depth: np.ndarray, vertex: int, thickness: float) -> None:
+    if len(depth) and depth[vertex] > thickness:
+        raise BodyError(
+            f"{inner} starts inside {outer}: {depth[vertex] * 1e3:.3g} mm deep at its vertex {vertex}, more than the "
+            f"{thickness * 1e3:.3g} mm contact thickness; move them apart by at least that before the run (bodies "
+            "that start inside each other are refused, not pushed apart)")
+
+
+def _depth_inside(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """How deep (m) each point lies inside the closed surface (vertices, faces); 0 outside. An
+    open surface has no inside: zeros."""
+    depth = np.zeros(len(points))
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    closed = np.all(np.unique(edges, axis=0, return_counts=True)[1] == 2)
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    near = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+    if not closed or not len(near):
+        return depth
+    inside = near[meshing.winding_numbers(vertices, faces, points[near]) > 0.5]
+    inside = inside[:: max(1, len(inside) // _DEPTH_SAMPLES)]  # a deep overlap needs no exact maximum
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    for p in inside:
+        q = np.broadcast_to(points[p], a.shape)
+        depth[p] = np.linalg.norm(meshing.closest_point_on_triangles(q, a, b, c) - q, axis=1).min()
+    return depth

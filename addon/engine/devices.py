@@ -81,19 +81,13 @@ def load_recording(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray
     line allowed), an .npz with arrays t/position[/quaternion], or a result file's haptic log."""
     path = Path(path)
     if not path.is_file():
-        raise DeviceError(f"playback file {path} does not exist: record one, or give its full path")
+        what = "is a directory" if path.is_dir() else "does not exist"
+        raise DeviceError(f"playback file {path} {what}: record one, or give its full path")
     if path.suffix == ".npz":
-        data = np.load(path)
-        if "haptic_t" in data:
-            t, p, q = data["haptic_t"], data["haptic_device_position"], data["haptic_device_quaternion"]
-        elif "t" in data and "position" in data:
-            t, p = data["t"], data["position"]
-            q = data["quaternion"] if "quaternion" in data else None
-        else:
-            raise DeviceError(f"{path} has neither t/position arrays nor a haptic log (haptic_t ...)")
+        t, p, q = _npz_recording(path)
     else:
         rows = []
-        with open(path, newline="") as f:
+        with open(path, newline="", errors="replace") as f:
             for line in csv.reader(f):
                 if not line:
                     continue
@@ -107,12 +101,36 @@ def load_recording(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray
         a = np.array(rows)
         t, p = a[:, 0], a[:, 1:4]
         q = a[:, 4:8] if a.shape[1] == 8 else None
-    t = np.asarray(t, dtype=float)
     if q is None:
         q = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
-    if len(t) < 1 or np.any(np.diff(t) <= 0) or not np.all(np.isfinite(p)):
-        raise DeviceError(f"{path}: times must increase strictly and positions must be finite")
-    return t, np.asarray(p, dtype=float), np.asarray(q, dtype=float)
+    if len(t) < 1 or p.shape != (len(t), 3) or q.shape != (len(t), 4):
+        raise DeviceError(f"{path}: needs one position (3) and quaternion (4) per time, got {len(t)} times, "
+                          f"positions {p.shape}, quaternions {q.shape}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+        raise DeviceError(f"{path}: times, positions and quaternions must be finite (no NaN or inf)")
+    if np.any(np.diff(t) <= 0):
+        k = int(np.argmax(np.diff(t) <= 0)) + 1
+        raise DeviceError(f"{path}: times must increase strictly (row {k}: {t[k]:g} s after {t[k - 1]:g} s)")
+    return t, p, q
+
+
+def _npz_recording(path: Path):
+    import zipfile
+
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if "haptic_t" in data:
+                keys = ("haptic_t", "haptic_device_position", "haptic_device_quaternion")
+            elif "t" in data and "position" in data:
+                keys = ("t", "position", "quaternion")
+            else:
+                raise DeviceError(f"{path} has neither t/position arrays nor a haptic log (haptic_t ...)")
+            t, p, q = (np.asarray(data[k], dtype=float) if k in data else None for k in keys)
+    except DeviceError:
+        raise
+    except (OSError, ValueError, TypeError, EOFError, AttributeError, zipfile.BadZipFile) as e:
+        raise DeviceError(f"{path} is not a readable .npz recording ({type(e).__name__}: {e}): record it again") from None
+    return t.reshape(-1), p, q
 
 
 # --- SpaceMouse over HID ---

@@ -27,6 +27,17 @@ _NEAREST_CANDIDATES = 8
 # The file fTetWild leaves in the working directory on every run.
 _FTETWILD_STRAY_FILE = "__tracked_surface.stl"
 
+#: A surface vertex whose shortest edge is this many times the surface's median edge length is
+#: a spike (hand.obj's longest shortest edge is 3.4x its median; a vertex read as 0 is 20x).
+SPIKE_FACTOR = 8.0
+
+#: A surface enclosing less than this fraction of its bounding-box diagonal cubed is flat.
+FLAT_VOLUME = 1e-6
+
+#: The largest extent (m) of a human hand, from a child's to a large glove's, and a typical one.
+HAND_SIZE_RANGE = (0.05, 0.5)
+TYPICAL_HAND_SIZE = 0.19
+
 # Outward faces of a positively oriented tet, as local vertex indices.
 _TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
 
@@ -227,8 +238,26 @@ def surface_volume(V, F) -> float:
 
 
 def check_closed_surface(V, F) -> None:
-    """Raise MeshError unless (V, F) is a closed, 2-manifold, outward-wound triangle surface."""
-    V = np.asarray(V)
+    """Raise MeshError unless (V, F) is a closed, 2-manifold, outward-wound triangle surface
+    that bounds a volume without touching itself: no coincident vertices, zero-area triangles
+    or spikes, no edge or vertex shared by more than one sheet, not flat, no two triangles
+    crossing. Each message names the first offending vertices or triangles and Blender's fix."""
+    V, F = surface_arrays(V, F)
+    _check_triangle_areas(V, F)
+    _check_coincident_vertices(V, F)
+    _check_spikes(V, F)
+    _check_manifold_edges(V, F)
+    _check_manifold_vertices(F)
+    _check_volume(V, F)
+    _check_self_intersections(V, F)
+
+
+def surface_arrays(V, F) -> tuple[np.ndarray, np.ndarray]:
+    """V as float64 (n, 3), F as int64 (m, 3) with every index in range, or MeshError."""
+    try:
+        V = np.asarray(V, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise MeshError("surface vertices must be numbers, as an (n, 3) array of positions in metres") from None
     F = np.asarray(F)
     if V.size == 0 or F.size == 0:
         raise MeshError(
@@ -240,21 +269,50 @@ def check_closed_surface(V, F) -> None:
             f"surface arrays have shapes {V.shape} and {F.shape}; pass vertices as (n, 3) "
             "and triangles as (m, 3) (triangulate polygons first)"
         )
-    V = V.astype(np.float64)
+    F = index_array(F, len(V), "triangle", "vertex", "fix the face indices (re-export the mesh)")
     bad = ~np.isfinite(V).all(axis=1)
     if bad.any():
         raise MeshError(
             f"surface has {bad.sum()} vertices with NaN or infinite coordinates (first is "
             f"vertex {np.argmax(bad)}); delete or re-place them"
         )
-    F = F.astype(np.int64)
-    bad = ((F < 0) | (F >= len(V))).any(axis=1)
-    if bad.any():
+    return V, F
+
+
+def index_array(a, n: int, row: str, target: str, fix: str) -> np.ndarray:
+    """Integer indices (rows of triangles or tets) into n targets, as int64: floats are refused
+    rather than truncated and 64-bit values checked before any narrowing."""
+    a = np.asarray(a)
+    if a.dtype.kind not in "iu":
+        kind = "floats" if a.dtype.kind == "f" else f"of type {a.dtype}"
+        raise MeshError(f"{row} indices are {kind}: they must be integer {target} indices (numpy: "
+                        f".astype(np.int32)); they are refused rather than rounded")
+    if a.size and (a.min() < 0 or a.max() >= n):
+        bad = ((a < 0) | (a >= n)).any(axis=1)
+        first = int(np.argmax(bad))
+        raise MeshError(f"{row} {first} refers to {target} {a[first].tolist()}, outside 0..{n - 1}; {fix}")
+    return a.astype(np.int64)
+
+
+def _check_coincident_vertices(V, F) -> None:
+    used = np.unique(F)
+    _, inverse, counts = np.unique(V[used], axis=0, return_inverse=True, return_counts=True)
+    repeated = counts[inverse.reshape(-1)] > 1
+    if repeated.any():
+        first = used[np.argmax(repeated)]
+        twins = used[np.flatnonzero(np.all(V[used] == V[first], axis=1))]
         raise MeshError(
-            f"triangle {np.argmax(bad)} refers to a vertex outside 0..{len(V) - 1}; "
-            "fix the face indices (re-export the mesh)"
+            f"surface has {int(repeated.sum())} vertices at the same position as another (first: vertices "
+            f"{', '.join(map(str, twins[:4]))} at {np.round(V[first], 6).tolist()} m): the surface touches itself "
+            "there; merge them (Blender: Mesh > Clean Up > Merge by Distance)"
         )
 
+
+def _unique_edges(F) -> np.ndarray:
+    return np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
+
+
+def _check_triangle_areas(V, F) -> None:
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     diagonal = np.linalg.norm(V.max(axis=0) - V.min(axis=0))
@@ -267,11 +325,35 @@ def check_closed_surface(V, F) -> None:
             "faces (Blender: Mesh > Clean Up > Merge by Distance, Degenerate Dissolve)"
         )
 
+
+def _check_spikes(V, F) -> None:
+    """A vertex whose every edge is far longer than the surface's typical edge: a coordinate
+    lost on the way (nan read as 0) makes one."""
+    edges = _unique_edges(F)
+    lengths = np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)
+    shortest = np.full(len(V), np.inf)
+    np.minimum.at(shortest, edges[:, 0], lengths)
+    np.minimum.at(shortest, edges[:, 1], lengths)
+    median = float(np.median(lengths))
+    spikes = np.flatnonzero(np.isfinite(shortest) & (shortest > SPIKE_FACTOR * median))
+    if len(spikes):
+        first = spikes[np.argmax(shortest[spikes])]
+        raise MeshError(
+            f"surface has {len(spikes)} spike vertices whose every edge is over {SPIKE_FACTOR:g}x the surface's "
+            f"median edge ({median * 1e3:.3g} mm): vertex {first} at {np.round(V[first], 6).tolist()} m has its "
+            f"shortest edge {shortest[first] * 1e3:.3g} mm (a coordinate lost on export reads as 0; Blender's OBJ "
+            "importer turns nan into 0); move it back onto the surface or delete it and fill the hole "
+            "(Blender: select it, Mesh > Delete > Vertices, then Face > Fill)"
+        )
+
+
+def _check_manifold_edges(V, F) -> None:
     n = len(V)
     tails = F.reshape(-1)
     heads = F[:, [1, 2, 0]].reshape(-1)
     undirected = np.minimum(tails, heads) * n + np.maximum(tails, heads)
-    _, first_use, uses = np.unique(undirected, return_index=True, return_counts=True)
+    _, inverse, uses = np.unique(undirected, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
     for mask, problem, fix in (
         (
             uses == 1,
@@ -283,14 +365,17 @@ def check_closed_surface(V, F) -> None:
             uses > 2,
             "surface is non-manifold: {count} edges shared by more than two triangles",
             "make every edge border exactly two faces (Blender: Select > Select All by "
-            "Trait > Non Manifold, then delete or separate the extra faces)",
+            "Trait > Non Manifold, then delete or separate the extra faces; Mesh > Clean Up > "
+            "Merge by Distance if they are duplicates)",
         ),
     ):
         if mask.any():
-            edge = first_use[np.argmax(mask)]
+            edge = int(np.argmax(mask))
+            faces = np.flatnonzero(inverse == edge) // 3
+            at = int(np.flatnonzero(inverse == edge)[0])
             raise MeshError(
-                f"{problem.format(count=mask.sum())} (first from vertex {tails[edge]} to "
-                f"vertex {heads[edge]}); {fix} before tetrahedralizing"
+                f"{problem.format(count=mask.sum())} (first from vertex {tails[at]} to "
+                f"vertex {heads[at]}, triangles {', '.join(map(str, faces[:6]))}); {fix} before tetrahedralizing"
             )
     # On a closed manifold each edge has two triangles; they agree on the winding exactly
     # when they traverse the edge in opposite directions.
@@ -303,12 +388,108 @@ def check_closed_surface(V, F) -> None:
             f"{heads[edge]}, triangle {edge // 3}); make the normals consistent (Blender: "
             "Mesh > Normals > Recalculate Outside)"
         )
+
+
+def _check_manifold_vertices(F) -> None:
+    """Each vertex's triangles form one fan: two solids that share only a vertex (or a cone of
+    two fans) make a vertex with more than one. Needs manifold, consistently wound edges."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(F)
+    n = int(F.max()) + 1
+    tails, heads = F.reshape(-1), F[:, [1, 2, 0]].reshape(-1)
+    # corner 3 f + k is triangle f at its vertex F[f, k]; the half-edge k runs from it to the next
+    order = np.argsort(tails * n + heads)
+    twin = order[np.searchsorted((tails * n + heads)[order], heads * n + tails)]
+    # the twin half-edge runs head -> tail: its triangle's corner at our tail is the next corner
+    next_corner = 3 * (twin // 3) + (twin % 3 + 1) % 3
+    corners = np.arange(3 * m)
+    graph = coo_matrix((np.ones(3 * m), (corners, next_corner)), shape=(3 * m, 3 * m))
+    _, labels = connected_components(graph, directed=False)
+    fans = np.unique(np.stack([tails, labels], axis=1), axis=0)
+    per_vertex = np.bincount(fans[:, 0], minlength=n)
+    bad = np.flatnonzero(per_vertex > 1)
+    if len(bad):
+        v = int(bad[0])
+        raise MeshError(
+            f"surface is non-manifold at {len(bad)} vertices where separate sheets meet at one point (first is "
+            f"vertex {v}, in {per_vertex[v]} separate fans of triangles "
+            f"{', '.join(map(str, sorted(set((corners[tails == v] // 3).tolist()))[:8]))}); split them apart or join "
+            "the parts with faces (Blender: Select > Select All by Trait > Non Manifold, then Mesh > Split or "
+            "Vertex > Rip)"
+        )
+
+
+def _check_volume(V, F) -> None:
     volume = surface_volume(V, F)
-    if volume <= 0.0:
+    extent = V.max(axis=0) - V.min(axis=0)
+    diagonal = float(np.linalg.norm(extent))
+    if abs(volume) <= FLAT_VOLUME * diagonal**3:
+        centred = V - V.mean(axis=0)
+        thickness = float(np.ptp(centred @ np.linalg.svd(centred, full_matrices=False)[2][-1]))
+        raise MeshError(
+            f"surface encloses no volume ({volume:.3g} m^3 in a {diagonal * 100:.3g} cm box): it is flat "
+            f"({thickness * 1e3:.3g} mm thick at its thinnest) or two sheets lie on each other; a hand or soft "
+            "body must be a solid: give it thickness (Blender: a Solidify modifier, applied)"
+        )
+    if volume < 0.0:
         raise MeshError(
             f"surface encloses a negative volume ({volume:.3g} m^3): its triangles are wound "
             "inward; flip the normals (Blender: Mesh > Normals > Recalculate Outside, or Flip)"
         )
+
+
+def self_intersections(V, F, capacity: int = 64) -> tuple[np.ndarray, int]:
+    """Pairs of triangles (i < j, the first `capacity`) that cross or touch where a closed
+    manifold surface keeps them apart (hh_surface_self_intersections), and how many there are."""
+    import ctypes
+
+    from . import native
+
+    V, F = surface_arrays(V, F)
+    V, F = np.ascontiguousarray(V), np.ascontiguousarray(F, dtype=np.int32)
+    pairs = np.zeros((capacity, 2), dtype=np.int32)
+    count = ctypes.c_int()
+    fn = native.library().hh_surface_self_intersections
+    pd, pi = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int)
+    fn.argtypes = [pd, ctypes.c_int, pi, ctypes.c_int, pi, ctypes.c_int, pi]
+    fn.restype = ctypes.c_int
+    native._check(fn(V.ctypes.data_as(pd), len(V), F.ctypes.data_as(pi), len(F), pairs.ctypes.data_as(pi), capacity,
+                     ctypes.byref(count)))
+    return pairs[: min(count.value, capacity)], count.value
+
+
+def _check_self_intersections(V, F) -> None:
+    pairs, count = self_intersections(V, F, capacity=5)
+    if count:
+        named = ", ".join(f"{i} and {j}" for i, j in pairs)
+        raise MeshError(
+            f"surface intersects itself: {count} pairs of triangles cross (first: triangles {named}), as "
+            "where two shells overlap or a part pokes through another; separate the parts or merge them into one "
+            "shell (Blender: Mesh > Clean Up > Merge by Distance and Delete Loose; overlapping shells: Face > "
+            "Intersect (Boolean), Union; Overlays > Mesh Analysis > Intersect shows where)"
+        )
+
+
+def scale_warning(V, what: str = "hand") -> str | None:
+    """A warning when a hand's largest extent is far outside a human hand's (about 5-50 cm),
+    naming the unit it looks modelled in; None when it is in range."""
+    V = np.asarray(V, dtype=np.float64)
+    size = float(np.ptp(V, axis=0).max()) if V.size else 0.0
+    low, high = HAND_SIZE_RANGE
+    if not math.isfinite(size) or size <= 0 or low <= size <= high:
+        return None
+    units = {"millimetres": 1e-3, "centimetres": 1e-2, "inches": 0.0254, "metres": 1.0,
+             "kilometres": 1e3, "feet": 0.3048}
+    fits = {name: f for name, f in units.items() if low <= size * f <= high}
+    if fits:
+        name = min(fits, key=lambda k: abs(math.log(size * fits[k] / TYPICAL_HAND_SIZE)))
+        guess = f"it looks modelled in {name} ({size:.4g} {name} = {size * fits[name] * 100:.3g} cm): scale it by {fits[name]:g}"
+    else:
+        guess = f"scale it by about {TYPICAL_HAND_SIZE / size:.3g}"
+    return (f"the {what} is {size:.4g} m long, far from a human hand's 5-50 cm: {guess} (Blender: set the OBJ "
+            "importer's scale, or scale the object and Object > Apply > Scale)")
 
 
 # --------------------------------------------------------------------------------------------
@@ -325,27 +506,7 @@ def tet_signed_volumes(nodes, tets) -> np.ndarray:
 
 def check_tets(nodes, tets) -> None:
     """Raise MeshError unless every tet indexes a finite node and has positive volume."""
-    nodes = np.asarray(nodes, dtype=np.float64)
-    tets = np.asarray(tets)
-    if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) < 1:
-        raise MeshError(
-            f"tet array has shape {tets.shape}; a tet mesh needs at least one tet as (m, 4) "
-            "indices: tetrahedralize the surface"
-        )
-    if nodes.ndim != 2 or nodes.shape[1] != 3:
-        raise MeshError(f"node array has shape {nodes.shape}; pass node positions as (n, 3)")
-    bad = ~np.isfinite(nodes).all(axis=1)
-    if bad.any():
-        raise MeshError(
-            f"{bad.sum()} tet nodes have NaN or infinite coordinates (first is node "
-            f"{np.argmax(bad)}); re-tetrahedralize the surface"
-        )
-    bad = ((tets < 0) | (tets >= len(nodes))).any(axis=1)
-    if bad.any():
-        raise MeshError(
-            f"tet {np.argmax(bad)} refers to a node outside 0..{len(nodes) - 1}; "
-            "re-tetrahedralize the surface"
-        )
+    nodes, tets = tet_arrays(nodes, tets)
     volumes = tet_signed_volumes(nodes, tets)
     bad = volumes <= MIN_TET_VOLUME
     if bad.any():
@@ -356,6 +517,65 @@ def check_tets(nodes, tets) -> None:
             f"volume {volumes[first]:.3g} m^3, at most {MIN_TET_VOLUME:g}); re-tetrahedralize "
             "the surface, or swap two vertices of inverted tets"
         )
+
+
+def tet_arrays(nodes, tets, where: str = "") -> tuple[np.ndarray, np.ndarray]:
+    """nodes as finite float64 (n, 3), tets as int64 (m >= 1, 4) indices into them, or MeshError
+    (its message starts with `where`, e.g. the scene field the arrays came from)."""
+    lead = f"{where}: " if where else ""
+    try:
+        nodes = np.asarray(nodes, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise MeshError(f"{lead}tet nodes must be numbers, an (n, 3) array of positions in metres") from None
+    tets = np.asarray(tets)
+    if tets.ndim != 2 or tets.shape[1] != 4 or len(tets) < 1:
+        raise MeshError(
+            f"{lead}tet array has shape {tets.shape}; a tet mesh needs at least one tet as (m, 4) "
+            "indices: tetrahedralize the surface"
+        )
+    if nodes.ndim != 2 or nodes.shape[1] != 3:
+        raise MeshError(f"{lead}node array has shape {nodes.shape}; pass node positions as (n, 3)")
+    bad = ~np.isfinite(nodes).all(axis=1)
+    if bad.any():
+        raise MeshError(
+            f"{lead}{bad.sum()} tet nodes have NaN or infinite coordinates (first is node "
+            f"{np.argmax(bad)}); re-tetrahedralize the surface"
+        )
+    try:
+        tets = index_array(tets, len(nodes), "tet", "node", "re-tetrahedralize the surface")
+    except MeshError as e:
+        raise MeshError(f"{lead}{e}") from None
+    return nodes, tets
+
+
+def load_tets(path, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """nodes float64 (n, 3) and tets int32 (m, 4) from an .npz with those arrays, checked as
+    tet_arrays checks them; every failure is a MeshError naming `where` (the scene field)."""
+    import zipfile
+
+    path = pathlib.Path(path)
+    if not path.is_file():
+        what = "is a directory" if path.is_dir() else "does not exist"
+        raise MeshError(f"{where} file {path} {what}: give the .npz path relative to the scene file")
+    fix = "save it with numpy.savez(path, nodes=nodes, tets=tets)"
+    try:
+        stored = np.load(path, allow_pickle=False)
+        if not isinstance(stored, np.lib.npyio.NpzFile):
+            raise MeshError(f"{where} file {path} is a single array, not an .npz archive: {fix}")
+        with stored:
+            missing = [k for k in ("nodes", "tets") if k not in stored.files]
+            if missing:
+                raise MeshError(f"{where} file {path} has no {' or '.join(repr(k) for k in missing)} array (it has "
+                                f"{', '.join(stored.files) or 'none'}): {fix}")
+            nodes, tets = stored["nodes"], stored["tets"]
+    except MeshError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as e:
+        raise MeshError(f"{where} file {path} is not a readable .npz ({type(e).__name__}: {e}): {fix}") from None
+    if nodes.dtype.kind not in "iuf":
+        raise MeshError(f"{where} file {path}: nodes are of type {nodes.dtype}, not numbers: {fix}")
+    nodes, tets = tet_arrays(nodes, tets, f"{where} file {path}")
+    return nodes, tets.astype(np.int32)
 
 
 def tetrahedralize(V, F, edge_length_fac=0.1, coarsen=False, epsilon=1e-3, progress=None):
@@ -556,23 +776,24 @@ def _boundary_face_mask(tets):
     return faces, uses[inverse.reshape(-1)] == 1
 
 
-def embed_points(nodes, tets, points):
+def embed_points(nodes, tets, points, return_gap: bool = False):
     """Barycentric coordinates of each point in a tet of the mesh.
 
     A point inside the mesh gets a tet containing it (all weights >= 0 up to rounding).
     A point outside every tet (pytetwild's envelope lets the surface stray from the tet
     boundary) gets the nearest tet and unclamped weights, which extrapolate exactly.
     Either way sum_j weights[i, j] * nodes[tets[tet_index[i], j]] == points[i].
-    Returns (tet_index int32 (p,), weights float64 (p, 4)).
+    Returns (tet_index int32 (p,), weights float64 (p, 4)), and with return_gap each point's
+    distance outside the tets (m, 0 inside) as a third array.
     """
-    nodes = np.asarray(nodes, dtype=np.float64)
-    tets = np.asarray(tets, dtype=np.int64)
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     check_tets(nodes, tets)
+    nodes, tets = tet_arrays(nodes, tets)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     corners = nodes[tets]
     spheres = _BoundingSpheres(corners)
     tet_index = np.full(len(points), -1, dtype=np.int64)
     weights = np.zeros((len(points), 4))
+    gap = np.zeros(len(points))
 
     def take_containing(rows, owners, candidates):
         """Give each of points[rows] the lowest-numbered candidate tet containing it."""
@@ -610,10 +831,14 @@ def embed_points(nodes, tets, points):
         bound = np.full(len(rest), np.inf)
         np.minimum.at(bound, owners, distances(owners, face_ids))
         owners, face_ids = face_spheres.within(outside, bound * (1 + 1e-9))
-        chosen = _first_per_owner(owners, distances(owners, face_ids), len(rest))
+        pair_distances = distances(owners, face_ids)
+        chosen = _first_per_owner(owners, pair_distances, len(rest))
         tet_index[rest] = face_tets[face_ids[chosen]]
         weights[rest] = _barycentric_weights(corners[tet_index[rest]], outside)
+        gap[rest] = pair_distances[chosen]
 
+    if return_gap:
+        return tet_index.astype(np.int32), weights, gap
     return tet_index.astype(np.int32), weights
 
 

@@ -197,10 +197,28 @@ def _check(status: int) -> None:
 
 
 def _f64(a, shape=None, name="array") -> np.ndarray:
-    out = np.ascontiguousarray(a, dtype=np.float64)
+    try:
+        out = np.ascontiguousarray(a, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInput(f"{name} must be numbers (float64), got {type(a).__name__}") from None
     if shape is not None and out.shape != shape:
         raise InvalidInput(f"{name} has shape {out.shape}, expected {shape}")
     return out
+
+
+def _indices(a, columns: int, name: str) -> np.ndarray:
+    """An (m, columns) int32 index array; floats are refused rather than truncated, indices
+    beyond 32 bits rather than wrapped."""
+    a = np.asarray(a)
+    if a.size == 0:
+        a = a.astype(np.int32)
+    if a.dtype.kind not in "iu":
+        raise InvalidInput(f"{name} must be integer indices, got {a.dtype} values (floats are refused, not truncated)")
+    if a.ndim != 2 or a.shape[1] != columns:
+        raise InvalidInput(f"{name} must be an (m, {columns}) integer array, got shape {a.shape}")
+    if a.size and (a.min() < -2**31 or a.max() > 2**31 - 1):
+        raise InvalidInput(f"{name} holds an index beyond 32 bits ({a.max()}): it is refused, not wrapped")
+    return np.ascontiguousarray(a, dtype=np.int32)
 
 
 def _ptr(a: np.ndarray | None, ctype=ctypes.c_double):
@@ -214,9 +232,17 @@ def default_params() -> dict:
     return params.struct_values(params.new_struct(params.STRUCT_PARAMS))
 
 
+def _points(a, name: str) -> np.ndarray:
+    """An (n, 3) float64 array (the C side reads 3 n numbers)."""
+    out = _f64(a, None, name)
+    if out.ndim != 2 or out.shape[1] != 3:
+        raise InvalidInput(f"{name} must be an (n, 3) array, got shape {out.shape}")
+    return out
+
+
 def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
     """How many nodes a handle sphere of this radius around seed captures."""
-    x = _f64(nodes)
+    x = _points(nodes, "nodes")
     s = _f64(seed, (3,), "palm_seed")
     out = ctypes.c_int()
     _check(library().hh_count_captured(_ptr(x), x.shape[0], _ptr(s), float(radius), ctypes.byref(out)))
@@ -245,7 +271,7 @@ def _solver_index(values: dict) -> dict:
 def check_handle(nodes: np.ndarray, seed, radius: float) -> int:
     """The nodes a handle sphere captures; InvalidInput (the model's own message) when it would
     hold fewer than 4 nodes or all of them."""
-    x = _f64(nodes)
+    x = _points(nodes, "nodes")
     s = _f64(seed, (3,), "palm_seed")
     out = ctypes.c_int()
     _check(library().hh_check_handle(_ptr(x), x.shape[0], _ptr(s), float(radius), ctypes.byref(out)))
@@ -267,9 +293,7 @@ class HandModel:
         self.nodes = _f64(nodes)
         if self.nodes.ndim != 2 or self.nodes.shape[1] != 3:
             raise InvalidInput(f"nodes must be an (n, 3) array, got shape {self.nodes.shape}")
-        self.tets = np.ascontiguousarray(tets, dtype=np.int32)
-        if self.tets.ndim != 2 or self.tets.shape[1] != 4:
-            raise InvalidInput(f"tets must be an (m, 4) array, got shape {self.tets.shape}")
+        self.tets = _indices(tets, 4, "tets")
         from . import params as table
 
         p = table.new_struct(table.STRUCT_PARAMS, _solver_index(params))

@@ -8,17 +8,14 @@ import ctypes
 import numpy as np
 
 from . import params as table
-from .native import HandModel, InvalidInput, StepStats, WorldStats, _check, _f64, _ptr, library, solver_code
+from .native import HandModel, InvalidInput, StepStats, WorldStats, _check, _f64, _indices, _points, _ptr, library, solver_code
 
 HAND, SOFT, RIGID, KINEMATIC, STATIC, PLANE = range(6)
 KIND_NAMES = {HAND: "hand", SOFT: "soft", RIGID: "rigid", KINEMATIC: "kinematic", STATIC: "static", PLANE: "plane"}
 
 
 def _i32(a, shape_tail: int, name: str) -> np.ndarray:
-    out = np.ascontiguousarray(a, dtype=np.int32)
-    if out.ndim != 2 or out.shape[1] != shape_tail:
-        raise InvalidInput(f"{name} must be an (n, {shape_tail}) integer array, got shape {out.shape}")
-    return out
+    return _indices(a, shape_tail, name)
 
 
 def _default(value, json_path: str):
@@ -81,7 +78,7 @@ class World:
                       **material) -> int:
         """material: fields of hh_material by C name (young_modulus, ...); the others and the
         friction take the table's defaults."""
-        x = _f64(nodes)
+        x = _points(nodes, "nodes")
         t = _i32(tets, 4, "tets")
         n4 = _i32(surface_nodes, 4, "surface_nodes")
         w4 = _f64(surface_weights, (len(n4), 4), "surface_weights")
@@ -97,7 +94,7 @@ class World:
 
     def add_mesh_body(self, kind: int, vertices, faces, density=None, friction=None) -> int:
         density = _default(density, "bodies[].density")
-        v = _f64(vertices)
+        v = _points(vertices, "vertices")
         f3 = _i32(faces, 3, "faces")
         out = ctypes.c_int()
         _check(library().hh_world_add_mesh_body(self._handle, int(kind), _ptr(v), len(v), _ptr(f3, ctypes.c_int),

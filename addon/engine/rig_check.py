@@ -1,47 +1,152 @@
-"""`check-rig`: checks a hand rig before it is used and cross-checks the Schur-complement
-solve against the monolithic reference on one step of that rig."""
+"""`check-rig`: checks a hand rig before it is used. It prepares the scene exactly as `simulate`
+does (so it refuses what `simulate` refuses, with the same message), then reports the surface,
+the tets, the handle, how far the hand droops under gravity while the handle is held still, and
+the Schur-complement solve against the monolithic reference on one step of the rig."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from . import bodies as bodies_module
+from . import devices
 from . import mesh as meshing
 from . import native
 from . import scene as scenes
 
 SCHUR_TOLERANCE = 1e-8
+#: Droop (m) above which the rig is not ready: the flesh hangs visibly off the handle.
+DROOP_LIMIT = 5e-3
+#: The settle of the droop: steps of 0.1 s with mass damping (neither changes the equilibrium).
+SETTLE_DT, SETTLE_DAMPING, SETTLE_STEPS = 0.1, 10.0, 300
+#: Handle radii tried, as multiples of the scene's, when the droop is too large.
+RADIUS_FACTORS = (1.25, 1.5, 2.0, 2.5, 3.0)
+
+#: What `simulate` refuses, and so check-rig too.
+USER_ERRORS = (meshing.MeshError, scenes.SceneError, native.NativeError, bodies_module.BodyError,
+               devices.DeviceError, OSError)
+
+
+def prepare(scene: scenes.Scene, progress=None):
+    """Everything `simulate` does before its first step: the hand's geometry, the memory the run
+    needs, the world with every body, and the haptic loop's device. Returns the hand model."""
+    from . import session as session_module
+    from .scene_world import build_world
+
+    if scene.nodes is None:
+        scenes.load_hand_geometry(scene, progress)
+    scenes.check_memory(scene, len(scene.nodes))
+    world, hand, model, _, _ = build_world(scene)
+    if scene.data["haptics"]["enabled"]:
+        haptics = session_module.create(world, hand, scene, log_capacity=16)
+        try:
+            helper = session_module.attach_device(haptics, scene, np.array(model.info()["handle_com"]))
+            if helper is not None:
+                helper.stop()
+        finally:
+            haptics.close()
+    return model
 
 
 def check(scene: scenes.Scene, progress=None) -> dict:
     """Returns a report dict; 'ok' is False when any check failed. Never raises for bad input:
     the failure goes into the report with its message."""
-    report = {"ok": True, "checks": []}
+    report = {"ok": True, "checks": [], "warnings": scene.warnings}
 
     def add(name: str, ok: bool, detail: str, **values):
         report["checks"].append({"name": name, "ok": bool(ok), "detail": detail, **values})
         report["ok"] &= bool(ok)
 
     try:
-        scenes.load_hand_geometry(scene, progress)
-        add("surface", True, f"closed, manifold, outward: {len(scene.surface_vertices)} vertices, "
-                             f"{len(scene.surface_faces)} triangles")
-        vols = meshing.tet_signed_volumes(scene.nodes, scene.tets)
-        add("tets", bool(vols.min() > 0),
-            f"{len(scene.tets)} tets, {len(scene.nodes)} nodes, volumes {vols.min():.3g} to {vols.max():.3g} m^3",
-            n_tets=int(len(scene.tets)), n_nodes=int(len(scene.nodes)), min_volume=float(vols.min()))
-        model = native.HandModel(scene.nodes, scene.tets, **scene.engine_params())
-    except (meshing.MeshError, scenes.SceneError, native.NativeError) as e:
+        model = prepare(scene, progress)
+    except USER_ERRORS as e:
         add("rig", False, str(e))
         return report
-
+    add("surface", True, f"closed, manifold, outward, not self-intersecting: {len(scene.surface_vertices)} vertices, "
+                         f"{len(scene.surface_faces)} triangles")
+    vols = meshing.tet_signed_volumes(scene.nodes, scene.tets)
+    add("tets", True, f"{len(scene.tets)} tets, {len(scene.nodes)} nodes, volumes {vols.min():.3g} to {vols.max():.3g} m^3",
+        n_tets=int(len(scene.tets)), n_nodes=int(len(scene.nodes)), min_volume=float(vols.min()))
     info = model.info()
     add("handle", True,
         f"{info['n_handle_nodes']} of {info['n_nodes']} nodes captured, mass {info['handle_mass'] * 1000:.1f} g "
         f"of {info['total_mass'] * 1000:.1f} g",
         n_handle_nodes=info["n_handle_nodes"], handle_mass=info["handle_mass"], total_mass=info["total_mass"],
         handle_com=info["handle_com"], handle_inertia=info["handle_inertia"])
+    add_droop(add, scene, model)
+    add_schur(add, model)
+    return report
 
+
+def settle(nodes, tets, rig: dict) -> dict:
+    """The hand's static equilibrium under gravity with the handle held at its rest pose, by
+    damped implicit steps of the engine's own co-rotational model until the nodes stop moving.
+    Returns droop (m, the largest node displacement), springs (m, the largest of the handle's
+    nodes: the springs' stretch), node (the one that droops most), steps, settled."""
+    model = native.HandModel(nodes, tets, **{**rig, "dt": SETTLE_DT,
+                                             "rayleigh_alpha": max(rig.get("rayleigh_alpha", 0.0), SETTLE_DAMPING)})
+    sim = native.HandSimulation(model)
+    sim.set_device(model.info()["handle_com"], [0.0, 0.0, 0.0, 1.0], [0.0] * 3, [0.0] * 3, enabled=2)
+    rest = model.nodes
+    x = rest
+    for k in range(1, SETTLE_STEPS + 1):
+        sim.step()
+        x_new = sim.positions()
+        moved = np.abs(x_new - x).max()
+        x = x_new
+        displacement = np.linalg.norm(x - rest, axis=1)
+        if moved <= max(1e-9, 1e-5 * displacement.max()):
+            break
+    return {"droop": float(displacement.max()), "springs": float(displacement[model.handle_nodes()].max()),
+            "node": int(np.argmax(displacement)), "steps": k, "settled": bool(moved <= max(1e-9, 1e-5 * displacement.max()))}
+
+
+def droop_advice(scene: scenes.Scene, rig: dict, result: dict) -> str:
+    """The fixes for a droop above DROOP_LIMIT, each with the droop it gives: stiffer springs when
+    their stretch is most of it; the smallest larger handle radius (of RADIUS_FACTORS) that brings
+    it under, or the best of them; stiffer flesh (the droop of the flesh goes as 1 / E)."""
+    fixes = []
+    k = rig["spring_stiffness"]
+    if result["springs"] > 0.5 * result["droop"]:
+        fixes.append(f"stiffer springs (springs.stiffness about {k * result['springs'] / (0.25 * DROOP_LIMIT):.3g} "
+                     f"N/m, now {k:.3g})")
+    radius, best = rig["handle_radius"], None
+    for factor in RADIUS_FACTORS:
+        r = radius * factor
+        try:
+            native.check_handle(scene.nodes, rig["palm_seed"], r)
+        except native.InvalidInput:
+            break  # it would hold every node
+        best = (r, settle(scene.nodes, scene.tets, {**rig, "handle_radius": r})["droop"])
+        if best[1] <= DROOP_LIMIT:
+            break
+    if best is not None:
+        fixes.append(f"a larger handle (hand.handle_radius {best[0]:.3g} m droops {best[1] * 1e3:.1f} mm)")
+    flesh = result["droop"] - result["springs"]
+    if flesh > 0.5 * result["droop"]:
+        e = rig["young_modulus"] * flesh / (0.8 * DROOP_LIMIT)
+        stiffer = settle(scene.nodes, scene.tets, {**rig, "young_modulus": e})["droop"]
+        fixes.append(f"stiffer flesh (material.young_modulus {e:.3g} Pa droops {stiffer * 1e3:.1f} mm)")
+    return ", or ".join(fixes)
+
+
+def add_droop(add, scene: scenes.Scene, model: native.HandModel) -> None:
+    rig = model.params()
+    result = settle(scene.nodes, scene.tets, rig)
+    droop_mm = result["droop"] * 1e3
+    detail = (f"{droop_mm:.1f} mm under gravity with the handle held still (node {result['node']}; the springs "
+              f"stretch {result['springs'] * 1e3:.2f} mm)")
+    if not result["settled"]:
+        detail += f"; still moving after {result['steps']} steps of {SETTLE_DT} s"
+    ok = result["droop"] <= DROOP_LIMIT
+    if not ok:
+        detail += f", over {DROOP_LIMIT * 1e3:.0f} mm: try {droop_advice(scene, rig, result)}"
+    add("droop", ok, detail, droop=result["droop"], spring_stretch=result["springs"], droop_node=result["node"],
+        settle_steps=result["steps"])
+
+
+def add_schur(add, model: native.HandModel) -> None:
     # One step with the device pulled 1 cm and turned 0.2 rad, so every coupling term is active.
+    info = model.info()
     sim = native.HandSimulation(model)
     com = np.array(info["handle_com"])
     half = 0.1
@@ -50,10 +155,10 @@ def check(scene: scenes.Scene, progress=None) -> dict:
     diff = sim.compare_solvers()
     add("schur_vs_monolithic", diff < SCHUR_TOLERANCE,
         f"relative difference {diff:.2e} (tolerance {SCHUR_TOLERANCE:.0e})", relative_difference=diff)
-    return report
 
 
 def format_report(report: dict) -> str:
-    lines = [f"{'ok  ' if c['ok'] else 'FAIL'}  {c['name']:<20} {c['detail']}" for c in report["checks"]]
+    lines = [f"warning: {w}" for w in report.get("warnings", [])]
+    lines += [f"{'ok  ' if c['ok'] else 'FAIL'}  {c['name']:<20} {c['detail']}" for c in report["checks"]]
     lines.append("rig is ready" if report["ok"] else "rig has problems: fix the FAIL lines above")
     return "\n".join(lines)

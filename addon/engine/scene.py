@@ -19,6 +19,10 @@ from . import mesh as meshing
 from . import native, params, quaternion
 
 DEVICES = ("simulated", "playback", "openhaptics", "hid", "external")
+#: The least slack a surface has outside its stored tets, as a fraction of their diagonal
+#: (the paper's 271-tet bunny cage lies within 0.33% of its bunny).
+EMBEDDING_SLACK = 0.01
+HAPTIC_LOG_COLUMNS = 23  # HH_LOG_COLUMNS
 
 class SceneError(ValueError):
     """A scene file that cannot be used; the message names the field and the fix."""
@@ -78,16 +82,42 @@ class Trajectory:
         return (p1 - p0) / dt, quaternion.rotation_vector(quaternion.multiply(q1, quaternion.conjugate(q0))) / dt
 
 
+def timed_poses(points, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times, positions, unit quaternions) of a JSON list of {t, position, quaternion} objects;
+    SceneError naming `where` (e.g. device.trajectory) for anything else."""
+    shape = f"{where} must be a non-empty list of {{t, position, quaternion}} objects"
+    if not isinstance(points, list) or not points:
+        raise SceneError(f"{shape}, got {json.dumps(points)[:60]}")
+    for i, p in enumerate(points):
+        if not isinstance(p, dict):
+            raise SceneError(f"{where}[{i}] = {json.dumps(p)[:60]} is not an object: give each point as "
+                             "{\"t\": seconds, \"position\": [x, y, z], \"quaternion\": [x, y, z, s]}")
+        unknown = set(p) - {"t", "position", "quaternion"}
+        if unknown:
+            raise SceneError(f"{where}[{i}] has unknown fields {', '.join(sorted(unknown))}: use t, position, quaternion")
+        t = p.get("t")
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+            raise SceneError(f"{where}[{i}].t = {json.dumps(t)} is invalid: it must be a finite number of seconds")
+    times = np.array([float(p["t"]) for p in points])
+    if np.any(np.diff(times) <= 0):
+        k = int(np.argmax(np.diff(times) <= 0)) + 1
+        raise SceneError(f"{where} times 't' must increase strictly: point {k} has t = {times[k]:g} s after "
+                         f"{times[k - 1]:g} s")
+    pos = np.array([_vector(p.get("position", [0, 0, 0]), 3, f"{where}[{i}].position") for i, p in enumerate(points)])
+    quat = np.array([_vector(p.get("quaternion", [0, 0, 0, 1]), 4, f"{where}[{i}].quaternion")
+                     for i, p in enumerate(points)])
+    norms = np.linalg.norm(quat, axis=1)
+    if np.any(norms < 1e-9):
+        k = int(np.argmax(norms < 1e-9))
+        raise SceneError(f"{where}[{k}].quaternion is zero: use (x, y, z, s) with s = 1 for no rotation")
+    return times, pos, quat / norms[:, None]
+
+
 def body_trajectory(spec: dict, start: np.ndarray) -> Trajectory:
     """A kinematic body's script: timed offsets of its centre from where it starts."""
     points = spec["trajectory"] or [{"t": 0.0, "position": [0, 0, 0], "quaternion": [0, 0, 0, 1]}]
-    times = np.array([float(p.get("t", math.nan)) for p in points])
-    if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
-        raise SceneError(f"body '{spec['name']}': trajectory times 't' must be finite and strictly increasing")
-    pos = np.array([_vector(p.get("position", [0, 0, 0]), 3, f"{spec['name']}.trajectory[].position") for p in points])
-    quat = np.array([_vector(p.get("quaternion", [0, 0, 0, 1]), 4, f"{spec['name']}.trajectory[].quaternion")
-                     for p in points])
-    return Trajectory(times, pos + start, quat / np.linalg.norm(quat, axis=1)[:, None])
+    times, pos, quat = timed_poses(points, f"body '{spec['name']}': trajectory")
+    return Trajectory(times, pos + start, quat)
 
 
 @dataclass
@@ -99,6 +129,9 @@ class Scene:
     surface_faces: np.ndarray = field(default=None, repr=False)
     nodes: np.ndarray = field(default=None, repr=False)
     tets: np.ndarray = field(default=None, repr=False)
+    # what is suspicious but not refused (a hand far outside the human size range): shown by the
+    # command line, check-rig and Blender
+    warnings: list = field(default_factory=list)
 
     @property
     def dt(self) -> float:
@@ -135,19 +168,7 @@ class Scene:
 
     def trajectory(self, handle_rest_com: np.ndarray) -> Trajectory:
         dev = self.data["device"]
-        points = dev["trajectory"]
-        if not isinstance(points, list) or not points:
-            raise SceneError("device.trajectory must be a non-empty list of {t, position, quaternion}")
-        times = np.array([float(p.get("t", math.nan)) for p in points])
-        if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
-            raise SceneError("device.trajectory times 't' must be finite and strictly increasing")
-        pos = np.array([_vector(p.get("position", [0, 0, 0]), 3, "device.trajectory[].position") for p in points])
-        quat = np.array([_vector(p.get("quaternion", [0, 0, 0, 1]), 4, "device.trajectory[].quaternion")
-                         for p in points])
-        norms = np.linalg.norm(quat, axis=1)
-        if np.any(norms < 1e-9):
-            raise SceneError("a device.trajectory quaternion is zero: use (x, y, z, s) with s = 1 for no rotation")
-        quat /= norms[:, None]
+        times, pos, quat = timed_poses(dev["trajectory"], "device.trajectory")
         if dev["frame"] == "handle_rest":
             pos = pos + handle_rest_com
         elif dev["frame"] != "world":
@@ -156,12 +177,13 @@ class Scene:
 
 
 def _vector(value, n: int, name: str) -> np.ndarray:
-    try:
-        v = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise SceneError(f"{name} must be a list of {n} numbers, got {value!r}") from None
+    numbers = isinstance(value, (list, tuple)) and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)
+    if not numbers:
+        raise SceneError(f"{name} must be a list of {n} numbers, got {json.dumps(value, default=str)[:60]}")
+    v = np.asarray(value, dtype=np.float64)
     if v.shape != (n,) or not np.all(np.isfinite(v)):
-        raise SceneError(f"{name} must be {n} finite numbers, got {value!r}")
+        raise SceneError(f"{name} must be {n} finite numbers, got {json.dumps(value, default=str)[:60]}")
     return v
 
 
@@ -202,6 +224,7 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     if merged["format"] != format_name():
         raise SceneError(f"format {merged['format']!r} is not supported: this version reads '{format_name()}'")
     check_fields(merged)
+    timed_poses(merged["device"]["trajectory"], "device.trajectory")
     scene = Scene(merged, Path(base_dir))
     if merged["haptics"]["enabled"]:
         _check_haptics(scene)
@@ -230,7 +253,8 @@ def load(path: Path | str) -> Scene:
 def load_hand_geometry(scene: Scene, progress=None) -> None:
     """Fills the scene's surface and tet mesh: from stored tets when given (pytetwild is not
     deterministic, so a scene that must replay exactly stores its tets), else by
-    tetrahedralizing the surface."""
+    tetrahedralizing the surface. The surface is checked either way, and stored tets must hold
+    it (embedding_tolerance)."""
     hand = scene.data["hand"]
     source = hand["mesh"]
     if source == "procedural":
@@ -240,19 +264,114 @@ def load_hand_geometry(scene: Scene, progress=None) -> None:
         if not path.is_file():
             raise SceneError(f"hand.mesh file {path} does not exist: give a path relative to the scene file")
         v, f = meshing.load_obj(path)
+    warning = meshing.scale_warning(v, "hand")
+    if warning and warning not in scene.warnings:
+        scene.warnings.append(warning)
     scene.surface_vertices, scene.surface_faces = v, f
-    tets_file = hand.get("tets")
-    if tets_file:
-        stored = np.load(scene.base_dir / tets_file)
-        scene.nodes, scene.tets = stored["nodes"], stored["tets"]
-        return
     opts = hand["tetrahedralize"]
+    tets_file = hand.get("tets")
+    if tets_file:  # (tetrahedralize checks the surface itself)
+        meshing.check_closed_surface(v, f)
+        scene.nodes, scene.tets = meshing.load_tets(scene.base_dir / tets_file, "hand.tets")
+        check_embedding(scene.nodes, scene.tets, v, float(opts["epsilon"]), "the hand", "hand.tets")
+        return
     scene.nodes, scene.tets = meshing.tetrahedralize(
         v, f, edge_length_fac=float(opts["edge_length_fac"]), coarsen=bool(opts["coarsen"]),
         epsilon=float(opts["epsilon"]), progress=progress)
 
 
+def embedding_tolerance(nodes: np.ndarray, epsilon: float) -> float:
+    """How far (m) a surface may lie outside its tets: twice the envelope pytetwild keeps at this
+    epsilon, or 1% of the tets' diagonal (a coarse cage like the paper's bunny), the larger."""
+    return max(2.0 * epsilon, EMBEDDING_SLACK) * float(np.linalg.norm(np.ptp(nodes, axis=0)))
+
+
+def check_embedding(nodes, tets, surface, epsilon: float, who: str, field_name: str) -> tuple:
+    """The surface embedded in the tets, refused when a vertex lies outside them by more than
+    embedding_tolerance: the surface would ride on extrapolated weights, far from its flesh."""
+    tet_index, weights, gap = meshing.embed_points(nodes, tets, surface, return_gap=True)
+    tolerance = embedding_tolerance(nodes, epsilon)
+    if gap.max() > tolerance:
+        worst = int(np.argmax(gap))
+        raise meshing.MeshError(
+            f"{who}'s surface lies outside its tets ({field_name}): {int((gap > tolerance).sum())} vertices by more "
+            f"than {tolerance * 1e3:.3g} mm, vertex {worst} by {gap[worst] * 1e3:.3g} mm; the tets were made for "
+            "another surface or placement: tetrahedralize this surface again (or store tets made from it)")
+    return tet_index, weights
+
+
 def build_model(scene: Scene, progress=None) -> native.HandModel:
     if scene.nodes is None:
         load_hand_geometry(scene, progress)
-    return native.HandModel(scene.nodes, scene.tets, **scene.engine_params())
+    try:
+        return native.HandModel(scene.nodes, scene.tets, **scene.engine_params())
+    except native.InvalidInput as e:
+        if scene.warnings and "node(s)" in str(e):  # a handle catching too few nodes on a hand of the wrong size
+            raise native.InvalidInput(f"{e}; {scene.warnings[0]}") from None
+        raise
+
+
+def result_bytes(scene: Scene, n_nodes: int) -> int:
+    """What a run of the scene stores in memory before it is written (bytes): every frame's node
+    positions of the hand and the soft bodies, poses, and the haptic log."""
+    frames = scene.frames
+    per_frame = 8 * (3 * n_nodes + 7 * 3 + 6 + 14)
+    for spec in scene.bodies:
+        if spec["type"] == "soft" and spec["mesh"] == "box":
+            per_frame += 8 * 3 * int(np.prod(np.asarray(spec["cells"]) + 1))
+        else:
+            per_frame += 8 * 7
+    total = (frames + 1) * per_frame
+    if scene.data["haptics"]["enabled"]:
+        steps = max(1, round(scene.dt * scene.data["haptics"]["rate"]))
+        total += (frames * steps + 1) * 8 * HAPTIC_LOG_COLUMNS * 2  # the native ring and its copy
+    return total
+
+
+def check_memory(scene: Scene, n_nodes: int, available: int | None = None) -> None:
+    """SceneError when a run would need more memory than the machine has free, before anything
+    is allocated (frames at 1e6 on a 1000-node hand is ~24 GB)."""
+    need = result_bytes(scene, n_nodes)
+    free = available_memory() if available is None else available
+    if free is not None and need > 0.8 * free:
+        per_frame = need / max(scene.frames, 1)
+        raise SceneError(
+            f"frames = {scene.frames} would need about {_gib(need)} of memory for the result ({n_nodes} hand nodes"
+            f"{', the haptic log' if scene.data['haptics']['enabled'] else ''}) but {_gib(free)} is free: lower "
+            f"frames to at most {int(0.8 * free / per_frame)}, or split the run")
+
+
+def available_memory() -> int | None:
+    """Free memory (bytes) as the kernel counts it (MemAvailable), None when unknown."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _gib(n: float) -> str:
+    return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
+
+
+def input_files(scene: Scene) -> list[tuple[str, Path]]:
+    """(field, path) of every file a run of the scene reads: the meshes, stored tets and a
+    playback recording (the scene file itself is the caller's)."""
+    out = []
+    hand = scene.data["hand"]
+    if hand["mesh"] != "procedural":
+        out.append(("hand.mesh", scene.base_dir / hand["mesh"]))
+    if hand["tets"]:
+        out.append(("hand.tets", scene.base_dir / hand["tets"]))
+    for i, spec in enumerate(scene.bodies):
+        mesh = spec["mesh"]
+        if isinstance(mesh, str) and mesh != "box" and not mesh.startswith("procedural:"):
+            out.append((f"bodies[{i}].mesh", scene.base_dir / mesh))
+        if spec["tets"]:
+            out.append((f"bodies[{i}].tets", scene.base_dir / spec["tets"]))
+    kind, _, arg = scene.data["haptics"]["device"].partition(":")
+    if kind == "playback" and arg:
+        out.append(("haptics.device", scene.base_dir / arg))
+    return out

@@ -22,6 +22,7 @@ def build_world(scene: scenes.Scene, progress=None):
     if hand_spec["kinetic_friction"] is not None:
         world.set_friction(hand, hand_spec["friction"], hand_spec["kinetic_friction"])
     others = [bodies.prepare(spec) for spec in scene.bodies]
+    bodies.check_overlaps(scene.surface_vertices, scene.surface_faces, others, scene.data["contact"]["thickness"])
     for b in others:
         bodies.add_to_world(world, b)
         if b.kind == native_world.KINEMATIC:  # the world moves it along its script itself

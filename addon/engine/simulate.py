@@ -165,20 +165,37 @@ def run(scene: scenes.Scene, progress=None) -> dict:
     return result
 
 
-def write(result: dict, path: Path | str) -> Path:
-    """Writes the result atomically: a failed run never leaves a half-written file behind
-    and never replaces an earlier good one."""
+def partial_path(path: Path | str) -> Path:
+    """Where write() puts the result until it is whole."""
     path = Path(path)
+    return path.with_name(path.name + ".partial.npz")
+
+
+def remove_partial(path: Path | str) -> None:
+    """Removes a partial result left by a run that was killed (kill -9) while writing it."""
+    partial_path(path).unlink(missing_ok=True)
+
+
+def write(result: dict, path: Path | str) -> Path:
+    """Writes the result atomically: a failed or interrupted run never leaves a half-written
+    file behind and never replaces an earlier good one."""
+    path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"the result path {path} is a directory: give a file name")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial.npz")
+    tmp = partial_path(path)
     flat = {}
     for key, value in result.items():
         if isinstance(value, dict):  # the haptic log: haptic_t, haptic_force, ...
             flat.update({f"{key}_{k}": v for k, v in value.items()})
         else:
             flat[key] = value
-    np.savez_compressed(tmp, **flat)
-    tmp.replace(path)
+    try:
+        np.savez_compressed(tmp, **flat)
+        tmp.replace(path)
+    except BaseException:  # a full disk, Ctrl-C (SIGTERM too, through the command line's handler)
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 

@@ -125,6 +125,14 @@ int hh_struct_size(int structure, int* out_size);
  * field, the valid range and a good value. The same check the structs get. */
 int hh_param_check(const char* json, const double* values, int count);
 
+/* --- surface checks, before a mesh is tetrahedralized or simulated --- */
+/* Pairs of triangles (faces int32 [n_faces][3]) that cross where a closed 2-manifold surface
+ * keeps them apart: sharing no vertex and crossing (or overlapping, coplanar); sharing one vertex
+ * and crossing away from it; sharing an edge and folded onto each other. Writes the first `capacity` pairs (i < j,
+ * ascending; out_pairs may be null when capacity is 0) and how many there are to out_count. */
+int hh_surface_self_intersections(const double* vertices, int n_vertices, const int* faces, int n_faces,
+                                  int* out_pairs, int capacity, int* out_count);
+
 /* --- model --- */
 void hh_default_params(hh_params* params);
 /* Validates everything (finite positive parameters, positively oriented tets, a handle

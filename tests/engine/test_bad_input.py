@@ -84,3 +84,198 @@ def test_rejected_state_leaves_the_simulation_as_it_was(procedural_rig):
     with pytest.raises(native.InvalidInput):
         sim.set_state(velocities=np.full(model.nodes.shape, np.inf))
     assert np.array_equal(sim.positions(), before)
+
+
+# --- scenes through the command line: a message naming the problem, never a traceback, and
+# check-rig refusing what simulate refuses with the same message ---------------------------
+
+import json  # noqa: E402
+import shutil  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from haptic_hand.__main__ import main  # noqa: E402
+from haptic_hand.engine import rig_check, scene as scenes  # noqa: E402
+
+SAMPLES = Path(__file__).resolve().parents[2] / "addon" / "engine" / "sample_scenes"
+HAND_TETS = SAMPLES / "procedural_hand_tets.npz"
+
+
+def base_scene() -> dict:
+    return {"format": "haptic_hand.scene/1", "hand": {"mesh": "procedural", "tets": "hand_tets.npz"}, "frames": 2}
+
+
+def put(scene: dict, path: str, value) -> dict:
+    node = scene
+    keys = path.split(".")
+    for k in keys[:-1]:
+        node = node.setdefault(k, {})
+    node[keys[-1]] = value
+    return scene
+
+
+def write_npz(d: Path, name: str, **arrays) -> str:
+    np.savez(d / name, **arrays)
+    return name
+
+
+def write_text(d: Path, name: str, text: str) -> str:
+    (d / name).write_text(text)
+    return name
+
+
+def shifted_box_tets(d: Path) -> str:
+    """A box's tets centred 5 cm away from where its surface is."""
+    nodes, tets = mesh.structured_box([0.04] * 3, [2] * 3, [0.03, -0.02, -0.02])
+    return write_npz(d, "box_tets.npz", nodes=nodes, tets=tets)
+
+
+def overlapping_shells_obj(d: Path) -> str:
+    v, f = mesh.procedural_hand()
+    mesh.save_obj(d / "two_hands.obj", np.concatenate([v, v + [0.01, 0.0, 0.0]]), np.concatenate([f, f + len(v)]))
+    return "two_hands.obj"
+
+
+def hand_tets(d: Path):
+    stored = np.load(HAND_TETS)
+    return stored["nodes"], stored["tets"]
+
+
+# (name, how the base scene changes given the scene's folder, words the message must hold)
+BAD_SCENES = [
+    ("trajectory point not an object", lambda d, s: put(s, "device.trajectory", [1, 2]), "device.trajectory[0]"),
+    ("trajectory time a string", lambda d, s: put(s, "device.trajectory", [{"t": "x"}]), "device.trajectory[0].t"),
+    ("trajectory position of strings", lambda d, s: put(s, "device.trajectory", [{"t": 0, "position": ["1", "2", "3"]}]),
+     "position must be a list of 3 numbers"),
+    ("kinematic script point not an object",
+     lambda d, s: put(s, "bodies", [{"name": "k", "type": "kinematic", "mesh": "box", "position": [0.3, 0, 0],
+                                     "trajectory": [3]}]), "body 'k': trajectory[0]"),
+    ("fixed nodes a word", lambda d, s: put(s, "bodies", [{"name": "b", "type": "soft", "mesh": "box",
+                                                           "position": [0.3, 0, 0], "fixed": "top"}]), "fixed"),
+    ("fixed nodes floats", lambda d, s: put(s, "bodies", [{"name": "b", "type": "soft", "mesh": "box",
+                                                           "position": [0.3, 0, 0], "fixed": [1.5]}]), "whole numbers"),
+    ("tets file missing", lambda d, s: put(s, "hand.tets", "nope.npz"), "hand.tets file"),
+    ("tets key missing", lambda d, s: put(s, "hand.tets", write_npz(d, "k.npz", nodes=hand_tets(d)[0])),
+     "no 'tets' array"),
+    ("tets corrupt zip", lambda d, s: put(s, "hand.tets", write_text(d, "c.npz", "PK\x03\x04garbage")),
+     "not a readable .npz"),
+    ("tets out of range", lambda d, s: put(s, "hand.tets", write_npz(
+        d, "r.npz", nodes=hand_tets(d)[0], tets=np.where(hand_tets(d)[1] == 0, 5000, hand_tets(d)[1]))), "outside 0..936"),
+    ("tets floats", lambda d, s: put(s, "hand.tets", write_npz(
+        d, "f.npz", nodes=hand_tets(d)[0], tets=hand_tets(d)[1] + 0.25)), "refused rather than rounded"),
+    ("tets 3 columns", lambda d, s: put(s, "hand.tets", write_npz(
+        d, "3.npz", nodes=hand_tets(d)[0], tets=hand_tets(d)[1][:, :3])), "shape"),
+    ("tets empty", lambda d, s: put(s, "hand.tets", write_npz(
+        d, "e.npz", nodes=hand_tets(d)[0], tets=np.zeros((0, 4), np.int32))), "at least one tet"),
+    ("tet index beyond 32 bits", lambda d, s: put(s, "hand.tets", write_npz(
+        d, "64.npz", nodes=hand_tets(d)[0], tets=hand_tets(d)[1].astype(np.int64) + (2**32) * (
+            np.arange(hand_tets(d)[1].size).reshape(-1, 4) == 0))), "node [429496"),
+    ("body tets corrupt", lambda d, s: put(s, "bodies", [{"name": "b", "type": "soft", "mesh": "box",
+                                                          "tets": write_text(d, "c.npz", "junk")}]), "body 'b'"),
+    ("unknown letter", lambda d, s: put(s, "bodies", [{"name": "o", "type": "soft", "mesh": "procedural:letter:O"}]),
+     "no procedural letter 'O'"),
+    ("soft surface away from its tets",
+     lambda d, s: put(s, "bodies", [{"name": "cube", "type": "soft", "mesh": "box", "size": [0.04] * 3,
+                                     "cells": [2] * 3, "position": [0.3, 0, 0], "tets": shifted_box_tets(d)}]),
+     "outside its tets"),
+    ("soft body inside the hand",
+     lambda d, s: put(s, "bodies", [{"name": "cube", "type": "soft", "mesh": "box", "size": [0.01] * 3,
+                                     "cells": [1] * 3, "position": [0.0, 0.0, -0.0425]}]),
+     "starts inside the hand"),
+    ("box 6 mm into the ground",
+     lambda d, s: put(s, "bodies", [{"name": "ground", "type": "plane", "point": [0, 0, -0.3]},
+                                    {"name": "cube", "type": "soft", "mesh": "box", "size": [0.04] * 3,
+                                     "cells": [2] * 3, "position": [0.3, 0, -0.3 + 0.02 - 0.006]}]),
+     "6 mm deep"),
+    ("hand of two overlapping shells", lambda d, s: put(put(s, "hand.mesh", overlapping_shells_obj(d)),
+                                                        "hand.palm_seed", [0, 0, -0.0425]), "intersects itself"),
+    ("playback file missing", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:nope.csv"}),
+     "does not exist"),
+    ("playback file corrupt", lambda d, s: put(s, "haptics", {"enabled": True,
+                                                              "device": "playback:" + write_text(d, "p.npz", "junk")}),
+     "not a readable .npz"),
+    ("playback file with NaN", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:" + write_text(
+        d, "n.csv", "0,0,0,0\n1,nan,0,0\n")}), "finite"),
+    ("playback file with NaN times", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:" + write_text(
+        d, "nt.csv", "0,0,0,0\nnan,0,0,0\n")}), "finite"),
+    ("playback file empty", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:" + write_text(
+        d, "e.csv", "")}), "every line"),
+    ("playback times not increasing", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:" + write_text(
+        d, "m.csv", "0,0,0,0\n1,0,0,0\n0.5,0,0,0\n")}), "increase strictly"),
+]
+
+
+@pytest.fixture
+def scene_dir(tmp_path):
+    shutil.copy(HAND_TETS, tmp_path / "hand_tets.npz")
+    return tmp_path
+
+
+@pytest.mark.parametrize("name, change, words", BAD_SCENES, ids=[b[0] for b in BAD_SCENES])
+def test_bad_scene_gets_a_message_and_check_rig_refuses_it_alike(scene_dir, capsys, name, change, words):
+    path = scene_dir / "scene.json"
+    path.write_text(json.dumps(change(scene_dir, base_scene())))
+    assert main(["simulate", str(path), "--out", str(scene_dir / "result.npz"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err
+    message = err.strip().splitlines()[-1].removeprefix("error: ")
+    assert not (scene_dir / "result.npz").exists()
+    assert main(["check-rig", str(path), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert not report["ok"] and [c["detail"] for c in report["checks"]] == [message]
+
+
+def test_check_rig_json_is_json_for_a_file_that_is_not_json(scene_dir, capsys):
+    path = scene_dir / "broken.json"
+    path.write_text("{not json")
+    assert main(["check-rig", str(path), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert not report["ok"] and "not valid JSON" in report["checks"][0]["detail"]
+
+
+def test_a_run_too_large_for_memory_is_refused_before_allocating(scene_dir):
+    scene = scenes.from_dict(put(base_scene(), "frames", 1_000_000), scene_dir)
+    need = scenes.result_bytes(scene, 937)
+    assert need > 937 * 3 * 8 * 1_000_000  # every frame's hand positions at least
+    with pytest.raises(scenes.SceneError, match=r"frames = 1000000 would need about 2\d\.\d GiB"):
+        scenes.check_memory(scene, 937, available=16 * 2**30)
+    scenes.check_memory(scenes.from_dict(base_scene(), scene_dir), 937, available=16 * 2**30)
+
+
+def test_the_memory_estimate_covers_what_a_run_holds(scene_dir):
+    from haptic_hand.engine import simulate
+
+    scene = scenes.from_dict(put(put(base_scene(), "haptics", {"enabled": True}), "bodies", [
+        {"name": "cube", "type": "soft", "mesh": "box", "size": [0.04] * 3, "cells": [2] * 3, "position": [0.3, 0, 0]}]),
+        scene_dir)
+    result = simulate.run(scene)
+    per_run = ("positions", "handle_pose", "device_pose", "coupling_wrench", "body_cube_positions")
+    held = sum(result[k].nbytes for k in per_run) + sum(v.nbytes for v in result["haptic"].values())
+    assert held <= scenes.result_bytes(scene, len(scene.nodes)) <= 3 * held
+
+
+def test_a_hand_in_millimetres_is_told_so(scene_dir):
+    v, f = mesh.procedural_hand()
+    mesh.save_obj(scene_dir / "hand_mm.obj", v * 1000, f)
+    nodes, tets = hand_tets(scene_dir)
+    np.savez(scene_dir / "tets_mm.npz", nodes=nodes * 1000, tets=tets)
+    scene = scenes.from_dict(put(put(put(base_scene(), "hand.mesh", "hand_mm.obj"), "hand.tets", "tets_mm.npz"),
+                                 "hand.palm_seed", [0.0, 0.0, -42.5]), scene_dir)
+    with pytest.raises(native.InvalidInput, match=r"captures 0 node.*looks modelled in millimetres.*scale it by 0.001"):
+        scenes.build_model(scene)
+    assert "millimetres" in scene.warnings[0]
+    assert "millimetres" in rig_check.format_report(rig_check.check(scene))
+
+
+def test_a_hand_of_human_size_gets_no_scale_warning():
+    v, _ = mesh.procedural_hand()
+    assert mesh.scale_warning(v) is None
+    assert "centimetres" in mesh.scale_warning(v * 100) and "inches" in mesh.scale_warning(v / 0.0254)
+
+
+def test_a_float_or_wide_tet_index_is_refused_by_the_bindings(procedural_rig):
+    tets = procedural_rig.tets.astype(np.int64)
+    tets[3, 1] += 2**32
+    with pytest.raises(native.InvalidInput, match="beyond 32 bits"):
+        native.HandModel(procedural_rig.nodes, tets, palm_seed=procedural_rig.seed)
+    with pytest.raises(native.InvalidInput, match="not truncated"):
+        native.HandModel(procedural_rig.nodes, procedural_rig.tets + 0.5, palm_seed=procedural_rig.seed)

@@ -421,3 +421,143 @@ def test_shared_hand_obj_is_closed_and_tetrahedralizes_positively():
     volumes = mesh.tet_signed_volumes(nodes, tets)
     assert (volumes > 0).all()
     assert volumes.sum() == pytest.approx(mesh.surface_volume(V, F), rel=0.05)
+
+
+# --- surfaces that bound no proper solid -------------------------------------------------------
+
+
+def tet_surface(corners):
+    """The outward surface of one positively oriented tet on the given 4 vertex indices."""
+    c = np.asarray(corners)
+    return c[np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])]
+
+
+def test_two_overlapping_shells_are_named_with_their_faces(hand_surface):
+    V, F = hand_surface
+    W, G = np.concatenate([V, V + [0.01, 0.0, 0.0]]), np.concatenate([F, F + len(V)])
+    with pytest.raises(MeshError, match=r"intersects itself: \d+ pairs .*triangles \d+ and \d+.*Mesh > Clean Up"):
+        mesh.check_closed_surface(W, G)
+    pairs, count = mesh.self_intersections(W, G)
+    assert count > 100 and np.all(pairs[:, 0] < len(F)) and np.all(pairs[:, 1] >= len(F))  # one from each shell
+
+
+def test_a_shell_inside_another_does_not_cross_it(hand_surface):
+    """Nested shells cross nowhere: the test must not invent crossings (the volume check and the
+    inside tests see a nested shell; here only the crossing test is asked)."""
+    V, F = hand_surface
+    centre = V.mean(axis=0)
+    inner = centre + 0.05 * (V - centre)
+    assert mesh.self_intersections(np.concatenate([V, inner]), np.concatenate([F, F + len(V)]))[1] == 0
+
+
+def test_clean_surfaces_have_no_self_intersections(hand_surface):
+    from haptic_hand.engine import shapes
+
+    for V, F in [hand_surface, cube_surface(), shapes.procedural_bunny()] + [shapes.procedural_letter(c) for c in "HAPTIC"]:
+        assert mesh.self_intersections(V, F)[1] == 0
+
+
+def crossing_reference(t, u) -> bool:
+    """Generic triangles (no shared vertex, no degeneracy): some edge of one passes through the
+    other, by plain floating-point line-plane intersection and barycentric coordinates."""
+    for a, b in ((t, u), (u, t)):
+        n = np.cross(b[1] - b[0], b[2] - b[0])
+        for k in range(3):
+            p, q = a[k], a[(k + 1) % 3]
+            dp, dq = (p - b[0]) @ n, (q - b[0]) @ n
+            if dp * dq >= 0:
+                continue
+            x = p + (q - p) * (dp / (dp - dq))
+            m = np.array([b[1] - b[0], b[2] - b[0]]).T
+            s, r = np.linalg.lstsq(m, x - b[0], rcond=None)[0]
+            if s >= 0 and r >= 0 and s + r <= 1:
+                return True
+    return False
+
+
+def test_self_intersections_of_a_triangle_soup_match_a_brute_force_reference():
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(0, 0.1, (80, 3))
+    V = (centres[:, None] + rng.normal(0, 0.012, (80, 3, 3))).reshape(-1, 3)
+    F = np.arange(len(V)).reshape(-1, 3)
+    expected = {(i, j) for i in range(len(F)) for j in range(i + 1, len(F)) if crossing_reference(V[F[i]], V[F[j]])}
+    pairs, count = mesh.self_intersections(V, F, capacity=10000)
+    assert len(expected) > 20 and count == len(pairs) == len(expected)
+    assert {tuple(p) for p in pairs.tolist()} == expected
+
+
+def test_a_fold_across_an_edge_and_a_crossing_beside_a_shared_vertex_are_found():
+    # fold: two triangles on edge (0, 1), both on the same side of it in one plane
+    V = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, 0.5, 0]], float)
+    assert mesh.self_intersections(V, np.array([[0, 1, 2], [1, 0, 3]]))[1] == 1
+    V[3] = [0.5, -0.5, 0]  # the other side: a flat pair of neighbours, no fold
+    assert mesh.self_intersections(V, np.array([[0, 1, 2], [1, 0, 3]]))[1] == 0
+    # one shared vertex (0): the second triangle's far edge passes through the first
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, -1], [0.3, 0.3, 1]], float)
+    assert mesh.self_intersections(V, np.array([[0, 1, 2], [0, 3, 4]]))[1] == 1
+
+
+def test_two_solids_sharing_one_vertex_are_non_manifold():
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1]], float)
+    second = [0, 4, 6, 5]
+    assert mesh.tet_signed_volumes(V, [second])[0] > 0
+    F = np.concatenate([tet_surface([0, 1, 2, 3]), tet_surface(second)])
+    with pytest.raises(MeshError, match=r"non-manifold at 1 vertices .*vertex 0, in 2 separate fans"):
+        mesh.check_closed_surface(V, F)
+
+
+def test_two_cubes_touching_along_an_edge_are_refused():
+    V, F = cube_surface(0.1)
+    W, G = cube_surface(0.1, (0.1, 0.1, 0.0))
+    with pytest.raises(MeshError, match=r"same position as another.*Merge by Distance"):
+        mesh.check_closed_surface(np.concatenate([V, W]), np.concatenate([F, G + len(V)]))
+
+
+def test_a_flat_closed_surface_is_told_it_is_flat_not_to_flip():
+    # a square sheet, both sides, with different diagonals: closed, manifold, consistently wound
+    V = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0.1, 0], [0, 0.1, 0]], float)
+    F = np.array([[0, 1, 2], [0, 2, 3], [1, 0, 3], [1, 3, 2]])
+    with pytest.raises(MeshError, match=r"encloses no volume .*flat \(0 mm thick.*Solidify") as error:
+        mesh.check_closed_surface(V, F)
+    assert "flip" not in str(error.value)
+
+
+def test_a_spike_is_named(hand_surface):
+    V, F = hand_surface
+    V = V.copy()
+    V[100] = 0.0  # what Blender's OBJ importer makes of a vertex with a nan coordinate
+    with pytest.raises(MeshError, match=r"1 spike vertices .*vertex 100 at \[0.0, 0.0, 0.0\]"):
+        mesh.check_closed_surface(V, F)
+
+
+def test_float_and_wide_indices_are_refused_not_rounded_or_wrapped():
+    V, F = cube_surface()
+    with pytest.raises(MeshError, match="refused rather than rounded"):
+        mesh.check_closed_surface(V, F + 0.0)
+    with pytest.raises(MeshError, match="outside 0..7"):
+        mesh.check_closed_surface(V, F.astype(np.int64) + (2**32) * (F == 0))
+    nodes, tets = mesh.structured_box([0.1] * 3, [1] * 3)
+    with pytest.raises(MeshError, match="refused rather than rounded"):
+        mesh.embed_points(nodes, tets.astype(float), nodes)
+
+
+@pytest.mark.parametrize("content, words", [(b"PK\x03\x04junk", "not a readable"), (None, "does not exist"),
+                                            ("npy", "single array"), ("nokey", "no 'tets' array")])
+def test_load_tets_names_its_field(tmp_path, content, words):
+    path = tmp_path / "t.npz"
+    if content == "npy":
+        with open(path, "wb") as f:
+            np.save(f, np.zeros(3))
+    elif content == "nokey":
+        np.savez(path, nodes=np.zeros((4, 3)))
+    elif content is not None:
+        path.write_bytes(content)
+    with pytest.raises(MeshError, match=f"hand.tets file .*{words}"):
+        mesh.load_tets(path, "hand.tets")
+
+
+def test_embedding_gap_is_the_distance_outside_the_tets():
+    nodes, tets = mesh.structured_box([0.1] * 3, [2] * 3)
+    points = np.array([[0.05, 0.05, 0.05], [0.05, 0.05, 0.13], [-0.03, -0.04, 0.05]])
+    _, _, gap = mesh.embed_points(nodes, tets, points, return_gap=True)
+    assert gap == pytest.approx([0.0, 0.03, 0.05], abs=1e-12)

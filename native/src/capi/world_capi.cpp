@@ -114,6 +114,8 @@ int hh_world_add_soft_body(hh_world* world, const double* nodes, int n_nodes, co
                            double friction, int* out_body) {
     return guard([&] {
         require(world && material && out_body, "hh_world_add_soft_body: null pointer");
+        require(n_nodes >= 4 && n_tets >= 1 && n_fixed >= 0 && n_surface_vertices >= 0 && n_faces >= 0,
+                "hh_world_add_soft_body: a soft body needs at least 4 nodes and 1 tet, and no count may be negative");
         hh::params::validate(HH_STRUCT_MATERIAL, material);
         require_friction(friction);
         auto b = std::make_unique<hh::Body>();

@@ -1,0 +1,122 @@
+"""Property-based guard (Hypothesis): arbitrary JSON scenes and arbitrary arrays either run or
+end in a clean error (the user errors the command line prints as `error: ...`), never in any
+other exception. Derandomized and bounded, so `make test` stays fast and repeatable."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from haptic_hand.engine import mesh, native, params, rig_check, simulate
+from haptic_hand.engine import scene as scenes
+
+SAMPLES = Path(__file__).resolve().parents[2] / "addon" / "engine" / "sample_scenes"
+FUZZ = settings(max_examples=200, deadline=None, derandomize=True, database=None,
+                suppress_health_check=list(HealthCheck))
+
+json_scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12),
+                         st.floats(allow_nan=False, width=64), st.text(max_size=8),
+                         st.sampled_from(["box", "procedural", "procedural:bunny", "procedural:letter:H", "soft",
+                                          "plane", "bottom", "cholesky", "playback:x.csv", "5e4", "no"]))
+json_values = st.recursive(json_scalars, lambda inner: st.one_of(
+    st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=6), inner, max_size=4)), max_leaves=10)
+FIELDS = [p.json for p in params.table() if not p.body and not p.flags & params.INTERNAL]
+BODY_FIELDS = [p.json[len(params.BODY):] for p in params.table() if p.body]
+
+
+def put(data: dict, path: str, value) -> None:
+    node = data
+    keys = path.split(".")
+    for k in keys[:-1]:
+        if not isinstance(node.get(k), dict):
+            node[k] = {}
+        node = node[k]
+    node[keys[-1]] = value
+
+
+@st.composite
+def bodies(draw):
+    body = {"type": draw(st.sampled_from(["soft", "rigid", "kinematic", "static", "plane", "jelly"])),
+            "mesh": draw(st.sampled_from(["box", "procedural:letter:I", None, "missing.obj"])),
+            "position": [0.3, 0.0, 0.0], "cells": [1, 1, 1], "size": [0.02, 0.02, 0.02]}
+    for path, value in draw(st.lists(st.tuples(st.sampled_from(BODY_FIELDS + ["junk"]), json_values), max_size=3)):
+        put(body, path, value)
+    return body
+
+
+@st.composite
+def scenes_json(draw):
+    data = {"format": "haptic_hand.scene/1", "hand": {"mesh": "procedural", "tets": "hand_tets.npz"}, "frames": 2}
+    for path, value in draw(st.lists(st.tuples(st.sampled_from(FIELDS + ["junk", "hand.junk"]), json_values),
+                                     max_size=4)):
+        put(data, path, value)
+    if draw(st.booleans()):
+        data["bodies"] = draw(st.lists(bodies(), max_size=2))
+    return data
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fuzz")
+    shutil.copy(SAMPLES / "procedural_hand_tets.npz", d / "hand_tets.npz")
+    return d
+
+
+@FUZZ
+@given(data=scenes_json())
+def test_an_arbitrary_scene_runs_or_is_refused_cleanly(scene_dir, data):
+    try:
+        scene = scenes.from_dict(json.loads(json.dumps(data)), scene_dir)
+        if not scene.data["hand"]["tets"]:
+            return  # tetrahedralizing takes seconds: the meshes have tests of their own
+        scene.data["frames"] = min(scene.frames, 2)
+        rig_check.prepare(scene)
+        simulate.run(scene)
+    except rig_check.USER_ERRORS as e:
+        assert str(e)  # a message, never an empty one
+
+
+any_float = st.floats(allow_nan=True, allow_infinity=True, allow_subnormal=False, width=64)
+ELEMENTS = {  # mostly values a mesh could hold (small coordinates, indices near the array sizes), some not
+    np.float64: st.one_of(st.floats(-0.1, 0.1, width=64), any_float),
+    np.float32: st.floats(allow_subnormal=False, width=32),
+    np.int32: st.integers(-2, 14), np.int64: st.one_of(st.integers(-2, 14), st.integers(-2**63, 2**63 - 1)),
+    np.uint8: st.integers(0, 255), np.bool_: st.booleans(),
+}
+
+
+def arrays(shape_cols):
+    return st.sampled_from(list(ELEMENTS)).flatmap(
+        lambda dt: hnp.arrays(dt, st.tuples(st.integers(0, 12), shape_cols), elements=ELEMENTS[dt]))
+
+
+CLEAN = (mesh.MeshError, native.NativeError)
+
+
+@FUZZ
+@given(V=arrays(st.sampled_from([3, 3, 2])), F=arrays(st.sampled_from([3, 3, 4])))
+def test_arbitrary_surfaces_are_checked_or_refused_cleanly(V, F):
+    for check in (mesh.check_closed_surface, mesh.self_intersections):
+        try:
+            check(V, F)
+        except CLEAN as e:
+            assert str(e)
+
+
+@FUZZ
+@given(nodes=arrays(st.sampled_from([3, 3, 2])), tets=arrays(st.sampled_from([4, 4, 3])),
+       points=arrays(st.just(3)), seed=st.lists(any_float, min_size=3, max_size=3), radius=any_float)
+def test_arbitrary_tet_meshes_are_used_or_refused_cleanly(nodes, tets, points, seed, radius):
+    calls = (lambda: mesh.check_tets(nodes, tets), lambda: mesh.embed_points(nodes, tets, points),
+             lambda: native.count_captured(nodes, seed, radius),
+             lambda: native.HandModel(nodes, tets, palm_seed=seed, handle_radius=radius))
+    for call in calls:
+        try:
+            call()
+        except CLEAN as e:
+            assert str(e)
