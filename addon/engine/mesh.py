@@ -578,11 +578,14 @@ def load_tets(path, where: str) -> tuple[np.ndarray, np.ndarray]:
     return nodes, tets.astype(np.int32)
 
 
-def tetrahedralize(V, F, edge_length_fac=0.1, coarsen=False, epsilon=1e-3, progress=None):
+def tetrahedralize(V, F, edge_length_fac=None, coarsen=None, epsilon=None, progress=None):
     """Fill a closed surface with positively oriented tets using pytetwild (fTetWild).
 
     edge_length_fac: target tet edge length as a fraction of the bounding-box diagonal.
+    coarsen: coarsen the tets as far as their quality allows.
     epsilon: how far the tet boundary may stray from the surface, relative to that diagonal.
+    An option left None takes the parameter table's default (hand.tetrahedralize.*), the one
+    scenes and Blender use.
     progress: optional callable progress(fraction, message), called between stages.
     Returns (nodes float64 (n, 3), tets int32 (m, 4)); every node belongs to a tet.
     The output of pytetwild differs from run to run: store the tets you simulate.
@@ -592,6 +595,12 @@ def tetrahedralize(V, F, edge_length_fac=0.1, coarsen=False, epsilon=1e-3, progr
         if progress is not None:
             progress(fraction, message)
 
+    from . import params
+
+    table = params.defaults()["hand"]["tetrahedralize"]
+    edge_length_fac = table["edge_length_fac"] if edge_length_fac is None else edge_length_fac
+    coarsen = table["coarsen"] if coarsen is None else coarsen
+    epsilon = table["epsilon"] if epsilon is None else epsilon
     report(0.0, "checking the surface")
     check_closed_surface(V, F)
     report(0.05, "tetrahedralizing (fTetWild)")

@@ -136,8 +136,14 @@ class NativeSession:
         self.close()
 
     # --- devices ---
-    def device_simulated(self, times, positions, quaternions=None, arm_mass=1.0, arm_stiffness=300.0,
-                         arm_damping=20.0, fail_at=math.inf) -> None:
+    def device_simulated(self, times, positions, quaternions=None, arm_mass=None, arm_stiffness=None,
+                         arm_damping=None, fail_at=math.inf) -> None:
+        """The simulated user's arm follows the timed poses; arm settings left None take the
+        parameter table's defaults (haptics.arm.*)."""
+        arm = table.defaults()["haptics"]["arm"]
+        arm_mass = arm["mass"] if arm_mass is None else arm_mass
+        arm_stiffness = arm["stiffness"] if arm_stiffness is None else arm_stiffness
+        arm_damping = arm["damping"] if arm_damping is None else arm_damping
         t, p, q = _trajectory(times, positions, quaternions)
         _check(_lib().hh_session_device_simulated(self._handle, _ptr(t), _ptr(p), _ptr(q), len(t), float(arm_mass),
                                                   float(arm_stiffness), float(arm_damping), float(fail_at)))

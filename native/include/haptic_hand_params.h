@@ -209,7 +209,7 @@
       "The proxy moves under the handle-space linear model (the paper); off: feedback from the last "  \
       "visual-loop handle only",                                                                       \
       "true or false")                                                                                 \
-    X(log_capacity, HH_KIND_INT, 1, "", "", HH_V(65536), 1, 2147483647.0, HH_INTERNAL, 1, 1e6,         \
+    X(log_capacity, HH_KIND_INT, 1, "", "", HH_V(65536), 1, 67108864.0, HH_INTERNAL, 1, 1e6,         \
       "Log capacity", "", "Rows of the haptic log ring (one per haptic step)", "at least 1")           \
     X(realtime, HH_KIND_BOOL, 1, "haptics.realtime", "", HH_V(1), 0, 1, HH_UI_SCENE | HH_UI_ADVANCED,  \
       0, 1, "Real-time priority", "",                                                                  \

@@ -298,6 +298,18 @@ def test_a_virtual_coupling_that_is_not_passive_is_refused_with_the_fix():
     native_session.NativeSession(world, hand, coupling_stiffness=2000.0, coupling_damping=1.0).close()  # on the bound
 
 
+def test_a_scene_whose_coupling_is_not_passive_is_refused_when_it_loads():
+    """The passivity bound is part of the session's checks, so a scene file is refused when it is
+    read, before any world is built: at 500 Hz (T = 2 ms) a 3000 N/m coupling needs K T / 2 =
+    3 N s/m of damping."""
+    data = {"format": "haptic_hand.scene/1", "haptics": {"enabled": True, "rate": 500.0},
+            "coupling": {"stiffness": 3000.0, "damping": 2.0}}
+    with pytest.raises(scenes.SceneError, match=r"not passive at 500 Hz.*at least 3 N s/m"):
+        scenes.from_dict(data)
+    data["coupling"]["damping"] = 3.0  # on the bound
+    scenes.from_dict(data)
+
+
 def test_simulate_writes_the_haptic_log(tmp_path):
     sc = hand_scene(gravity=(0.0, 0.0, -9.81))
     sc.data["frames"] = 12

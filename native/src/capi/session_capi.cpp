@@ -44,6 +44,8 @@ void validate_session_params(const hh_session_params& p) {
             "coupling.stiffness = " + std::to_string(p.coupling_stiffness) +
                 " N/m is invalid with the haptic loop on: it must be at most 3e4 N/m, the stiffest coupling the "
                 "haptic loop is tested stable at; lower it (1e3 to 3e3 N/m suits a desktop device)");
+    const hh::SessionParams s(p);
+    hh::check_passive(s.coupling, s.haptic_rate);
 }
 void put_pose(const double* in, double* out) { std::memcpy(out, in, 7 * sizeof(double)); }
 }  // namespace
@@ -63,17 +65,7 @@ int hh_session_create(hh_world* world, int hand_body, const hh_session_params* p
         require(world && params && out, "hh_session_create: null pointer");
         validate_session_params(*params);
         require(!world->in_live_session.load(), "this world already has a live session");
-        hh::SessionParams p;
-        p.haptic_rate = params->haptic_rate;
-        p.coupling.stiffness = params->coupling_stiffness;
-        p.coupling.damping = params->coupling_damping;
-        p.coupling.angular_stiffness = params->coupling_angular_stiffness;
-        p.coupling.angular_damping = params->coupling_angular_damping;
-        p.max_force = params->max_force;
-        p.max_torque = params->max_torque;
-        p.linearized = params->linearized != 0;
-        p.log_capacity = static_cast<std::size_t>(params->log_capacity);
-        p.realtime = params->realtime != 0;
+        const hh::SessionParams p(*params);
         *out = new hh_session(world, hand_body, p);
         return HH_OK;
     });

@@ -69,15 +69,7 @@ int hh_world_create(const hh_world_params* p, hh_world** out) {
         require(p && out, "hh_world_create: null pointer");
         *out = nullptr;
         hh::params::validate(HH_STRUCT_WORLD_PARAMS, p);
-        hh::WorldSettings s;
-        s.dt = p->dt;
-        s.gravity = vec3(p->gravity);
-        s.contact_thickness = p->contact_thickness;
-        s.contact_patch = p->contact_patch;
-        s.max_iterations = p->max_iterations;
-        s.tolerance = p->tolerance;
-        s.stall_factor = p->stall_factor;
-        s.threads = p->threads;
+        const hh::WorldSettings s(*p);
         *out = new hh_world(s);
         return HH_OK;
     });

@@ -1,8 +1,15 @@
 #include "device/simulated_arm.h"
 
+#include <cmath>
+
+#include "params/table.h"
 #include "rigid/quaternion.h"
 
 namespace hh {
+
+ArmParams::ArmParams()
+    : ArmParams(params::default_of("haptics.arm.mass"), params::default_of("haptics.arm.stiffness"),
+                params::default_of("haptics.arm.damping"), HUGE_VAL) {}
 
 namespace {
 Vec3 clamped(const Vec3& v, double limit) {

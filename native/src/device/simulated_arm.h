@@ -11,12 +11,18 @@
 
 namespace hh {
 
+// The simulated user's arm: mass, stiffness and damping are the haptics.arm.* rows of the
+// parameter table (a default-constructed one holds their defaults).
 struct ArmParams {
-    double mass = 1.0;        // kg: hand and forearm as felt at the stylus
-    double stiffness = 300;   // N/m: arm's grip on its intended position
-    double damping = 20;      // N s/m
-    double fail_at = 1e300;   // s: from this time on the device reports a disconnection (tests)
-    // A person's limits (internal constants, not yet in the parameter table):
+    ArmParams();
+    ArmParams(double mass, double stiffness, double damping, double fail_at)
+        : mass(mass), stiffness(stiffness), damping(damping), fail_at(fail_at) {}
+    double mass;       // kg: hand and forearm as felt at the stylus
+    double stiffness;  // N/m: arm's grip on its intended position
+    double damping;    // N s/m
+    double fail_at;    // s: from this time on the device reports a disconnection (tests)
+    // A person's limits: part of the simulated user, not of the scene (fixed, so that every
+    // trajectory, however violent, is followed the way a human arm could)
     double max_speed = 3.0;           // m/s: a fast reach of the hand
     double max_pull = 100.0;          // N: the arm's own force on the end effector
     double max_angular_speed = 10.0;  // rad/s: a fast turn of the wrist

@@ -1,5 +1,6 @@
 #include "haptics/proxy.h"
 
+#include "params/table.h"
 #include "rigid/quaternion.h"
 
 #include <cmath>
@@ -15,6 +16,10 @@ std::string number(double v) {
     return buf;
 }
 }  // namespace
+
+VirtualCoupling::VirtualCoupling()
+    : VirtualCoupling(params::default_of("coupling.stiffness"), params::default_of("coupling.damping"),
+                      params::default_of("coupling.angular_stiffness"), params::default_of("coupling.angular_damping")) {}
 
 void check_passive(const VirtualCoupling& c, double rate) {
     // Colgate & Schenkel 1997: a spring K sampled with period T stays passive when the damping

@@ -13,11 +13,16 @@
 
 namespace hh {
 
+// The virtual coupling's gains: the coupling.* rows of the parameter table; a
+// default-constructed one holds the table's defaults.
 struct VirtualCoupling {
-    double stiffness = 2000;           // N/m
-    double damping = 20;               // N s/m
-    double angular_stiffness = 20;     // N m/rad
-    double angular_damping = 0.2;      // N m s/rad
+    VirtualCoupling();
+    VirtualCoupling(double stiffness, double damping, double angular_stiffness, double angular_damping)
+        : stiffness(stiffness), damping(damping), angular_stiffness(angular_stiffness), angular_damping(angular_damping) {}
+    double stiffness;          // N/m
+    double damping;            // N s/m
+    double angular_stiffness;  // N m/rad
+    double angular_damping;    // N m s/rad
 };
 
 // Throws InvalidArgument, naming the fix, unless the coupling stays passive when sampled at

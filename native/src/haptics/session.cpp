@@ -1,4 +1,5 @@
 #include "haptics/session.h"
+#include "params/table.h"
 
 #include <sys/prctl.h>
 #include <time.h>
@@ -56,25 +57,21 @@ Frame empty_frame(const World& world) {
     return f;
 }
 
-void check_params(const SessionParams& p) {
-    auto nonneg = [](double v, const char* what) {
-        if (!(std::isfinite(v) && v >= 0))
-            throw InvalidArgument(std::string(what) + " must be a finite number >= 0 (got " + std::to_string(v) + ")");
-    };
-    if (!(p.haptic_rate >= 100 && p.haptic_rate <= 10000))
-        throw InvalidArgument("haptic rate " + std::to_string(p.haptic_rate) +
-                              " Hz is out of range: choose 100 to 10000 Hz (1000 is the usual)");
-    nonneg(p.coupling.stiffness, "virtual coupling stiffness");
-    nonneg(p.coupling.damping, "virtual coupling damping");
-    nonneg(p.coupling.angular_stiffness, "virtual coupling angular stiffness");
-    nonneg(p.coupling.angular_damping, "virtual coupling angular damping");
-    if (!(p.max_force > 0) || !(p.max_torque > 0))
-        throw InvalidArgument("the force and torque limits must be > 0");
-    if (p.log_capacity < 1 || p.log_capacity > (std::size_t(1) << 26))
-        throw InvalidArgument("the haptic log capacity must be 1 to 67 million rows");
-    check_passive(p.coupling, p.haptic_rate);
-}
+// The ranges of every field are the table's (checked at the C entry points); what holds
+// between fields is checked here: the coupling's passivity at the loop's rate.
+void check_params(const SessionParams& p) { check_passive(p.coupling, p.haptic_rate); }
 }  // namespace
+
+SessionParams::SessionParams() : SessionParams(params::session_defaults()) {}
+
+SessionParams::SessionParams(const hh_session_params& p)
+    : haptic_rate(p.haptic_rate),
+      coupling(p.coupling_stiffness, p.coupling_damping, p.coupling_angular_stiffness, p.coupling_angular_damping),
+      max_force(p.max_force),
+      max_torque(p.max_torque),
+      linearized(p.linearized != 0),
+      log_capacity(static_cast<std::size_t>(p.log_capacity)),
+      realtime(p.realtime != 0) {}
 
 Session::Session(World& world, int hand, const SessionParams& params)
     : world_(world),

@@ -13,6 +13,7 @@
 #include <thread>
 #include <vector>
 
+#include "haptic_hand.h"
 #include "device/device.h"
 #include "device/external.h"
 #include "haptics/coupling_model.h"
@@ -25,14 +26,18 @@ namespace hh {
 
 class World;
 
+// The haptic loop's settings: the hh_session_params rows of the parameter table (meanings and
+// ranges there), checked by the C entry points against it.
 struct SessionParams {
-    double haptic_rate = 1000;  // Hz, in [100, 10000]
-    VirtualCoupling coupling;   // two-way, device <-> proxy (and device -> handle without linearization)
-    double max_force = 1e9;     // N: feedback clamp (the device's own limit applies too)
-    double max_torque = 1e9;    // N m
-    bool linearized = true;     // false: feedback from the last visual-loop handle only
-    std::size_t log_capacity = 1 << 16;  // rows (65 s at 1 kHz): the host reads them as they come
-    bool realtime = true;       // live: ask for SCHED_FIFO for the haptic thread (needs CAP_SYS_NICE)
+    SessionParams();  // the table's defaults
+    explicit SessionParams(const hh_session_params& p);
+    double haptic_rate;        // Hz
+    VirtualCoupling coupling;  // two-way, device <-> proxy (and device -> handle without linearization)
+    double max_force;          // N: feedback clamp (the device's own limit applies too)
+    double max_torque;         // N m
+    bool linearized;           // false: feedback from the last visual-loop handle only
+    std::size_t log_capacity;  // rows: the host reads them as they come
+    bool realtime;             // live: ask for SCHED_FIFO for the haptic thread (needs CAP_SYS_NICE)
 };
 
 // What the haptic loop tells the visual loop: the proxy, where the device is.

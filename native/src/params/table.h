@@ -24,6 +24,20 @@ inline void check(const char* json, double value) { check(row(json), &value, 1);
 // Fills a struct HH_STRUCT_* with its rows' defaults (and its struct_size).
 void fill_defaults(int structure, void* s);
 
+// A struct of the table with its rows' defaults: the library's own settings start from these,
+// so a default lives only in its row.
+template <class S, int Structure>
+S defaults() {
+    S s;
+    fill_defaults(Structure, &s);
+    return s;
+}
+inline hh_world_params world_defaults() { return defaults<hh_world_params, HH_STRUCT_WORLD_PARAMS>(); }
+inline hh_session_params session_defaults() { return defaults<hh_session_params, HH_STRUCT_SESSION_PARAMS>(); }
+
+// The default of a scalar row (by its JSON path) that has no C struct.
+inline double default_of(const char* json) { return row(json).default_value[0]; }
+
 // Checks struct_size, then every row of the struct: the first bad field throws.
 void validate(int structure, const void* s);
 

@@ -8,8 +8,21 @@
 #include <chrono>
 
 #include "common/clock.h"
+#include "params/table.h"
 
 namespace hh {
+
+WorldSettings::WorldSettings() : WorldSettings(params::world_defaults()) {}
+
+WorldSettings::WorldSettings(const hh_world_params& p)
+    : dt(p.dt),
+      gravity(p.gravity[0], p.gravity[1], p.gravity[2]),
+      contact_thickness(p.contact_thickness),
+      contact_patch(p.contact_patch),
+      max_iterations(p.max_iterations),
+      tolerance(p.tolerance),
+      stall_factor(p.stall_factor),
+      threads(p.threads) {}
 
 World::World(const WorldSettings& s) : settings(s) {
     if (settings.threads > 1) worker_ = std::make_unique<Worker>();

@@ -19,19 +19,23 @@
 
 namespace hh {
 
+// The world's settings: the hh_world_params rows of the parameter table (their meanings and
+// ranges are there); a default-constructed one holds the table's defaults.
 struct WorldSettings {
-    double dt = 1.0 / 30.0;
-    Vec3 gravity = Vec3(0, 0, -9.81);
-    double contact_thickness = 1e-3;  // m: surfaces are kept this far apart
-    double contact_patch = 4e-3;      // m: one contact per cell of this size per pair of bodies
-    int max_iterations = 300;         // projected Gauss-Seidel sweeps (resting contacts end far sooner)
-    double tolerance = 1e-5;          // m/s: largest constraint velocity error that ends the sweeps
+    WorldSettings();
+    explicit WorldSettings(const hh_world_params& p);
+    double dt;
+    Vec3 gravity;
+    double contact_thickness;  // m: surfaces are kept this far apart
+    double contact_patch;      // m: one contact per cell of this size per pair of bodies
+    int max_iterations;        // projected Gauss-Seidel sweeps (resting contacts end far sooner)
+    double tolerance;          // m/s: largest constraint velocity error that ends the sweeps
     // the sweeps also end once they stall within this factor of the tolerance (solve_pgs); 0: never
-    double stall_factor = 4;
+    double stall_factor;
     // 2: a second thread takes parts of the step (detection, bodies' solves, contact groups)
     // beside the caller's (the results are the same as with 1, bit for bit: only parts that do
     // not depend on each other run side by side; see World::step)
-    int threads = 2;
+    int threads;
 };
 
 struct WorldStats {
