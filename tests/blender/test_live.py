@@ -157,9 +157,10 @@ def test_rigid_and_moving_bodies_move_in_blender_as_in_the_engine(addon, built_s
 
 def test_recorded_live_session_bakes_through_playback_to_the_same_motion(addon, built_scenes, tmp_path):
     """Record a live session (device stream and felt force, to a // file), then Bake
-    Recording: the bake replays the device stream exactly, and the hand moves as it did live,
-    within a frame's worth of the device's motion (the live loops are paced by the wall clock,
-    the bake's by virtual time)."""
+    Recording: the bake replays the device stream exactly, and the hand moves as it did live:
+    a live frame ending at t reads the proxy at t, as the bake's does, so the two differ by the
+    live loops' scheduling jitter, far less than the device's motion in a frame (a frame late,
+    they differ by about one frame's motion)."""
     context = open_copy(built_scenes("hand_wave"), tmp_path)
     s = context.scene.haptic_hand
     hand = s.hand
@@ -194,7 +195,7 @@ def test_recorded_live_session_bakes_through_playback_to_the_same_motion(addon, 
     apart = np.linalg.norm(log["handle_pose"][k[inside], :3] - take["handle_pose"][inside, :3], axis=1)
     travel = np.linalg.norm(log["handle_pose"][:, :3] - log["handle_pose"][0, :3], axis=1).max()
     assert travel > 3 * one_frame, "the hand travels further than the tolerance below"
-    assert apart.max() < 1.5 * one_frame, (apart.max(), one_frame)
+    assert apart.max() < 0.2 * one_frame, (apart.max(), one_frame)
 
 
 def test_blend_relative_paths_work_everywhere(addon, built_scenes, tmp_path):

@@ -333,10 +333,14 @@ void Session::visual_thread() noexcept {
         const double start = wall_now();
         const double sim_start = world_.time;
         while (!stop_.load(std::memory_order_acquire) && !failed()) {
-            visual_step();
-            // keep simulated time from running ahead of the wall clock
-            const double ahead = (world_.time - sim_start) - (wall_now() - start);
+            // A step ends at world time t + dt and drives the handle to the proxy: wait until the
+            // wall clock gets there, so that the proxy it reads is the one at t + dt, as offline
+            // (run_offline) and in a bake of the same recording. Waiting before the step rather
+            // than after it shows each frame just as late (by the step's cost), and labels it right.
+            const double ahead = (world_.time + world_.settings.dt - sim_start) - (wall_now() - start);
             if (ahead > 0) std::this_thread::sleep_for(std::chrono::duration<double>(ahead));
+            if (stop_.load(std::memory_order_acquire) || failed()) break;
+            visual_step();
         }
     } catch (const std::exception& e) {
         fail((std::string("the visual loop stopped: ") + e.what()).c_str());
