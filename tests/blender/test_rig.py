@@ -240,3 +240,31 @@ def test_tet_count_estimate_asks_above_the_limit(addon):
     coarse = child.estimate_tets(v, f, 0.1, 1.0) - child.estimate_tets(v, f, 1.0, 1.0)
     fine = child.estimate_tets(v, f, 0.01, 1.0) - child.estimate_tets(v, f, 1.0, 1.0)
     assert fine / coarse == pytest.approx(1000, rel=0.02)
+
+
+def test_check_rig_in_blender_reports_the_droop_and_refuses_a_soft_rig(addon, built_scenes, tmp_path, monkeypatch):
+    """Check Rig runs the engine's static settle on the exported scene. With the sample's springs
+    the hand is ready; with springs of 20 N/m the hand's weight M g hangs on the handle's n
+    springs, which stretch about M g / (n k) (11 mm for the sample's 301 g on 13 nodes): the rig is
+    refused, in Blender's report, with the droop and the fix."""
+    from blender_helpers import open_copy
+
+    from haptic_hand.engine import rig_check
+
+    context = open_copy(built_scenes("hand_wave"), tmp_path)
+    seen = []
+    real = rig_check.format_report
+    monkeypatch.setattr(rig_check, "format_report", lambda report: seen.append(report) or real(report))
+    assert bpy.ops.haptic_hand.check_rig() == {"FINISHED"}
+    checks = {c["name"]: c for c in seen[-1]["checks"]}
+    assert checks["droop"]["ok"] and checks["droop"]["droop"] < rig_check.DROOP_LIMIT
+    context.scene.haptic_hand.spring_stiffness = 20.0
+    with pytest.raises(RuntimeError, match=r"mm under gravity.*try stiffer springs"):  # the ERROR report
+        bpy.ops.haptic_hand.check_rig()
+    checks = {c["name"]: c for c in seen[-1]["checks"]}
+    droop, handle = checks["droop"], checks["handle"]
+    assert not droop["ok"] and droop["droop"] > rig_check.DROOP_LIMIT
+    hand_mass = float(handle["detail"].split(" of ")[-1].split()[0]) * 1e-3  # "... mass 55.8 g of 301.3 g"
+    nodes = int(handle["detail"].split()[0])
+    expected = hand_mass * 9.81 / (nodes * 20.0)
+    assert 0.8 * expected < droop["spring_stretch"] < 1.3 * expected, (droop["spring_stretch"], expected)
