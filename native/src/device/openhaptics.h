@@ -15,7 +15,7 @@ struct OpenHapticsParams {
     std::string library = "libHD.so";  // a path, or a name the dynamic loader searches
     double workspace_scale = 1.0;      // scene metres per device metre
     Vec3 workspace_origin = Vec3::Zero();  // scene point of the device's origin
-    double max_force = 3.3;            // N: the Omni's peak force (FACTS.md)
+    double max_force = 3.3;            // N: the Phantom Omni / Touch's peak force (3D Systems' spec sheet)
 };
 
 class OpenHapticsDevice : public Device {
