@@ -202,6 +202,38 @@ TEST(live_session_runs_both_loops_and_stops_cleanly) {
     CHECK(kSanitized || refused > 0 || minor == 0);
 }
 
+TEST(only_the_live_session_gives_its_world_back) {
+    // Session B is created before A starts and is never started: freeing it must not re-open
+    // the world beside A's visual-loop thread; B may neither start nor step offline meanwhile.
+    LiveRig rig;
+    rig.simulated(1e300);
+    hh_session_params sp;
+    hh_default_session_params(&sp);
+    hh_session* other = nullptr;
+    CHECK(hh_session_create(rig.world, rig.hand, &sp, &other) == HH_OK);
+    const double t[2] = {0, 10};
+    const double x[6] = {rig.com[0], rig.com[1], rig.com[2], rig.com[0], rig.com[1], rig.com[2]};
+    CHECK(hh_session_device_simulated(other, t, x, nullptr, 2, 1.0, 300, 20, 1e300) == HH_OK);
+    CHECK(hh_session_start(rig.session) == HH_OK);
+    hh_world_stats ws;
+    CHECK(hh_world_step(rig.world, &ws) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(hh_session_start(other) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("another live session") != std::string::npos);
+    CHECK(hh_session_run_offline(other, 1) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(hh_session_stop(other) == HH_OK);  // stopping a session that does not run changes nothing
+    CHECK(hh_world_step(rig.world, &ws) == HH_ERR_INVALID_ARGUMENT);
+    hh_session* late = nullptr;
+    CHECK(hh_session_create(rig.world, rig.hand, &sp, &late) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(late == nullptr);
+    hh_session_free(other);
+    CHECK(hh_world_step(rig.world, &ws) == HH_ERR_INVALID_ARGUMENT);
+    hh_session_status st;
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
+    CHECK(st.running == 1 && st.failed == 0);
+    CHECK(hh_session_stop(rig.session) == HH_OK);
+    CHECK(hh_world_step(rig.world, &ws) == HH_OK);  // the owner gave it back
+}
+
 TEST(external_device_takes_poses_from_another_thread) {
     LiveRig rig(false);
     CHECK(hh_session_device_external(rig.session) == HH_OK);

@@ -362,3 +362,23 @@ def test_live_frames_carry_the_poses_of_moving_bodies():
     assert last is not None and last.time > 0
     # the script moves the box 0.1 m/s along x from where it started (frame 0 is t = 0)
     assert last.poses["pusher"][0] - start[0] == pytest.approx(0.1 * last.time, abs=1e-9)
+
+
+def test_closing_a_session_never_started_leaves_the_live_one_in_charge_of_its_world():
+    """Two sessions on one world: B, created before A starts and never started, is closed while
+    A runs. The world stays A's: stepping it from here is refused until A stops."""
+    rig = Rig(hand_scene(gravity=(0.0, 0.0, -9.81)))
+    rig.simulated_user([0.0], [[0, 0, 0]])
+    other = session.create(rig.world, rig.hand, rig.sc)
+    other.device_simulated([0.0], rig.com[None, :])
+    rig.session.start()
+    try:
+        with pytest.raises(native.InvalidInput, match="another live session"):
+            other.start()
+        other.close()
+        with pytest.raises(native.InvalidInput, match="live haptic session is stepping this world"):
+            rig.world.step()
+        assert rig.session.status()["running"]
+    finally:
+        rig.session.stop()
+    rig.world.step()  # A gave the world back

@@ -19,9 +19,22 @@ struct hh_data {
 struct hh_world {
     explicit hh_world(const hh::WorldSettings& s) : w(s) {}
     hh::World w;
-    // set while a live haptic session steps the world on its own thread: the world's entry
-    // points refuse to touch it then (a data race would corrupt the simulation)
-    std::atomic<bool> in_live_session{false};
+    // The live haptic session stepping the world on its own thread, or null. While it is set
+    // the world's entry points refuse to touch the world (a data race would corrupt the
+    // simulation). It belongs to the session that set it: only that session clears it, so
+    // closing another session (never started) leaves it in place.
+    std::atomic<const hh_session*> live_session{nullptr};
+    bool in_live_session() const { return live_session.load(std::memory_order_acquire) != nullptr; }
+    // Claims the world for `s`; false when another session has it.
+    bool claim(const hh_session* s) {
+        const hh_session* expected = nullptr;
+        return live_session.compare_exchange_strong(expected, s, std::memory_order_acq_rel) || expected == s;
+    }
+    // Gives the world back if `s` holds it; another session's claim is left alone.
+    void release(const hh_session* s) {
+        const hh_session* expected = s;
+        live_session.compare_exchange_strong(expected, nullptr, std::memory_order_acq_rel);
+    }
 };
 
 namespace hh::capi {

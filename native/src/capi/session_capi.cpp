@@ -64,7 +64,8 @@ int hh_session_create(hh_world* world, int hand_body, const hh_session_params* p
     return guard([&] {
         require(world && params && out, "hh_session_create: null pointer");
         validate_session_params(*params);
-        require(!world->in_live_session.load(), "this world already has a live session");
+        require(!world->in_live_session(),
+                "a live session is stepping this world: stop it before creating another session on it");
         const hh::SessionParams p(*params);
         *out = new hh_session(world, hand_body, p);
         return HH_OK;
@@ -74,7 +75,7 @@ int hh_session_create(hh_world* world, int hand_body, const hh_session_params* p
 void hh_session_free(hh_session* session) {
     if (!session) return;
     session->s.stop();
-    session->world->in_live_session.store(false);
+    session->world->release(session);  // only if this session holds the world
     delete session;
 }
 
@@ -155,6 +156,9 @@ int hh_session_run_offline(hh_session* session, int visual_steps) {
     return guard([&] {
         hh_session& s = session_of(session);
         require(visual_steps >= 0, "the number of visual steps must be >= 0");
+        const hh_session* live = s.world->live_session.load(std::memory_order_acquire);
+        require(live == nullptr || live == session,
+                "another live session is stepping this world: stop that session before stepping this one offline");
         s.s.run_offline(visual_steps);
         return HH_OK;
     });
@@ -164,13 +168,12 @@ int hh_session_start(hh_session* session) {
     return guard([&] {
         hh_session& s = session_of(session);
         if (s.s.running()) return HH_OK;
-        bool expected = false;
-        require(s.world->in_live_session.compare_exchange_strong(expected, true),
-                "this world already has a live session");
+        require(s.world->claim(session),
+                "another live session is stepping this world: stop that session before starting this one");
         try {
             s.s.start();
         } catch (...) {
-            s.world->in_live_session.store(false);
+            s.world->release(session);
             throw;
         }
         return HH_OK;
@@ -181,7 +184,7 @@ int hh_session_stop(hh_session* session) {
     return guard([&] {
         hh_session& s = session_of(session);
         s.s.stop();
-        s.world->in_live_session.store(false);
+        s.world->release(session);
         return HH_OK;
     });
 }
@@ -293,7 +296,7 @@ int hh_world_set_script(hh_world* world, int body, const double* times, const do
                         const double* quaternions, int n) {
     return guard([&] {
         require(world != nullptr, "null world");
-        require(!world->in_live_session.load(), "a live session is stepping this world: stop it first");
+        require(!world->in_live_session(), "a live session is stepping this world: stop it first");
         require(body >= 0 && body < static_cast<int>(world->w.bodies.size()), "no such body");
         hh::Body& b = *world->w.bodies[body];
         require(b.kind == hh::BodyKind::Kinematic, "only kinematic bodies follow a script");
@@ -306,7 +309,7 @@ int hh_world_coupling_model(const hh_world* world, int hand_body, double wrench0
                             int* held_rows) {
     return guard([&] {
         require(world != nullptr, "null world");
-        require(!world->in_live_session.load(), "a live session is stepping this world: ask the session instead");
+        require(!world->in_live_session(), "a live session is stepping this world: ask the session instead");
         const hh::CouplingModel m = hh::linearize_coupling(world->w, hand_body);
         for (int i = 0; i < 6; ++i) {
             if (wrench0) wrench0[i] = m.wrench[i];

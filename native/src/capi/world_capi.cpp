@@ -16,7 +16,7 @@ namespace {
 
 void require_idle(const hh_world* world) {
     require(world != nullptr, "null world");
-    require(!world->in_live_session.load(std::memory_order_acquire),
+    require(!world->in_live_session(),
             "a live haptic session is stepping this world: read it through the session, or stop the session first");
 }
 
