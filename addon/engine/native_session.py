@@ -65,7 +65,7 @@ def _lib() -> ctypes.CDLL:
         "hh_session_free": ([vp], None),
         "hh_session_device_simulated": ([vp, pd, pd, pd, i, d, d, d, d], i),
         "hh_session_device_playback": ([vp, pd, pd, pd, i, d], i),
-        "hh_session_device_external": ([vp], i),
+        "hh_session_device_external": ([vp, d], i),
         "hh_session_push_device_pose": ([vp, pd, pd], i),
         "hh_session_device_openhaptics": ([vp, ctypes.c_char_p, d, pd, d], i),
         "hh_session_run_offline": ([vp, i], i),
@@ -152,8 +152,11 @@ class NativeSession:
         t, p, q = _trajectory(times, positions, quaternions)
         _check(_lib().hh_session_device_playback(self._handle, _ptr(t), _ptr(p), _ptr(q), len(t), float(fail_at)))
 
-    def device_external(self) -> None:
-        _check(_lib().hh_session_device_external(self._handle))
+    def device_external(self, timeout=None) -> None:
+        """The host pushes the poses (push_device_pose); timeout (s, None: the table's
+        haptics.external_timeout) bounds the wait for the first one."""
+        timeout = table.defaults()["haptics"]["external_timeout"] if timeout is None else timeout
+        _check(_lib().hh_session_device_external(self._handle, float(timeout)))
 
     def push_device_pose(self, position, quaternion=(0, 0, 0, 1)) -> None:
         _check(_lib().hh_session_push_device_pose(self._handle, _ptr(_f64(position, (3,), "position")),

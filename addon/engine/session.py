@@ -60,10 +60,10 @@ def attach_device(session: NativeSession, scene: scenes.Scene, handle_com: np.nd
         path = arg.encode() if arg else (found[0]["path"] if found else None)
         if path is None:
             raise devices.DeviceError("no 3Dconnexion HID device is connected: plug one in, or choose another device")
-        session.device_external()
+        session.device_external(h["external_timeout"])
         return devices.HidSpaceMouse(path, session.push_device_pose, handle_com)
     if kind == "external":
-        session.device_external()
+        session.device_external(h["external_timeout"])
         return None
     raise devices.DeviceError(f"unknown device '{kind}': use simulated, playback:<file>, openhaptics, hid or external")
 

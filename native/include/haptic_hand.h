@@ -355,8 +355,10 @@ int hh_session_device_simulated(hh_session* session, const double* times, const 
                                 double arm_damping, double fail_at);
 int hh_session_device_playback(hh_session* session, const double* times, const double* positions,
                                const double* quaternions, int n, double fail_at);
-/* The host pushes the pose (HID input, Blender's viewport target). */
-int hh_session_device_external(hh_session* session);
+/* The host pushes the pose (HID input, Blender's viewport target). Until the first pose the
+ * device holds the handle's pose; none within timeout (s, haptics.external_timeout) of the
+ * first haptic step fails the session with a message. */
+int hh_session_device_external(hh_session* session, double timeout);
 int hh_session_push_device_pose(hh_session* session, const double position[3], const double quaternion[4]);
 /* OpenHaptics (Touch, Omni): library null means "libHD.so". Device millimetres map to scene
  * metres times workspace_scale about workspace_origin; max_force in N. */

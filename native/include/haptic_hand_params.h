@@ -332,6 +332,11 @@
     X(fail_at, HH_KIND_DOUBLE, 1, "haptics.fail_at", "s", HH_V(0), 0, HH_INF, HH_NULLABLE, 0, 10,      \
       "Fail at", "", "The device reports a disconnection at this time (tests; null: never)",           \
       "a time of at least 0 s, or null")                                                               \
+    X(external_timeout, HH_KIND_DOUBLE, 1, "haptics.external_timeout", "s", HH_V(5), 0, HH_INF,        \
+      HH_OPEN_MIN | HH_UI_SCENE | HH_UI_ADVANCED, 0.5, 60, "External timeout", "",                     \
+      "How long an external device (HID, the viewport target, a script) may take to send its first "   \
+      "pose before the session stops with a message",                                                  \
+      "a few seconds")                                                                                 \
     X(openhaptics_library, HH_KIND_PATH, 0, "haptics.openhaptics.library", "", HH_V(0), 0, 0,          \
       HH_NULLABLE | HH_UI_SCENE | HH_UI_ADVANCED, 0, 0, "OpenHaptics library", "null",                 \
       "Path of libHD.so (null: the system's)", "the path of OpenHaptics' libHD.so")                    \

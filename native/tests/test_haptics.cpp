@@ -236,7 +236,7 @@ TEST(only_the_live_session_gives_its_world_back) {
 
 TEST(external_device_takes_poses_from_another_thread) {
     LiveRig rig(false);
-    CHECK(hh_session_device_external(rig.session) == HH_OK);
+    CHECK(hh_session_device_external(rig.session, 5.0) == HH_OK);
     CHECK(hh_session_start(rig.session) == HH_OK);
     const double q[4] = {0, 0, 0, 1};
     for (int i = 0; i < 100; ++i) {
@@ -252,6 +252,27 @@ TEST(external_device_takes_poses_from_another_thread) {
     CHECK(n > 0);
     // the last device position logged is the last one pushed
     CHECK_LT(std::abs(rows[(n - 1) * HH_LOG_COLUMNS + 3] - (rig.com[0] + 1e-4 * 99)), 1e-12);
+}
+
+TEST(external_device_that_never_connects_holds_the_hand_then_times_out) {
+    LiveRig rig(false);
+    CHECK(hh_session_device_external(rig.session, 0.0) == HH_ERR_INVALID_ARGUMENT);  // must be > 0
+    CHECK(hh_session_device_external(rig.session, 0.1) == HH_OK);
+    CHECK(hh_session_start(rig.session) == HH_OK);
+    sleep_s(0.4);
+    hh_session_status st;
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
+    CHECK(st.failed == 1 && st.running == 0);
+    CHECK(std::string(st.message).find("no pose") != std::string::npos);
+    CHECK(std::string(st.message).find("external_timeout") != std::string::npos);
+    CHECK(hh_session_stop(rig.session) == HH_OK);
+    // while it waited, the device stood where the handle is, not at the world's origin
+    std::vector<double> rows(1000 * HH_LOG_COLUMNS);
+    int n = 0;
+    CHECK(hh_session_read_log(rig.session, rows.data(), 1000, &n) == HH_OK);
+    CHECK(n > 0);
+    for (int r = 0; r < n; ++r)
+        for (int k = 0; k < 3; ++k) CHECK_LT(std::abs(rows[r * HH_LOG_COLUMNS + 3 + k] - rig.com[k]), 1e-12);
 }
 
 TEST(device_that_disconnects_stops_the_session_with_a_message) {

@@ -382,3 +382,31 @@ def test_closing_a_session_never_started_leaves_the_live_one_in_charge_of_its_wo
     finally:
         rig.session.stop()
     rig.world.step()  # A gave the world back
+
+
+def test_an_external_device_that_never_connects_holds_the_hand_then_stops_with_a_message():
+    """Offline, virtual time: the host never pushes a pose. Until the timeout the device stands
+    where the handle is (no pull toward the world's origin); then the run ends with the fix."""
+    rig = Rig(hand_scene())
+    rig.session.device_external(timeout=0.3)
+    with pytest.raises(native.InvalidInput, match=r"no pose within 0\.3 s.*external_timeout"):
+        rig.run(1.0)
+    log = native_session.log_arrays(rig.session.read_log())
+    assert 0.3 - 2e-3 <= log["t"][-1] <= 0.3 + 2e-3
+    assert np.abs(log["device_position"] - rig.com).max() < 1e-12
+    # no gravity, the hand at rest and its device on the handle: nothing to feel
+    assert np.abs(log["force"]).max() < 1e-6
+
+
+def test_a_live_external_device_that_never_connects_ends_the_session_with_a_message():
+    import time
+    sc = hand_scene()
+    sc.data["haptics"]["external_timeout"] = 0.2
+    live = session.LiveSession(scenes.from_dict(sc.data, sc.base_dir), device="external")
+    live.start()
+    deadline = time.monotonic() + 3.0
+    while live.running and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert not live.running
+    live.stop()
+    assert live.error is not None and "no pose within 0.2 s" in live.error

@@ -106,15 +106,12 @@ int hh_session_device_playback(hh_session* session, const double* times, const d
     });
 }
 
-int hh_session_device_external(hh_session* session) {
+int hh_session_device_external(hh_session* session, double timeout) {
     return guard([&] {
         hh_session& s = session_of(session);
         require_stopped(s);
-        const hh::Frame& f = s.s.frame();
-        hh::Pose start;
-        start.position = hh::Vec3(f.handle[0], f.handle[1], f.handle[2]);
-        start.quaternion = hh::Vec4(f.handle[3], f.handle[4], f.handle[5], f.handle[6]);
-        s.s.set_device(std::make_unique<hh::ExternalDevice>(start));
+        hh::params::check("haptics.external_timeout", timeout);
+        s.s.set_device(std::make_unique<hh::ExternalDevice>(s.s.handle_pose(), timeout));
         return HH_OK;
     });
 }

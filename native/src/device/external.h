@@ -2,7 +2,13 @@
 // target empty). The pose crosses threads through a triple buffer: push never waits for the
 // haptic loop and the haptic loop never waits for the host. Input only. The velocity is the
 // difference of the last two poses over the haptic time between them.
+//
+// Until the first pose arrives the device holds the start pose (the handle's, so the hand
+// stays where it is); a host that never pushes one within `timeout` seconds of the first read
+// is a driver that never connected, and the device reports it rather than holding forever.
 #pragma once
+#include <cstdio>
+
 #include "device/device.h"
 #include "common/triple_buffer.h"
 
@@ -10,7 +16,7 @@ namespace hh {
 
 class ExternalDevice : public Device {
 public:
-    explicit ExternalDevice(const Pose& start) : buffer_(start), pose_(start) {}
+    ExternalDevice(const Pose& start, double timeout) : buffer_(start), pose_(start), timeout_(timeout) {}
     const char* name() const override { return "external"; }
     bool outputs_force() const override { return false; }
     void push(const Pose& p) {  // host thread
@@ -18,16 +24,11 @@ public:
         buffer_.publish();
     }
     bool read(double t, Pose& out) noexcept override {
+        if (t_first_ < 0) t_first_ = t;
         if (buffer_.fetch()) {
-            const Pose& p = buffer_.front();
-            const double dt = t - t_last_;
-            if (dt > 0 && seen_) {
-                pose_.velocity = (p.position - pose_.position) / dt;
-            }
-            pose_.position = p.position;
-            pose_.quaternion = p.quaternion;
-            t_last_ = t;
-            seen_ = true;
+            take(buffer_.front(), t);
+        } else if (!seen_ && t - t_first_ > timeout_) {
+            return never_connected(t);
         } else if (t - t_last_ > 0.1) {
             pose_.velocity.setZero();  // no news for a while: the target is at rest
         }
@@ -36,8 +37,29 @@ public:
     }
 
 private:
+    void take(const Pose& p, double t) noexcept {
+        const double dt = t - t_last_;
+        if (dt > 0 && seen_) pose_.velocity = (p.position - pose_.position) / dt;
+        pose_.position = p.position;
+        pose_.quaternion = p.quaternion;
+        t_last_ = t;
+        seen_ = true;
+    }
+    bool never_connected(double t) noexcept {
+        char what[200];
+        std::snprintf(what, sizeof what,
+                      "the external device sent no pose within %.3g s of the start: push poses "
+                      "(LiveSession.set_device_pose, or move the target empty), or raise "
+                      "haptics.external_timeout",
+                      timeout_);
+        fail(what, t);
+        return false;
+    }
+
     TripleBuffer<Pose> buffer_;
     Pose pose_;
+    double timeout_;
+    double t_first_ = -1;
     double t_last_ = 0;
     bool seen_ = false;
 };

@@ -125,6 +125,14 @@ void Session::set_device(std::unique_ptr<Device> device) {
     external_ = dynamic_cast<ExternalDevice*>(device_.get());
 }
 
+Pose Session::handle_pose() const {
+    const HandleState& h = world_.bodies[hand_]->hand->h;
+    Pose p;
+    p.position = h.x_com;
+    p.quaternion = h.q;
+    return p;
+}
+
 void Session::fail(const char* message) noexcept {
     static_assert(sizeof(message_) > 1, "message buffer");
     bool expected = false;

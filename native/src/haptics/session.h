@@ -77,6 +77,8 @@ public:
 
     void set_device(std::unique_ptr<Device> device);
     ExternalDevice* external_device() { return external_; }
+    // The handle's pose now (a stopped session): where a device that has not spoken yet holds it.
+    Pose handle_pose() const;
 
     // Offline: visual_steps visual steps, each preceded by its haptic steps, in the caller's
     // thread. Throws InvalidArgument when the device disconnects (the state so far is kept).
