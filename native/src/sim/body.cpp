@@ -53,18 +53,56 @@ void Body::update_surface_positions() {
     }
 }
 
-double Body::fastest_speed() const {
+namespace {
+// m: the farthest of `points` from `centre`
+double farthest(const std::vector<Vec3>& points, const Vec3& centre) {
+    double arm = 0;
+    for (const Vec3& p : points) arm = std::max(arm, (p - centre).norm());
+    return arm;
+}
+
+// m: how far a point at most `arm` from the centre moves when the pose goes from (x0, q0) to
+// (x1, q1): the centre's displacement plus the arc of the rotation between them
+double pose_travel(const Vec3& x0, const Vec4& q0, const Vec3& x1, const Vec4& q1, double arm) {
+    const double angle = quat_to_rotation_vector(quat_multiply(q1, quat_conjugate(q0))).norm();
+    return (x1 - x0).norm() + angle * arm;
+}
+
+double fastest_node(const VecX& v) {
     double speed = 0;
-    if (kind == BodyKind::Hand || kind == BodyKind::Soft) {
-        const VecX& v = kind == BodyKind::Hand ? hand->v : state.v;
-        for (Eigen::Index k = 0; k + 2 < v.size(); k += 3) speed = std::max(speed, v.segment<3>(k).squaredNorm());
-        speed = std::sqrt(speed);
-    } else if (kind == BodyKind::Rigid || kind == BodyKind::Kinematic) {
-        double arm = 0;  // farthest surface point from the centre of mass
-        for (const Vec3& p : mesh.local) arm = std::max(arm, p.norm());
-        speed = rigid.v_com.norm() + rigid.omega.norm() * arm;
+    for (Eigen::Index k = 0; k + 2 < v.size(); k += 3) speed = std::max(speed, v.segment<3>(k).squaredNorm());
+    return std::sqrt(speed);
+}
+}  // namespace
+
+// Bounds from what the step knows before it starts. Start-of-step velocities alone miss what
+// is driven: a scripted pusher or a prescribed handle that is still at the start of a fast
+// move, or a hand whose device has jumped away; their end-of-step targets are known already.
+double Body::step_travel(double dt) const {
+    switch (kind) {
+        case BodyKind::Soft: return fastest_node(state.v) * dt;
+        case BodyKind::Hand: {
+            const HandleState& h = hand->h;
+            const DeviceFrame& d = hand->device;
+            const double arm = farthest(points, h.x_com);
+            double travel = std::max(fastest_node(hand->v), h.v_com.norm() + h.omega.norm() * arm) * dt;
+            if (d.enabled) {  // the handle goes to the device's pose (prescribed) or is pulled toward it
+                travel = std::max(travel, pose_travel(h.x_com, h.q, d.position, d.quaternion, arm));
+                travel = std::max(travel, (d.velocity.norm() + d.angular_velocity.norm() * arm) * dt);
+            }
+            return travel;
+        }
+        case BodyKind::Rigid: {
+            const double arm = farthest(mesh.local, Vec3::Zero());
+            return (rigid.v_com.norm() + rigid.omega.norm() * arm) * dt;
+        }
+        case BodyKind::Kinematic: {
+            const double arm = farthest(mesh.local, Vec3::Zero());
+            const double moving = (rigid.v_com.norm() + rigid.omega.norm() * arm) * dt;
+            return std::max(moving, pose_travel(rigid.x_com, rigid.q, target.x_com, target.q, arm));
+        }
+        default: return 0;
     }
-    return speed;
 }
 
 void SoftParts::solve_free(FleshState& state, double dt, const Vec3& gravity, const VecX& carried, VecX& v_free) {

@@ -102,8 +102,9 @@ struct Body {
     void update_points();
     // the surface's vertex positions from the points (normals and boxes: the next detection)
     void update_surface_positions();
-    // m/s: the speed of its fastest point (flesh nodes; a mesh body's |v| + |omega| r_max)
-    double fastest_speed() const;
+    // m: how far its farthest-moving surface point can travel in the next step of dt (speculative
+    // contact's reach, World::begin_detection)
+    double step_travel(double dt) const;
 };
 
 // Mass, centre of mass and inertia about it of a closed, outward-wound triangle mesh of

@@ -14,6 +14,7 @@
 
 #include "common/clock.h"
 #include "sim/world_contact.h"
+#include "rigid/quaternion.h"
 #include "solver/block_ldlt.h"
 
 namespace hh {
@@ -25,10 +26,14 @@ constexpr int kResponseShares = 4;
 // Response columns (double) above which a group's are formed in shares (setup_contact_group)
 constexpr size_t kSharedColumnsBytes = size_t(4) << 20;
 
-// Kinematic and static bodies: the velocity of a world point carried by the body.
-Vec3 carried_velocity(const Body& b, const Vec3& x) {
+// Kinematic and static bodies: the velocity over the step of a world point carried by the
+// body, from where the body is to its end-of-step target (World::integrate puts it there).
+// Its displacement over dt, not its start-of-step velocity: a pusher that sets off fast this
+// step moves now, and the gap the contact closes is the one it really crosses.
+Vec3 carried_velocity(const Body& b, const Vec3& x, double dt) {
     if (b.kind != BodyKind::Kinematic) return Vec3::Zero();
-    return b.rigid.v_com + b.rigid.omega.cross(x - b.rigid.x_com);
+    const Vec3 local = quat_to_matrix(b.rigid.q).transpose() * (x - b.rigid.x_com);
+    return (b.target.x_com + quat_to_matrix(b.target.q) * local - x) / dt;
 }
 
 // A contact row's direction in the world: normal, tangent1, tangent2 (rows 3c, 3c + 1, 3c + 2)
@@ -153,7 +158,7 @@ void World::prepare_contacts() {
             const Body& b = *bodies[side.body];
             if (b.kind != BodyKind::Kinematic) continue;
             const Vec3 p = side.count > 0 ? side.point(b.surface) : k.point;
-            const Vec3 vel = carried_velocity(b, p);
+            const Vec3 vel = carried_velocity(b, p, settings.dt);
             for (int d = 0; d < 3; ++d) u_free[3 * c + d] += (s == 0 ? 1.0 : -1.0) * direction(3 * c + d).dot(vel);
         }
     }

@@ -25,15 +25,16 @@ void World::begin_detection() {
     // are found every step instead of flickering in and out at the edge of the reach.
     const double base = 1.5 * settings.contact_thickness;
     // Fast surfaces may close more than that within a step: each body is looked at further by
-    // how far its fastest point can travel in the step, so a falling or thrown body meets what
+    // how far its farthest-moving point can travel in the step (Body::step_travel: from its
+    // velocities and, for what is driven, its end-of-step target), so a falling or thrown body meets what
     // it will hit as an open contact whose gap the solve closes exactly within the step
     // (speculative contact) instead of tunnelling in. Per body, so that one fast body does not
     // widen every pair's search. (It was one reach for all, capped at two thicknesses: the
     // 10x letters fell 16 mm into the ground.)
     motion_.assign(bodies.size(), 0.0);
     for (size_t i = 0; i < bodies.size(); ++i) {
-        const double speed = bodies[i]->fastest_speed();
-        motion_[i] = std::isfinite(speed) ? speed * settings.dt : 0.0;
+        const double travel = bodies[i]->step_travel(settings.dt);
+        motion_[i] = std::isfinite(travel) ? travel : 0.0;
     }
     // The trees' margin: the self-collision reach (one body's parts, such as fingers, move
     // against each other far slower than the body moves); pairs with a fast body reach further
