@@ -184,3 +184,56 @@ TEST(schur_for_b_bones_equals_the_monolithic_solve) {
     // the prescribed bone's rows: v_b is its target velocity relative to the frame
     CHECK_LT((d.skeleton.s.segment<6>(6) - d.skeleton.r.segment<6>(6)).norm(), 1e-14 * d.skeleton.r.segment<6>(6).norm());
 }
+
+TEST(the_b_bone_step_with_one_bone_is_todays_step) {
+    // The B-bone formulation (skeleton frame, per-bone blocks, SkeletonSystem) run on a one-bone
+    // model against today's single-handle step (which step() takes for one bone): the same
+    // equations, so the same step to round-off, from a deformed state spinning about a turned
+    // handle, free (the free frame's momentum correction), coupled and prescribed.
+    const BoxMesh box = make_box(6, 3, 3, 0.01);
+    hh_params p;
+    hh_default_params(&p);
+    p.rayleigh_alpha = 0.5;
+    p.palm_seed[0] = 0.03;
+    p.palm_seed[1] = p.palm_seed[2] = 0.015;
+    p.handle_radius = 0.012;
+    const Model m = build_model(box.nodes.data(), box.n_nodes(), box.tets.data(), box.n_tets(), p);
+    CHECK(m.n_bones() == 1);
+    double worst = 0;
+    for (int mode = 0; mode < 3; ++mode) {
+        Data today(m), general(m);
+        for (Data* d : {&today, &general}) {
+            std::mt19937 rng(17);
+            std::normal_distribution<double> g(0, 1);
+            const Vec3 omega(0.8, -1.5, 2.0);
+            d->h.q = quat_from_rotation_vector(Vec3(0.2, 0.4, -0.3));
+            const Mat3 r = quat_to_matrix(d->h.q);
+            for (int i = 0; i < m.mesh.n_nodes; ++i) {
+                const Vec3 x = m.handle.rest_com + r * (m.mesh.rest.segment<3>(3 * i) - m.handle.rest_com);
+                d->x.segment<3>(3 * i) = x + 3e-4 * Vec3(g(rng), g(rng), g(rng));
+                d->v.segment<3>(3 * i) = omega.cross(x - m.handle.rest_com) + 0.02 * Vec3(g(rng), g(rng), g(rng));
+            }
+            d->h.v_com = Vec3(0.02, -0.01, 0.03);
+            d->h.omega = omega;
+            d->device.enabled = mode > 0;
+            d->device.prescribed = mode == 2;
+            d->device.position = m.handle.rest_com + Vec3(0.002, 0, 0);
+            d->device.quaternion = quat_from_rotation_vector(Vec3(0.25, 0.35, -0.2));
+            d->device.velocity = Vec3(0.05, 0, 0);
+            d->device.angular_velocity = Vec3(0, 0.5, 0);
+        }
+        for (int k = 0; k < 8; ++k) {
+            step(m, today, false);
+            step_skeleton(m, general, false);
+        }
+        auto rel = [](const VecX& a, const VecX& b) { return (a - b).cwiseAbs().maxCoeff() / b.cwiseAbs().maxCoeff(); };
+        const double here = std::max({rel(general.v, today.v), rel(general.x - m.mesh.rest, today.x - m.mesh.rest),
+                          (general.h.omega - today.h.omega).norm() / today.h.omega.norm(),
+                          (general.h.v_com - today.h.v_com).norm() / today.h.v_com.norm(),
+                          (general.h.q - today.h.q).norm()});
+        std::printf("  mode %d: %.2g\n", mode, here);
+        worst = std::max(worst, here);
+    }
+    std::printf("one bone, B-bone step against today's: %.2g relative\n", worst);
+    CHECK_LT(worst, 1e-10);
+}
