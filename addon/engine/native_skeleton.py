@@ -55,6 +55,8 @@ def library() -> ctypes.CDLL:
         "hh_set_bone_states": ([vp, vp, i, _pd, _pd, _pd, _pd], i),
         "hh_set_bone_targets": ([vp, vp, i, _pi, _pd, _pd, _pd, _pd], i),
         "hh_bone_wrenches": ([vp, vp, i, _pd], i),
+        "hh_bone_linear_model": ([vp, vp, i, _pd, _pd], i),
+        "hh_bone_response": ([vp, vp, i, _pd, _pd], i),
     }
     for name, (args, res) in sig.items():
         fn = getattr(lib, name)
@@ -187,4 +189,20 @@ class SkeletonSimulation(native.HandSimulation):
         b = self.model.n_bones
         out = np.empty((b, 6))
         _check(library().hh_bone_wrenches(self.model._handle, self._handle, b, _ptr(out)))
+        return out
+
+    def bone_linear_model(self) -> tuple[np.ndarray, np.ndarray]:
+        """(wrench0 (6B,), response (6B, 6B)): every bone's springs' wrench at the end of the next
+        step, with every bone driven at the end velocity v_h (6B), is wrench0 + response @ v_h."""
+        b = self.model.n_bones
+        w0, r = np.empty(6 * b), np.empty((6 * b, 6 * b))
+        _check(library().hh_bone_linear_model(self.model._handle, self._handle, b, _ptr(w0), _ptr(r)))
+        return w0, r
+
+    def bone_response(self, velocities) -> np.ndarray:
+        """The same wrenches (6B,) without linearizing, for the bones' end velocities (6B,)."""
+        b = self.model.n_bones
+        v = _f64(velocities, (6 * b,), "bone end velocities")
+        out = np.empty(6 * b)
+        _check(library().hh_bone_response(self.model._handle, self._handle, b, _ptr(v), _ptr(out)))
         return out

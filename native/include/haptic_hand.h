@@ -279,6 +279,15 @@ int hh_set_bone_targets(const hh_model* model, hh_data* data, int n_bones, const
 /* Each bone's springs' wrench at the current state: out[B][6] = (force, torque about its centre
  * of mass), Eq. 5 summed over its nodes. */
 int hh_bone_wrenches(const hh_model* model, const hh_data* data, int n_bones, double* out);
+/* The 6B x 6B model of the hand alone (docs/skeleton.md, Section 6, no contacts), from the
+ * current state (not changed): the step with every bone driven at the end-of-step velocity
+ * v_h = (v_1, omega_1, ..., v_B, omega_B) (prescribed to the pose that velocity reaches from the
+ * step's frame), and every bone's springs' wrench at the end of that step as a linear function
+ * of v_h about v_h = 0: W(v_h) = wrench0 + response v_h, its exact derivative. wrench0[6B],
+ * response[6B * 6B] row-major. One bone: hh_coupling_linear_model. */
+int hh_bone_linear_model(const hh_model* model, const hh_data* data, int n_bones, double* wrench0, double* response);
+/* The same wrenches without linearizing, for the end velocities velocities[6B]: out[6B]. */
+int hh_bone_response(const hh_model* model, const hh_data* data, int n_bones, const double* velocities, double* out);
 
 
 /* ===================== scenes with contact (the visual loop) =====================

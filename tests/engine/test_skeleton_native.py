@@ -265,3 +265,61 @@ def test_free_spinning_skeleton_keeps_its_linear_momentum(sample_hand):
         sim.step()
     assert np.abs(sim.linear_momentum() - p0).max() < 1e-9 * np.abs(p0).max()
     assert np.abs(sim.bone_states()[3][0] - w).max() > 1e-3  # the bones moved apart from the rigid spin
+
+
+# --------------------------------------------------------------------------------------------
+# The 6B x 6B model of the hand alone (docs/skeleton.md, Section 6)
+# --------------------------------------------------------------------------------------------
+
+
+def driven_hand(sample_hand):
+    """The 16-bone hand after three steps from moving bones coupled to displaced targets."""
+    nodes, tets = sample_hand
+    model = ns.SkeletonModel(nodes, tets, sk.procedural_hand_skeleton())
+    sim = ns.SkeletonSimulation(model)
+    rng = np.random.default_rng(2)
+    p, q, _, _ = sim.bone_states()
+    sim.set_bone_states(p, q, 0.05 * rng.standard_normal((16, 3)), 0.5 * rng.standard_normal((16, 3)))
+    sim.set_bone_targets(np.full(16, ns.COUPLED), p + 0.003 * rng.standard_normal((16, 3)), q)
+    for _ in range(3):
+        sim.step()
+    return model, sim, rng
+
+
+def test_bone_model_has_second_order_error_in_every_direction(sample_hand):
+    """W(h d) - (wrench0 + response h d) falls as h^2 over three decades of h, in every bone's
+    six directions and in random directions of all 96 at once (the full re-solved step,
+    hh_bone_response); in the directions where the step is linear (a bone's translation: its
+    springs are linear in positions, and the step is one linear solve) it is round-off."""
+    model, sim, rng = driven_hand(sample_hand)
+    w0, r = sim.bone_linear_model()
+    assert np.array_equal(w0, sim.bone_response(np.zeros(96)))
+    directions = list(np.eye(96) * np.tile([0.05] * 3 + [0.5] * 3, 16))
+    directions += [np.tile([0.05] * 3 + [0.5] * 3, 16) * rng.standard_normal(96) for _ in range(3)]
+    scale = np.abs(w0).max()
+    curved = 0
+    for d in directions:
+        errors = np.array([np.abs(sim.bone_response(h * d) - w0 - r @ (h * d)).max() for h in (1.0, 0.1, 0.01, 0.001)])
+        if errors[0] < 1e-10 * scale:  # linear in this direction: round-off at every h
+            assert errors.max() < 1e-10 * scale
+            continue
+        curved += 1
+        slopes = np.log10(errors[:-1] / errors[1:])
+        assert (np.abs(slopes - 2) < 0.05).all(), (d.nonzero(), errors, slopes)
+    assert curved >= 16 * 3 + 3  # every rotation direction and the random ones are curved
+
+
+def test_one_bone_model_is_the_palm_handles_model():
+    nodes, tets = bar()
+    seed, radius = np.zeros(3), 0.012
+    today = native.HandSimulation(native.HandModel(nodes, tets, palm_seed=seed, handle_radius=radius))
+    one = ns.SkeletonSimulation(ns.SkeletonModel(nodes, tets, sk.palm_handle_skeleton(seed, radius)))
+    for sim in (today, one):
+        sim.set_state(handle_velocity=[0.02, 0, 0], handle_angular_velocity=[0.3, -0.5, 0.2])
+        sim.set_device([0.001, 0, 0], quat.from_rotation_vector([0.1, 0, 0]), enabled=1)
+        sim.step()
+    w0, r = today.coupling_linear_model()
+    b0, br = one.bone_linear_model()
+    assert np.array_equal(w0, b0) and np.array_equal(r, br)
+    v = np.array([0.01, -0.02, 0.0, 0.2, 0.1, -0.3])
+    assert np.array_equal(today.coupling_response(v), one.bone_response(v))

@@ -7,6 +7,7 @@
 
 #include "haptic_hand.h"
 #include "params/table.h"
+#include "haptics/bone_model.h"
 #include "sim/skeleton_step.h"
 
 #include "capi/guard.h"
@@ -212,6 +213,28 @@ int hh_bone_wrenches(const hh_model* model, const hh_data* data, int n_bones, do
         require(data && out, "hh_bone_wrenches: null pointer");
         const std::vector<hh::Vec6> w = hh::bone_wrenches(model->m, data->d);
         for (int b = 0; b < n_bones; ++b) std::memcpy(out + 6 * b, w[b].data(), 6 * sizeof(double));
+        return HH_OK;
+    });
+}
+
+int hh_bone_linear_model(const hh_model* model, const hh_data* data, int n_bones, double* wrench0, double* response) {
+    return guard([&] {
+        require_bones(model, n_bones, "bone linear model");
+        require(data && wrench0 && response, "hh_bone_linear_model: null pointer");
+        const hh::BoneLinearModel bm = hh::bone_linear_model(model->m, data->d);
+        const int n = 6 * n_bones;
+        std::copy(bm.wrench0.data(), bm.wrench0.data() + n, wrench0);
+        Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(response, n, n) = bm.response;
+        return HH_OK;
+    });
+}
+
+int hh_bone_response(const hh_model* model, const hh_data* data, int n_bones, const double* velocities, double* out) {
+    return guard([&] {
+        require_bones(model, n_bones, "bone response");
+        require(data && velocities && out, "hh_bone_response: null pointer");
+        const hh::VecX w = hh::bone_response(model->m, data->d, Eigen::Map<const hh::VecX>(velocities, 6 * n_bones));
+        std::copy(w.data(), w.data() + 6 * n_bones, out);
         return HH_OK;
     });
 }

@@ -61,7 +61,8 @@ void SkeletonSystem::solve() {
     // Eq. 12: v_t = A_t^-1 b_t - (A_t^-1 A_th) v_h
     s.resize(nh + n3);
     s.head(nh) = vh;
-    s.tail(n3) = solved_.col(0) - solved_.rightCols(nh) * vh;
+    response_ = solved_.rightCols(nh);
+    s.tail(n3) = solved_.col(0) - response_ * vh;
     if (!s.allFinite()) throw NumericalError("the skeleton's step is not finite: reduce the time step");
     tool.s = s.tail(n3);
 }

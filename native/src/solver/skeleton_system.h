@@ -30,9 +30,11 @@ public:
     void solve();
     double t_deformable = 0, t_schur = 0;  // s in the tool's solves, in forming and solving S
     MatX schur;                            // S of the last solve (6B x 6B)
+    // After solve(): A_t^-1 A_th (3n x 6B), the flesh's velocity response to the bones'
+    const MatX& flesh_response() const { return response_; }
 
 private:
-    MatX rhs_, solved_;
+    MatX rhs_, solved_, response_;
     double schur_condition_ = 0;  // of the last step's S (0: none yet)
 };
 
