@@ -16,7 +16,7 @@ import numpy as np
 HH_OK = 0
 HH_ERR_INVALID_ARGUMENT = -1
 HH_ERR_NUMERICAL = -2
-API_VERSION = 2
+API_VERSION = 3
 
 _HERE = Path(__file__).resolve().parent
 LIBRARY_NAME = "libhaptic_hand.so"

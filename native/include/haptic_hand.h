@@ -38,7 +38,7 @@ extern "C" {
  * (the rule bench/bench_soft_solver.py supports; docs/contact.md). */
 #define HH_SOLVER_AUTO 3
 
-#define HH_API_VERSION 2
+#define HH_API_VERSION 3
 
 typedef struct hh_model hh_model;
 typedef struct hh_data hh_data;
@@ -95,6 +95,8 @@ int hh_api_version(void);
 #define HH_STRUCT_WORLD_PARAMS 2
 #define HH_STRUCT_MATERIAL 3
 #define HH_STRUCT_SESSION_PARAMS 4
+#define HH_STRUCT_SKELETON_DESC 5 /* hh_skeleton_desc (no parameter rows; struct_size only) */
+#define HH_STRUCT_BONE_INFO 6     /* hh_bone_info */
 
 /* One row of the table, as declared there (strings live in the library). A row shared by two
  * structs (dt, gravity, the coupling) comes once for each, with the same values. */
@@ -206,6 +208,86 @@ int hh_energies(const hh_model* model, const hh_data* data, double* kinetic, dou
                 double* spring);
 /* Linear momentum of flesh plus handle (kg m/s). */
 int hh_linear_momentum(const hh_model* model, const hh_data* data, double out[3]);
+
+/* ===================== a skeleton of many handles (docs/skeleton.md) =====================
+ * B rigid bones, each a handle of Section 4 with its own nodes, springs and virtual coupling to
+ * its own target. Arrays are row-major and contiguous, bones in skeleton order, quaternions
+ * (x, y, z, s). A one-bone model behaves exactly as today's, and the handle functions above
+ * (hh_get_state's handle, hh_set_device, hh_coupling_wrench, hh_model_info_get's handle fields)
+ * address bone 0, the root. With more than one bone, hh_compare_solvers, the hand-alone
+ * linearizations (hh_coupling_*) and hh_world_add_hand are refused (not built yet). */
+#define HH_BONE_FREE 0       /* no target: carried by the flesh */
+#define HH_BONE_COUPLED 1    /* follows its target through its virtual coupling */
+#define HH_BONE_PRESCRIBED 2 /* reaches its target pose at the end of the step */
+
+/* Bones: parents[B] (-1 for a root; a tree), heads[B][3], tails[B][3], radii[B] (m). Explicit
+ * node sets (Blender vertex groups): bone b's nodes are set_nodes[set_offsets[b] ..
+ * set_offsets[b+1]) (B + 1 non-decreasing offsets; an empty range: capture by distance); both may
+ * be NULL (no explicit sets). names[B] (NULL: "bone 0", "bone 1", ...) name the bones in messages.
+ * drive_scales[B] (NULL: all 1) multiply each bone's virtual coupling gains (0: free). */
+typedef struct hh_skeleton_desc {
+    int struct_size;
+    int n_bones;
+    const int* parents;
+    const double* heads;
+    const double* tails;
+    const double* radii;
+    const int* set_offsets;
+    const int* set_nodes;
+    const char* const* names;
+    const double* drive_scales;
+} hh_skeleton_desc;
+
+/* The capture rule without a model: a node in an explicit set is that bone's; any other goes to
+ * the nearest bone segment among the capsules holding it (ties to the bone listed first).
+ * out_node_bone[n_nodes] (-1: flesh only), out_counts[B]. HH_ERR_INVALID_ARGUMENT with
+ * hh_model_create_skeleton's message when a bone holds fewer than 4 nodes, a node is in two
+ * explicit sets, every node is held, or the bones are not a valid tree. */
+int hh_skeleton_capture(const double* rest_positions, int n_nodes, const hh_skeleton_desc* skeleton,
+                        int* out_node_bone, int* out_counts);
+/* hh_model_create with bones instead of the palm handle (params->palm_seed and handle_radius are
+ * not read). One bone with head = tail = seed and radius = handle_radius is today's model. */
+int hh_model_create_skeleton(const double* rest_positions, int n_nodes, const int* tets, int n_tets,
+                             const hh_params* params, const hh_skeleton_desc* skeleton, hh_model** out_model);
+
+typedef struct hh_bone_info {
+    int struct_size;
+    int parent;
+    int n_nodes;         /* captured */
+    double mass;         /* kg, Eq. 3 */
+    double com[3];       /* m, rest centre of mass: the body frame's origin */
+    double inertia[9];   /* kg m^2, row-major, about com, world axes at rest */
+    double drive[4];     /* k (N/m), d (N s/m), k_r (N m/rad), d_r (N m s/rad) of its virtual coupling */
+} hh_bone_info;
+int hh_model_bone_count(const hh_model* model, int* out_n_bones);
+/* out->struct_size must be set by the caller (sizeof(hh_bone_info)). */
+int hh_model_bone_info(const hh_model* model, int bone, hh_bone_info* out);
+int hh_model_bone_nodes(const hh_model* model, int bone, int* out_nodes, int capacity, int* out_count);
+/* out_node_bone[n_nodes]: each node's bone, -1 for flesh only. */
+int hh_model_node_bones(const hh_model* model, int* out_node_bone, int n_nodes);
+
+/* Bone states, all B at once (any pointer may be NULL): positions[B][3] (centres of mass),
+ * quaternions[B][4], velocities[B][3], angular_velocities[B][3] (world frame). */
+int hh_get_bone_states(const hh_model* model, const hh_data* data, int n_bones, double* positions,
+                       double* quaternions, double* velocities, double* angular_velocities);
+int hh_set_bone_states(const hh_model* model, hh_data* data, int n_bones, const double* positions,
+                       const double* quaternions, const double* velocities, const double* angular_velocities);
+/* Targets at the end of the next step: modes[B] (HH_BONE_*), poses as above (NULL positions or
+ * quaternions: kept; NULL velocities: zero). The root's target is what hh_set_device sets. */
+int hh_set_bone_targets(const hh_model* model, hh_data* data, int n_bones, const int* modes, const double* positions,
+                        const double* quaternions, const double* velocities, const double* angular_velocities);
+/* Each bone's springs' wrench at the current state: out[B][6] = (force, torque about its centre
+ * of mass), Eq. 5 summed over its nodes. */
+int hh_bone_wrenches(const hh_model* model, const hh_data* data, int n_bones, double* out);
+/* The 6B x 6B model of the hand alone (docs/skeleton.md, Section 6, no contacts), from the
+ * current state (not changed): the step with every bone driven at the end-of-step velocity
+ * v_h = (v_1, omega_1, ..., v_B, omega_B) (prescribed to the pose that velocity reaches from the
+ * step's frame), and every bone's springs' wrench at the end of that step as a linear function
+ * of v_h about v_h = 0: W(v_h) = wrench0 + response v_h, its exact derivative. wrench0[6B],
+ * response[6B * 6B] row-major. One bone: hh_coupling_linear_model. */
+int hh_bone_linear_model(const hh_model* model, const hh_data* data, int n_bones, double* wrench0, double* response);
+/* The same wrenches without linearizing, for the end velocities velocities[6B]: out[6B]. */
+int hh_bone_response(const hh_model* model, const hh_data* data, int n_bones, const double* velocities, double* out);
 
 
 /* ===================== scenes with contact (the visual loop) =====================

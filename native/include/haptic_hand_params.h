@@ -159,7 +159,16 @@
       "Relative residual at which the hand's CG stops", "1e-8 for cg, 1e-6 is enough on the reused factor") \
     X(cg_max_iterations, HH_KIND_INT, 1, "solver.cg_max_iterations", "", HH_V(5000), 1, 1e8,           \
       HH_UI_SCENE | HH_UI_ADVANCED, 10, 20000, "CG iterations", "",                                    \
-      "Most iterations the hand's CG may take per solve", "a few thousand")
+      "Most iterations the hand's CG may take per solve", "a few thousand") \
+    X(drive_frequency, HH_KIND_DOUBLE, 1, "skeleton.drive.frequency", "Hz", HH_V(20), 0, HH_INF,       \
+      HH_OPEN_MIN | HH_UI_SCENE | HH_UI_ADVANCED, 1, 100, "Bone drive frequency", "",                  \
+      "Natural frequency of each non-root bone's virtual coupling to its target: its gains scale "     \
+      "with the bone's mass and inertia (docs/skeleton.md, Section 4)",                                \
+      "a few tens of Hz: a finger follows its animation within a frame or two")                        \
+    X(drive_damping_ratio, HH_KIND_DOUBLE, 1, "skeleton.drive.damping_ratio", "", HH_V(1), 0, HH_INF,  \
+      HH_UI_SCENE | HH_UI_ADVANCED, 0, 4, "Bone drive damping ratio", "",                              \
+      "Damping ratio of the non-root bones' virtual couplings (1: critically damped)",                 \
+      "about 1; 0 leaves the fingers ringing about their targets")
 
 /* hh_world_params: the visual loop's world (contact and Coulomb friction). */
 #define HH_WORLD_PARAMS_ROWS(X)                                                                        \

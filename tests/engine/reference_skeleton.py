@@ -301,9 +301,16 @@ def _bone_block(rig: Rig, state: State, drive: Drive, b: int, s: Springs, s_rest
     return ah, bh
 
 
-def assemble(rig: Rig, state: State, drive: Drive):
+def assemble(rig: Rig, state: State, drive: Drive, still_jacobians: bool = False):
     """The matrix (sparse, (6B + 3n)^2) and right-hand side of Eq. 7, unknowns (v_h, v_t) with
-    v_h = (v_1, omega_1, ..., v_B, omega_B)."""
+    v_h = (v_1, omega_1, ..., v_B, omega_B).
+
+    still_jacobians: the springs' Jacobians taken at zero velocities (every x, omega at the
+    state's positions, every v and omega zero) instead of the state's. The two differ only in the
+    velocity-dependent parts of dF/dx (the damping's turn d [omega]x [R r]x and the [F_B]x term's
+    damping force). The native step linearizes about the velocities of its rigid frame (the root
+    bone's turn, docs/maths.md "Rotation-consistent integration"), which are zero when the root
+    does not turn: with the root's omega = 0 and this flag the two steps are the same step."""
     dt, n, nb = rig.dt, rig.n, len(rig.bones)
     off = 6 * nb
     f_el, kel = elastic(rig, state.x)
@@ -330,7 +337,11 @@ def assemble(rig: Rig, state: State, drive: Drive):
     for b, bone in enumerate(rig.bones):
         nodes = bone.nodes
         args = (bone.r_body, state.bx[b], state.bq[b], state.bv[b], state.bw[b])
-        s = springs(rig.k, rig.d, state.x[nodes], state.v[nodes], *args)
+        if still_jacobians:
+            s = springs(rig.k, rig.d, state.x[nodes], np.zeros((len(nodes), 3)), bone.r_body, state.bx[b],
+                        state.bq[b], np.zeros(3), np.zeros(3))
+        else:
+            s = springs(rig.k, rig.d, state.x[nodes], state.v[nodes], *args)
         s_rest = springs(rig.k, rig.d, state.x[nodes], np.zeros((len(nodes), 3)), bone.r_body, state.bx[b],
                          state.bq[b], np.zeros(3), np.zeros(3))
         ah, bh[6 * b:6 * b + 6] = _bone_block(rig, state, drive, b, s, s_rest)
@@ -388,8 +399,8 @@ def integrate(rig: Rig, state: State, s: np.ndarray) -> State:
                    bw=vh[:, 3:].copy())
 
 
-def step(rig: Rig, state: State, drive: Drive, solver: str = "monolithic") -> State:
+def step(rig: Rig, state: State, drive: Drive, solver: str = "monolithic", still_jacobians: bool = False) -> State:
     """One implicit step of Eq. 7 from state under drive."""
-    a, rhs = assemble(rig, state, drive)
+    a, rhs = assemble(rig, state, drive, still_jacobians)
     s = solve_monolithic(a, rhs) if solver == "monolithic" else solve_schur(a, rhs, len(rig.bones))
     return integrate(rig, state, s)

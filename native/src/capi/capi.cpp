@@ -223,6 +223,7 @@ int hh_step_monolithic(const hh_model* model, hh_data* data, hh_step_stats* out_
 int hh_compare_solvers(const hh_model* model, const hh_data* data, double* out_relative_difference) {
     return guard([&] {
         require(model && data && out_relative_difference, "hh_compare_solvers: null pointer");
+        hh::capi::require_one_bone(model->m, "hh_compare_solvers");
         hh::Data work(model->m);
         work.x = data->d.x;
         work.v = data->d.v;
@@ -271,6 +272,7 @@ hh::Mat3 left_jacobian(const hh::Vec3& phi) {
 int hh_coupling_linear_model(const hh_model* model, const hh_data* data, double wrench0[6], double response[36]) {
     return guard([&] {
         require(model && data && wrench0 && response, "hh_coupling_linear_model: null pointer");
+        hh::capi::require_one_bone(model->m, "hh_coupling_linear_model");
         const hh::Model& m = model->m;
         const double dt = m.params.dt;
         // the step with v_h = 0 (the handle ends where it starts) and the model's stiffness there,
@@ -291,6 +293,7 @@ int hh_coupling_linear_model(const hh_model* model, const hh_data* data, double 
 int hh_coupling_response(const hh_model* model, const hh_data* data, const double handle_velocity[6], double wrench[6]) {
     return guard([&] {
         require(model && data && handle_velocity && wrench, "hh_coupling_response: null pointer");
+        hh::capi::require_one_bone(model->m, "hh_coupling_response");
         const hh::Model& m = model->m;
         hh::Vec6 vh;
         for (int i = 0; i < 6; ++i) vh[i] = handle_velocity[i];
@@ -309,6 +312,7 @@ int hh_coupling_response(const hh_model* model, const hh_data* data, const doubl
 int hh_coupling_model(const hh_model* model, const hh_data* data, double wrench0[6], double stiffness[36]) {
     return guard([&] {
         require(model && data && wrench0 && stiffness, "hh_coupling_model: null pointer");
+        hh::capi::require_one_bone(model->m, "hh_coupling_model");
         const hh::CouplingModel cm = hh::hand_coupling_model(model->m, data->d, hh::Mat6::Zero());
         for (int i = 0; i < 6; ++i) {
             wrench0[i] = cm.wrench[i];
@@ -338,6 +342,12 @@ int hh_energies(const hh_model* model, const hh_data* data, double* kinetic, dou
         for (int i = 0; i < m.mesh.n_nodes; ++i) ke += 0.5 * m.masses[i] * d.v.segment<3>(3 * i).squaredNorm();
         ke += 0.5 * m.handle.mass * d.h.v_com.squaredNorm();
         ke += 0.5 * d.h.omega.dot(hh::handle_world_inertia(m, d.h) * d.h.omega);
+        for (int b = 1; b < m.n_bones(); ++b) {  // a skeleton's other bones (docs/skeleton.md)
+            const hh::HandleState& h = hh::bone_state(d, b);
+            const hh::Mat3 rb = hh::quat_to_matrix(h.q);
+            ke += 0.5 * m.skeleton.bones[b].mass * h.v_com.squaredNorm();
+            ke += 0.5 * h.omega.dot(rb * m.skeleton.bones[b].inertia_body * rb.transpose() * h.omega);
+        }
         hh::VecX f = hh::VecX::Zero(d.x.size());
         const double ee = hh::add_elastic_forces(m.mesh, m.elements, d.x, f, nullptr);
         double se = 0;
@@ -345,6 +355,15 @@ int hh_energies(const hh_model* model, const hh_data* data, double* kinetic, dou
         for (size_t j = 0; j < m.handle.nodes.size(); ++j) {
             const hh::Vec3 e = d.x.segment<3>(3 * m.handle.nodes[j]) - d.h.x_com - r * m.handle.r_body[j];
             se += 0.5 * m.params.spring_stiffness * e.squaredNorm();
+        }
+        for (int b = 1; b < m.n_bones(); ++b) {
+            const hh::HandleModel& bone = m.skeleton.bones[b];
+            const hh::HandleState& h = hh::bone_state(d, b);
+            const hh::Mat3 rb = hh::quat_to_matrix(h.q);
+            for (size_t j = 0; j < bone.nodes.size(); ++j) {
+                const hh::Vec3 e = d.x.segment<3>(3 * bone.nodes[j]) - h.x_com - rb * bone.r_body[j];
+                se += 0.5 * m.params.spring_stiffness * e.squaredNorm();
+            }
         }
         if (kinetic) *kinetic = ke;
         if (elastic) *elastic = ee;
@@ -359,6 +378,7 @@ int hh_linear_momentum(const hh_model* model, const hh_data* data, double out[3]
         const hh::Model& m = model->m;
         hh::Vec3 p = m.handle.mass * data->d.h.v_com;
         for (int i = 0; i < m.mesh.n_nodes; ++i) p += m.masses[i] * data->d.v.segment<3>(3 * i);
+        for (int b = 1; b < m.n_bones(); ++b) p += m.skeleton.bones[b].mass * hh::bone_state(data->d, b).v_com;
         put3(p, out);
         return HH_OK;
     });

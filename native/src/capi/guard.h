@@ -80,6 +80,13 @@ inline void require_size(int given, int expected, const char* what) {
                               " does not match the model's " + std::to_string(expected));
 }
 inline Vec3 vec3(const double* p) { return Vec3(p[0], p[1], p[2]); }
+// The entry points built for the palm handle alone (docs/skeleton.md: the hand-alone
+// linearization, the solver comparison and the world take one bone until the skeleton reaches them).
+inline void require_one_bone(const Model& m, const char* what) {
+    if (m.n_bones() != 1)
+        throw InvalidArgument(std::string(what) + " takes a hand with one handle; this model has " +
+                              std::to_string(m.n_bones()) + " bones (a skeleton): not supported there yet");
+}
 
 // The device frame with the given fields replaced (null: kept), checked and normalized; shared
 // by the hand's and the world's hh_*_set_device.

@@ -153,6 +153,8 @@ int struct_size(int structure) {
         case HH_STRUCT_WORLD_PARAMS: return sizeof(hh_world_params);
         case HH_STRUCT_MATERIAL: return sizeof(hh_material);
         case HH_STRUCT_SESSION_PARAMS: return sizeof(hh_session_params);
+        case HH_STRUCT_SKELETON_DESC: return sizeof(hh_skeleton_desc);
+        case HH_STRUCT_BONE_INFO: return sizeof(hh_bone_info);
         default: throw InvalidArgument("unknown parameter struct " + std::to_string(structure));
     }
 }

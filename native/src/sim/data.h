@@ -7,6 +7,7 @@
 #include "sim/model.h"
 #include "sim/step_frame.h"
 #include "solver/hand_system.h"
+#include "solver/skeleton_system.h"
 
 namespace hh {
 
@@ -39,7 +40,23 @@ struct Data : FleshState {
     // model differentiates the springs' wrench (haptics/coupling_model.cpp); else empty.
     std::vector<Mat63> end_aht;
     hh_step_stats stats{};
+
+    // A skeleton of B > 1 bones (docs/skeleton.md): the states and targets of bones 1..B-1 at
+    // index b - 1 (the root's are h and device, so every single-handle entry point addresses the
+    // root), each bone's state carried by the step's frame, its coupling blocks, and the coupled
+    // system of Eq. 7 for B bones. Empty with one bone: the step is today's (data.hand).
+    std::vector<HandleState> bones;
+    std::vector<DeviceFrame> targets;
+    std::vector<HandleState> carried;
+    std::vector<CouplingBlocks> bone_coupling;
+    SkeletonSystem skeleton{tool};
 };
+
+// Bone b's state and target (bone 0: h and device).
+inline HandleState& bone_state(Data& d, int b) { return b == 0 ? d.h : d.bones[b - 1]; }
+inline const HandleState& bone_state(const Data& d, int b) { return b == 0 ? d.h : d.bones[b - 1]; }
+inline DeviceFrame& bone_target(Data& d, int b) { return b == 0 ? d.device : d.targets[b - 1]; }
+inline const DeviceFrame& bone_target(const Data& d, int b) { return b == 0 ? d.device : d.targets[b - 1]; }
 
 void reset(const Model& model, Data& data);
 void configure_solver(const Model& model, Data& data);

@@ -82,7 +82,36 @@ Model build_model(const double* rest_positions, int n_nodes, const int* tets, in
         throw InvalidArgument(msg.str());
     }
     m.handle = build_handle(m.mesh.rest, m.masses, seed, params.handle_radius);
+    m.skeleton = palm_skeleton(m.handle, n_nodes);
     return m;
+}
+
+Model build_skeleton_model(const double* rest_positions, int n_nodes, const int* tets, int n_tets,
+                           const hh_params& params, const std::vector<BoneDesc>& bones) {
+    require(rest_positions && tets, "rest positions and tets must not be null");
+    require(n_nodes >= 5, "the hand mesh needs at least 5 nodes (a bone of 4 and some flesh); got " +
+                              std::to_string(n_nodes));
+    validate_params(params);
+    Model m;
+    static_cast<Flesh&>(m) = build_flesh(rest_positions, n_nodes, tets, n_tets,
+                                         Material{params.young_modulus, params.poisson_ratio, params.density});
+    m.params = params;
+    m.skeleton = build_skeleton(m.mesh.rest, m.masses, bones);
+    m.handle = m.skeleton.bones[0];
+    return m;
+}
+
+Vec4 bone_drive(const Model& model, int bone) {
+    const hh_params& p = model.params;
+    const double scale = model.skeleton.drive_scale[bone];
+    if (bone == 0)
+        return scale * Vec4(p.coupling_stiffness, p.coupling_damping, p.coupling_angular_stiffness,
+                            p.coupling_angular_damping);
+    // k = m w^2, d = 2 zeta m w: every bone reaches its target in the same time whatever its mass
+    const HandleModel& h = model.skeleton.bones[bone];
+    const double w = 2 * M_PI * p.drive_frequency, zeta = p.drive_damping_ratio;
+    const double mean_inertia = h.inertia_body.trace() / 3;
+    return scale * Vec4(h.mass * w * w, 2 * zeta * h.mass * w, mean_inertia * w * w, 2 * zeta * mean_inertia * w);
 }
 
 }  // namespace hh

@@ -3,6 +3,7 @@
 #include "common/clock.h"
 #include "rigid/quaternion.h"
 #include "sim/data.h"
+#include "sim/skeleton_step.h"
 
 namespace hh {
 
@@ -19,6 +20,13 @@ void reset(const Model& model, Data& data) {
     data.h.x_com = model.handle.rest_com;
     data.device = DeviceFrame{};
     data.device.position = model.handle.rest_com;
+    const int nb = model.n_bones();
+    data.bones.assign(nb - 1, HandleState{});
+    data.targets.assign(nb - 1, DeviceFrame{});
+    for (int b = 1; b < nb; ++b) {  // at rest, each target the bone's rest pose
+        data.bones[b - 1].x_com = model.skeleton.bones[b].rest_com;
+        data.targets[b - 1].position = model.skeleton.bones[b].rest_com;
+    }
 }
 
 void configure_solver(const Model& model, Data& data) {
@@ -154,6 +162,7 @@ void integrate(const Model& model, Data& data, const VecX& s) {
 }
 
 void step(const Model& model, Data& data, bool monolithic) {
+    if (model.n_bones() > 1) return step_skeleton(model, data, monolithic);  // (one bone: today's step)
     using clock = std::chrono::steady_clock;
     const auto t0 = clock::now();
     formulate(model, data);

@@ -1,0 +1,208 @@
+"""ctypes bindings of the native skeleton of many handles (native/include/haptic_hand.h, the
+skeleton section; docs/skeleton.md): a hand model whose handles are the bones of a
+skeleton.Skeleton, their capture, info, states, targets and wrenches.
+
+The structures hh_skeleton_desc and hh_bone_info are checked against hh_struct_size when first
+used, as the parameter structs are (engine/params.py)."""
+
+from __future__ import annotations
+
+import ctypes
+
+import numpy as np
+
+from . import native
+from .native import InvalidInput, _check, _f64, _ptr
+from .skeleton import Skeleton
+
+FREE, COUPLED, PRESCRIBED = 0, 1, 2  # HH_BONE_*
+_STRUCT_SKELETON_DESC, _STRUCT_BONE_INFO = 5, 6  # HH_STRUCT_*
+
+_pd, _pi = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int)
+
+
+class SkeletonDesc(ctypes.Structure):
+    _fields_ = [("struct_size", ctypes.c_int), ("n_bones", ctypes.c_int), ("parents", _pi), ("heads", _pd),
+                ("tails", _pd), ("radii", _pd), ("set_offsets", _pi), ("set_nodes", _pi),
+                ("names", ctypes.POINTER(ctypes.c_char_p)), ("drive_scales", _pd)]
+
+
+class BoneInfo(ctypes.Structure):
+    _fields_ = [("struct_size", ctypes.c_int), ("parent", ctypes.c_int), ("n_nodes", ctypes.c_int),
+                ("mass", ctypes.c_double), ("com", ctypes.c_double * 3), ("inertia", ctypes.c_double * 9),
+                ("drive", ctypes.c_double * 4)]
+
+
+_lib = None
+
+
+def library() -> ctypes.CDLL:
+    """The native library with the skeleton's signatures declared and its structs checked."""
+    global _lib
+    if _lib is not None:
+        return _lib
+    lib = native.library()
+    d, i, vp = ctypes.c_double, ctypes.c_int, ctypes.c_void_p
+    pdesc = ctypes.POINTER(SkeletonDesc)
+    sig = {
+        "hh_skeleton_capture": ([_pd, i, pdesc, _pi, _pi], i),
+        "hh_model_create_skeleton": ([_pd, i, _pi, i, vp, pdesc, ctypes.POINTER(vp)], i),
+        "hh_model_bone_count": ([vp, _pi], i),
+        "hh_model_bone_info": ([vp, i, ctypes.POINTER(BoneInfo)], i),
+        "hh_model_bone_nodes": ([vp, i, _pi, i, _pi], i),
+        "hh_model_node_bones": ([vp, _pi, i], i),
+        "hh_get_bone_states": ([vp, vp, i, _pd, _pd, _pd, _pd], i),
+        "hh_set_bone_states": ([vp, vp, i, _pd, _pd, _pd, _pd], i),
+        "hh_set_bone_targets": ([vp, vp, i, _pi, _pd, _pd, _pd, _pd], i),
+        "hh_bone_wrenches": ([vp, vp, i, _pd], i),
+        "hh_bone_linear_model": ([vp, vp, i, _pd, _pd], i),
+        "hh_bone_response": ([vp, vp, i, _pd, _pd], i),
+    }
+    for name, (args, res) in sig.items():
+        fn = getattr(lib, name)
+        fn.argtypes = args
+        fn.restype = res
+    for struct, sid in ((SkeletonDesc, _STRUCT_SKELETON_DESC), (BoneInfo, _STRUCT_BONE_INFO)):
+        size = ctypes.c_int()
+        _check(lib.hh_struct_size(sid, ctypes.byref(size)))
+        if size.value != ctypes.sizeof(struct):
+            raise native.NativeError(f"{struct.__name__} is {ctypes.sizeof(struct)} bytes here and {size.value} in the "
+                                     f"library: rebuild it with `make native`")
+    _lib = lib
+    return lib
+
+
+class _Desc:
+    """A skeleton.Skeleton as hh_skeleton_desc, with the arrays it points into kept alive."""
+
+    def __init__(self, skeleton: Skeleton, drive_scales=None):
+        bones = skeleton.bones
+        b = len(bones)
+        self.parents = np.ascontiguousarray(skeleton.parents, dtype=np.int32)
+        self.heads = _f64([bone.head for bone in bones], (b, 3), "bone heads")
+        self.tails = _f64([bone.tail for bone in bones], (b, 3), "bone tails")
+        self.radii = _f64([bone.radius for bone in bones], (b,), "bone radii")
+        sets = [np.asarray([] if bone.nodes is None else bone.nodes) for bone in bones]
+        for bone, nodes in zip(bones, sets):
+            if nodes.size and nodes.dtype.kind not in "iu":
+                raise InvalidInput(f"bone '{bone.name}': its node set must be integer node indices")
+        self.offsets = np.ascontiguousarray(np.concatenate([[0], np.cumsum([s.size for s in sets])]), dtype=np.int32)
+        self.nodes = np.ascontiguousarray(np.concatenate(sets + [np.zeros(0)]), dtype=np.int32)
+        self.names = (ctypes.c_char_p * b)(*[bone.name.encode() for bone in bones])
+        self.scales = None if drive_scales is None else _f64(drive_scales, (b,), "drive scales")
+        self.desc = SkeletonDesc(ctypes.sizeof(SkeletonDesc), b, _ptr(self.parents, ctypes.c_int), _ptr(self.heads),
+                                 _ptr(self.tails), _ptr(self.radii), _ptr(self.offsets, ctypes.c_int),
+                                 _ptr(self.nodes, ctypes.c_int), self.names, _ptr(self.scales))
+
+
+def capture(nodes, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """The native capture rule: each node's bone (-1: flesh only) and each bone's node count."""
+    return _capture(nodes, _Desc(skeleton))
+
+
+def _capture(nodes, desc: _Desc) -> tuple[np.ndarray, np.ndarray]:
+    x = native._points(nodes, "nodes")
+    owner = np.empty(len(x), dtype=np.int32)
+    counts = np.empty(desc.desc.n_bones, dtype=np.int32)
+    _check(library().hh_skeleton_capture(_ptr(x), len(x), ctypes.byref(desc.desc), _ptr(owner, ctypes.c_int),
+                                         _ptr(counts, ctypes.c_int)))
+    return owner, counts
+
+
+class SkeletonModel(native.HandModel):
+    """hh_model built by hh_model_create_skeleton: the bones of `skeleton` are the handles
+    (params palm_seed and handle_radius are not read)."""
+
+    def __init__(self, nodes, tets, skeleton: Skeleton, drive_scales=None, **params):
+        from . import params as table
+
+        self.nodes = native._points(nodes, "nodes")
+        self.tets = native._indices(tets, 4, "tets")
+        self.skeleton = skeleton
+        desc = _Desc(skeleton, drive_scales)
+        p = table.new_struct(table.STRUCT_PARAMS, native._solver_index(params))
+        handle = ctypes.c_void_p()
+        _check(library().hh_model_create_skeleton(
+            _ptr(self.nodes), self.nodes.shape[0], _ptr(self.tets, ctypes.c_int), self.tets.shape[0],
+            ctypes.byref(p), ctypes.byref(desc.desc), ctypes.byref(handle)))
+        self._handle = handle
+
+    @property
+    def n_bones(self) -> int:
+        out = ctypes.c_int()
+        _check(library().hh_model_bone_count(self._handle, ctypes.byref(out)))
+        return out.value
+
+    def bone_info(self, bone: int) -> dict:
+        i = BoneInfo()
+        i.struct_size = ctypes.sizeof(BoneInfo)
+        _check(library().hh_model_bone_info(self._handle, int(bone), ctypes.byref(i)))
+        return {"parent": i.parent, "n_nodes": i.n_nodes, "mass": i.mass, "com": np.array(i.com),
+                "inertia": np.array(i.inertia).reshape(3, 3), "drive": np.array(i.drive)}
+
+    def bone_nodes(self, bone: int) -> np.ndarray:
+        n = self.bone_info(bone)["n_nodes"]
+        out = np.empty(n, dtype=np.int32)
+        count = ctypes.c_int()
+        _check(library().hh_model_bone_nodes(self._handle, int(bone), _ptr(out, ctypes.c_int), n, ctypes.byref(count)))
+        return out
+
+    def node_bones(self) -> np.ndarray:
+        out = np.empty(self.n_nodes, dtype=np.int32)
+        _check(library().hh_model_node_bones(self._handle, _ptr(out, ctypes.c_int), self.n_nodes))
+        return out
+
+
+class SkeletonSimulation(native.HandSimulation):
+    """hh_data of a SkeletonModel: the HandSimulation calls address the root bone; these all bones."""
+
+    def bone_states(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(positions (B, 3), quaternions (B, 4), velocities (B, 3), angular velocities (B, 3))."""
+        b = self.model.n_bones
+        p, q, v, w = np.empty((b, 3)), np.empty((b, 4)), np.empty((b, 3)), np.empty((b, 3))
+        _check(library().hh_get_bone_states(self.model._handle, self._handle, b, _ptr(p), _ptr(q), _ptr(v), _ptr(w)))
+        return p, q, v, w
+
+    def set_bone_states(self, positions=None, quaternions=None, velocities=None, angular_velocities=None) -> None:
+        b = self.model.n_bones
+        args = [None if a is None else _f64(a, (b, k), name)
+                for a, k, name in ((positions, 3, "bone positions"), (quaternions, 4, "bone quaternions"),
+                                   (velocities, 3, "bone velocities"), (angular_velocities, 3, "bone angular velocities"))]
+        _check(library().hh_set_bone_states(self.model._handle, self._handle, b, *(_ptr(a) for a in args)))
+
+    def set_bone_targets(self, modes, positions=None, quaternions=None, velocities=None,
+                         angular_velocities=None) -> None:
+        """Each bone's target at the end of the next step: modes (B,) FREE, COUPLED or PRESCRIBED."""
+        b = self.model.n_bones
+        m = np.asarray(modes)
+        if m.shape != (b,) or m.dtype.kind not in "iu":
+            raise InvalidInput(f"bone modes must be {b} integers (FREE 0, COUPLED 1, PRESCRIBED 2), got {m!r}")
+        m = np.ascontiguousarray(m, dtype=np.int32)
+        args = [None if a is None else _f64(a, (b, k), name)
+                for a, k, name in ((positions, 3, "target positions"), (quaternions, 4, "target quaternions"),
+                                   (velocities, 3, "target velocities"), (angular_velocities, 3, "target angular velocities"))]
+        _check(library().hh_set_bone_targets(self.model._handle, self._handle, b, _ptr(m, ctypes.c_int),
+                                             *(_ptr(a) for a in args)))
+
+    def bone_wrenches(self) -> np.ndarray:
+        """(B, 6): each bone's springs' (force, torque about its centre of mass)."""
+        b = self.model.n_bones
+        out = np.empty((b, 6))
+        _check(library().hh_bone_wrenches(self.model._handle, self._handle, b, _ptr(out)))
+        return out
+
+    def bone_linear_model(self) -> tuple[np.ndarray, np.ndarray]:
+        """(wrench0 (6B,), response (6B, 6B)): every bone's springs' wrench at the end of the next
+        step, with every bone driven at the end velocity v_h (6B), is wrench0 + response @ v_h."""
+        b = self.model.n_bones
+        w0, r = np.empty(6 * b), np.empty((6 * b, 6 * b))
+        _check(library().hh_bone_linear_model(self.model._handle, self._handle, b, _ptr(w0), _ptr(r)))
+        return w0, r
+
+    def bone_response(self, velocities) -> np.ndarray:
+        """The same wrenches (6B,) without linearizing, for the bones' end velocities (6B,)."""
+        b = self.model.n_bones
+        v = _f64(velocities, (6 * b,), "bone end velocities")
+        out = np.empty(6 * b)
+        _check(library().hh_bone_response(self.model._handle, self._handle, b, _ptr(v), _ptr(out)))
+        return out

@@ -1,0 +1,159 @@
+#include "rigid/skeleton.h"
+
+#include <cmath>
+#include <sstream>
+
+namespace hh {
+
+namespace {
+void require(bool ok, const std::string& message) {
+    if (!ok) throw InvalidArgument(message);
+}
+
+std::string quoted(const BoneDesc& bone) { return "bone '" + bone.name + "'"; }
+
+// The explicit sets' owners (docs/skeleton.md: a node in two sets is an error).
+std::vector<int> explicit_owners(int n, const std::vector<BoneDesc>& bones) {
+    std::vector<int> owner(n, -1);
+    for (size_t b = 0; b < bones.size(); ++b) {
+        if (!bones[b].explicit_set) continue;
+        for (int i : bones[b].nodes) {
+            // (messages built only on failure: this runs per node)
+            if (i < 0 || i >= n)
+                throw InvalidArgument(quoted(bones[b]) + ": node " + std::to_string(i) +
+                                      " of its vertex group is not a tet node (0.." + std::to_string(n - 1) +
+                                      "): map the vertex group to the tet nodes again");
+            if (owner[i] == static_cast<int>(b)) continue;  // listed twice in its own set
+            if (owner[i] >= 0)
+                throw InvalidArgument("node " + std::to_string(i) + " is in the vertex groups of both '" +
+                                      bones[owner[i]].name + "' and '" + bones[b].name +
+                                      "'; a node belongs to at most one bone: remove it from one group");
+            owner[i] = static_cast<int>(b);
+        }
+    }
+    return owner;
+}
+
+void check_counts(const std::vector<int>& owner, const std::vector<BoneDesc>& bones) {
+    std::vector<int> count(bones.size(), 0);
+    int held = 0;
+    for (int b : owner)
+        if (b >= 0) ++count[b], ++held;
+    for (size_t b = 0; b < bones.size(); ++b) {
+        if (count[b] >= 4) continue;
+        std::ostringstream msg;
+        msg << quoted(bones[b]) << ": ";
+        if (bones[b].explicit_set)
+            msg << "its vertex group holds " << count[b] << " node(s) of its own; a rigid bone needs at least 4: "
+                << "add vertices to its vertex group";
+        else
+            msg << "its capsule of radius " << bones[b].radius << " m captures " << count[b]
+                << " node(s) of its own; a rigid bone needs at least 4: increase its radius or move its segment "
+                   "into the flesh";
+        throw InvalidArgument(msg.str());
+    }
+    require(held < static_cast<int>(owner.size()),
+            "the bones capture all " + std::to_string(owner.size()) +
+                " nodes, so nothing of the hand is soft: decrease the capsule radii");
+}
+}  // namespace
+
+double segment_distance(const Vec3& p, const Vec3& head, const Vec3& tail) {
+    const Vec3 ab = tail - head;
+    const double length2 = ab.squaredNorm();
+    if (length2 == 0.0) return (p - head).norm();
+    const double t = std::min(1.0, std::max(0.0, (p - head).dot(ab) / length2));
+    return (p - (head + t * ab)).norm();
+}
+
+void check_skeleton(const std::vector<BoneDesc>& bones) {
+    const int nb = static_cast<int>(bones.size());
+    require(nb >= 1, "a skeleton needs at least one bone");
+    for (int b = 0; b < nb; ++b) {
+        const BoneDesc& bone = bones[b];
+        for (int c = 0; c < b; ++c)
+            require(bones[c].name != bone.name, "two bones are named '" + bone.name + "': bone names must be unique");
+        require(bone.parent >= -1 && bone.parent < nb,
+                quoted(bone) + " has parent " + std::to_string(bone.parent) +
+                    ", which is not a bone of the skeleton: name an existing bone or none (-1, a root)");
+        require(bone.head.allFinite() && bone.tail.allFinite(),
+                quoted(bone) + " has a non-finite head or tail: give three finite coordinates in metres");
+        require(bone.explicit_set || (std::isfinite(bone.radius) && bone.radius > 0),
+                quoted(bone) + " has capsule radius " + std::to_string(bone.radius) +
+                    " m and no vertex group: give it a positive radius (a few millimetres for a phalanx) or a "
+                    "vertex group");
+        require(std::isfinite(bone.drive_scale) && bone.drive_scale >= 0,
+                quoted(bone) + " has a negative or non-finite drive scale: give 0 (free) or a positive factor");
+    }
+    for (int b = 0; b < nb; ++b) {  // every chain of parents ends at a root
+        int j = bones[b].parent;
+        for (int steps = 0; j >= 0; ++steps, j = bones[j].parent)
+            require(steps < nb, quoted(bones[b]) + " is its own ancestor: the parents must form a tree");
+    }
+}
+
+std::vector<int> capture_skeleton(const VecX& rest, const std::vector<BoneDesc>& bones) {
+    check_skeleton(bones);
+    const int n = static_cast<int>(rest.size() / 3);
+    std::vector<int> owner = explicit_owners(n, bones);
+    for (int i = 0; i < n; ++i) {
+        if (owner[i] >= 0) continue;
+        double best = 0;
+        for (size_t b = 0; b < bones.size(); ++b) {
+            if (bones[b].explicit_set) continue;
+            const double d = segment_distance(rest.segment<3>(3 * i), bones[b].head, bones[b].tail);
+            // the nearest segment wins (a thin finger bone takes the knuckle from the fat palm
+            // capsule around it); strictly nearer, so an exact tie stays with the bone listed first
+            if (d <= bones[b].radius && (owner[i] < 0 || d < best)) {
+                owner[i] = static_cast<int>(b);
+                best = d;
+            }
+        }
+    }
+    check_counts(owner, bones);
+    return owner;
+}
+
+SkeletonModel build_skeleton(const VecX& rest, const VecX& node_masses, const std::vector<BoneDesc>& bones) {
+    SkeletonModel s;
+    s.node_bone = capture_skeleton(rest, bones);
+    s.bones.resize(bones.size());
+    for (size_t i = 0; i < s.node_bone.size(); ++i)
+        if (s.node_bone[i] >= 0) s.bones[s.node_bone[i]].nodes.push_back(static_cast<int>(i));
+    for (size_t b = 0; b < bones.size(); ++b) {
+        HandleModel& h = s.bones[b];
+        // Eq. 3 in the order of build_handle, so one bone is today's handle bit for bit
+        for (int i : h.nodes) {
+            h.mass += node_masses[i];
+            h.rest_com += node_masses[i] * rest.segment<3>(3 * i);
+        }
+        h.rest_com /= h.mass;
+        for (int i : h.nodes) {
+            const Vec3 r = rest.segment<3>(3 * i) - h.rest_com;
+            h.r_body.push_back(r);
+            h.inertia_body += node_masses[i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
+        }
+        Eigen::SelfAdjointEigenSolver<Mat3> eig(h.inertia_body);
+        require(eig.eigenvalues().minCoeff() > 1e-12 * eig.eigenvalues().maxCoeff(),
+                quoted(bones[b]) + ": its " + std::to_string(h.nodes.size()) +
+                    " nodes lie on a line, so its inertia is singular: increase its radius so it holds nodes off "
+                    "its axis");
+        s.parents.push_back(bones[b].parent);
+        s.names.push_back(bones[b].name);
+        s.drive_scale.push_back(bones[b].drive_scale);
+    }
+    return s;
+}
+
+SkeletonModel palm_skeleton(const HandleModel& handle, int n_nodes) {
+    SkeletonModel s;
+    s.bones = {handle};
+    s.parents = {-1};
+    s.names = {"palm"};
+    s.drive_scale = {1.0};
+    s.node_bone.assign(n_nodes, -1);
+    for (int i : handle.nodes) s.node_bone[i] = 0;
+    return s;
+}
+
+}  // namespace hh

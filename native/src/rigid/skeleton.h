@@ -1,0 +1,53 @@
+// A skeleton of B rigid bones, each a handle of Section 4 (docs/skeleton.md, Section 1): the
+// capture of tet nodes by bone (explicit node sets first, then the nearest bone segment among
+// the capsules holding the node), its checks, and Eq. 3 per bone. One bone with head = tail =
+// the palm seed and radius = the handle radius captures exactly today's palm handle
+// (rigid/handle.cpp), node for node and in the same ascending order.
+#pragma once
+#include <string>
+#include <vector>
+
+#include "rigid/handle.h"
+
+namespace hh {
+
+struct BoneDesc {
+    std::string name;
+    int parent = -1;  // index of the parent bone, -1 for a root
+    Vec3 head = Vec3::Zero(), tail = Vec3::Zero();
+    double radius = 0;          // capsule radius (m); unused with an explicit set
+    bool explicit_set = false;  // the bone holds exactly `nodes` (a Blender vertex group)
+    std::vector<int> nodes;
+    double drive_scale = 1;  // multiplies its virtual coupling's gains (0: free)
+};
+
+// The static skeleton of a model: one handle model per bone (Eq. 3), bone 0 the root.
+struct SkeletonModel {
+    std::vector<HandleModel> bones;
+    std::vector<int> parents;
+    std::vector<std::string> names;
+    std::vector<double> drive_scale;
+    std::vector<int> node_bone;  // per tet node: its bone, -1 for flesh only
+};
+
+// Distance of p to the segment [head, tail]; |p - head| exactly when head == tail (so a
+// zero-length bone is the palm handle's sphere, bit for bit).
+double segment_distance(const Vec3& p, const Vec3& head, const Vec3& tail);
+
+// Throws InvalidArgument naming the bone and the fix: empty skeleton, repeated names, parents
+// out of range or not a tree, non-finite segments, a capsule bone without a positive radius.
+void check_skeleton(const std::vector<BoneDesc>& bones);
+
+// Each node's bone (-1: flesh only) by the capture rule, after every check of the capture (at
+// least 4 nodes per bone, a node in at most one explicit set, explicit nodes in range, not
+// every node held). Bones are checked first (check_skeleton).
+std::vector<int> capture_skeleton(const VecX& rest, const std::vector<BoneDesc>& bones);
+
+// Eq. 3 per bone from the lumped masses, nodes ascending; throws when a bone's nodes are
+// collinear (its inertia's smallest eigenvalue at most 1e-12 of its largest, as build_handle).
+SkeletonModel build_skeleton(const VecX& rest, const VecX& node_masses, const std::vector<BoneDesc>& bones);
+
+// The one-bone skeleton of a model built around the palm handle (its handle, called "palm").
+SkeletonModel palm_skeleton(const HandleModel& handle, int n_nodes);
+
+}  // namespace hh

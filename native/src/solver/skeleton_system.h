@@ -1,0 +1,44 @@
+// The coupled system of Eq. 7 for a hand of B rigid bones (docs/skeleton.md, Section 3):
+// unknowns (v_h, v_t), v_h = (v_1, omega_1, ..., v_B, omega_B). A_h is block diagonal (one 6x6
+// block per bone); bone b's rows of A_ht and columns of A_th are non-zero only at its own nodes
+// N_b (Eq. 9), and the N_b are disjoint. solve() is the Schur complement of A_t (Eqs. 12-13)
+// with the flesh solver a black box: one batch of 1 + 6B right-hand sides on one factor of
+// A_t (b_t and the columns of A_th, each built from its bone's nodes only), the dense 6B x 6B
+// S = A_h - A_ht A_t^-1 A_th formed from A_ht's sparse rows, one LU of S, and Eq. 12 as a
+// combination of the solved columns. (One bone is HandSystem's path, data.hand: the step never
+// comes here with B = 1, so today's step is kept bit for bit.)
+#pragma once
+#include <vector>
+
+#include "solver/deformable_system.h"
+
+namespace hh {
+
+class SkeletonSystem {
+public:
+    explicit SkeletonSystem(DeformableSystem& tool) : tool(tool) {}
+    DeformableSystem& tool;
+    // Per bone: its block of A_h, its nodes, and per node its 3x6 block of A_th (Eq. 10) and
+    // 6x3 block of A_ht (Eq. 8)
+    std::vector<Mat6> Ah;
+    std::vector<const std::vector<int>*> nodes;
+    std::vector<std::vector<Mat36>> Ath;
+    std::vector<std::vector<Mat63>> Aht;
+    VecX r, s;  // (b_h, b_t) and (v_h, v_t)
+    int n_bones() const { return static_cast<int>(Ah.size()); }
+    void resize(int n_bones);
+    void solve();
+    double t_deformable = 0, t_schur = 0;  // s in the tool's solves, in forming and solving S
+    MatX schur;                            // S of the last solve (6B x 6B)
+    // After solve(): A_t^-1 A_th (3n x 6B), the flesh's velocity response to the bones'
+    const MatX& flesh_response() const { return response_; }
+
+private:
+    MatX rhs_, solved_, response_;
+    double schur_condition_ = 0;  // of the last step's S (0: none yet)
+};
+
+// The reference: Eq. 7 assembled as one sparse (6B + 3n)^2 matrix and solved by sparse LU.
+VecX solve_monolithic(const SkeletonSystem& system, const VecX& rhs);
+
+}  // namespace hh

@@ -1,0 +1,239 @@
+// The skeleton of many handles (docs/skeleton.md): each bone's spring blocks of Eq. 7 (Eqs. 8,
+// 10, 11) against central finite differences of its springs' forces (Eqs. 4-5), no bone's
+// wrench depending on another bone's state, and the Schur solve for B bones against the
+// monolithic reference.
+#include <functional>
+#include <random>
+
+#include "box_mesh.h"
+#include "check.h"
+#include "rigid/quaternion.h"
+#include "sim/skeleton_step.h"
+
+using namespace hh;
+
+namespace {
+// A 6 x 2 x 2 cm bar of 1 cm cubes with three bones on its axis (a chain), flesh between them.
+Model three_bone_bar() {
+    const BoxMesh box = make_box(6, 2, 2, 0.01);
+    hh_params p;
+    hh_default_params(&p);
+    p.rayleigh_alpha = 0.5;
+    std::vector<BoneDesc> bones(3);
+    const double x[3][2] = {{0.0, 0.01}, {0.025, 0.035}, {0.05, 0.06}};
+    for (int b = 0; b < 3; ++b) {
+        bones[b].name = "b" + std::to_string(b);
+        bones[b].parent = b - 1;
+        bones[b].head = Vec3(x[b][0], 0.01, 0.01);
+        bones[b].tail = Vec3(x[b][1], 0.01, 0.01);
+        bones[b].radius = 0.0145;
+    }
+    return build_skeleton_model(box.nodes.data(), box.n_nodes(), box.tets.data(), box.n_tets(), p, bones);
+}
+
+// A deformed, moving state with every bone turned, moving and spinning, each coupled to a
+// target (bone 1 prescribed)
+void moving_state(const Model& m, Data& d, unsigned seed) {
+    std::mt19937 rng(seed);
+    std::normal_distribution<double> g(0, 1);
+    auto rv = [&](double s) { return Vec3(s * g(rng), s * g(rng), s * g(rng)); };
+    for (int i = 0; i < m.mesh.n_nodes; ++i) {
+        d.x.segment<3>(3 * i) += rv(5e-4);
+        d.v.segment<3>(3 * i) = rv(0.05);
+    }
+    for (int b = 0; b < m.n_bones(); ++b) {
+        HandleState& h = bone_state(d, b);
+        h.q = quat_from_rotation_vector(rv(0.1));
+        h.v_com = rv(0.05);
+        h.omega = rv(0.5);
+        DeviceFrame& t = bone_target(d, b);
+        t.enabled = true;
+        t.prescribed = b == 1;
+        t.position = h.x_com + rv(0.003);
+        t.quaternion = quat_from_rotation_vector(rv(0.1));
+        t.velocity = rv(0.1);
+        t.angular_velocity = rv(1.0);
+    }
+}
+
+using Vec9 = Eigen::Matrix<double, 9, 1>;
+// (F_A, F_B, T_B) of one spring
+Vec9 spring(const Model& m, const Vec3& xa, const Vec3& va, const Vec3& rb, const HandleState& h) {
+    const SpringForce f = spring_force(m.params.spring_stiffness, m.params.spring_damping, xa, va, rb, h);
+    Vec9 out;
+    out << f.on_node, f.on_handle, f.torque;
+    return out;
+}
+
+// Central differences of fn with respect to the 3 components moved by move(c, step)
+Eigen::Matrix<double, 9, 3> numeric(const std::function<Vec9(int, double)>& fn, double h) {
+    Eigen::Matrix<double, 9, 3> j;
+    for (int c = 0; c < 3; ++c) j.col(c) = (fn(c, h) - fn(c, -h)) / (2 * h);
+    return j;
+}
+
+double relative(const MatX& a, const MatX& b) { return (a - b).norm() / std::max(b.norm(), 1e-300); }
+}  // namespace
+
+TEST(each_bones_spring_blocks_match_finite_differences) {
+    const Model m = three_bone_bar();
+    CHECK(m.n_bones() == 3);
+    Data d(m);
+    moving_state(m, d, 3);
+    formulate_skeleton(m, d);
+    const double dt = m.params.dt;
+    const StepFrame& f = d.frame;
+    double worst = 0;
+    for (int b = 0; b < m.n_bones(); ++b) {
+        const HandleModel& bone = m.skeleton.bones[b];
+        const HandleState& c = d.carried[b];  // the linearization point: the state the frame carries bone b to
+        const CouplingBlocks& cb = d.bone_coupling[b];
+        Mat6 ah = Mat6::Zero();
+        for (size_t j = 0; j < bone.nodes.size(); ++j) {
+            const Vec3 xa = f.x.segment<3>(3 * bone.nodes[j]), va = f.v.segment<3>(3 * bone.nodes[j]);
+            const Vec3& rb = bone.r_body[j];
+            // derivatives in the bone's (x, theta) and (v, omega), theta a world-frame turn, and in the node's x, v
+            auto by_x = [&](int k, double s) { HandleState h = c; h.x_com[k] += s; return spring(m, xa, va, rb, h); };
+            auto by_theta = [&](int k, double s) {
+                HandleState h = c;
+                Vec3 e = Vec3::Zero();
+                e[k] = s;
+                h.q = quat_multiply(quat_from_rotation_vector(e), c.q);
+                return spring(m, xa, va, rb, h);
+            };
+            auto by_v = [&](int k, double s) { HandleState h = c; h.v_com[k] += s; return spring(m, xa, va, rb, h); };
+            auto by_omega = [&](int k, double s) { HandleState h = c; h.omega[k] += s; return spring(m, xa, va, rb, h); };
+            auto by_xa = [&](int k, double s) { Vec3 y = xa; y[k] += s; return spring(m, y, va, rb, c); };
+            auto by_va = [&](int k, double s) { Vec3 y = va; y[k] += s; return spring(m, xa, y, rb, c); };
+            Eigen::Matrix<double, 9, 6> dx, dv;  // with respect to (x_b, theta_b), (v_b, omega_b)
+            dx << numeric(by_x, 1e-7), numeric(by_theta, 1e-7);
+            dv << numeric(by_v, 1e-6), numeric(by_omega, 1e-6);
+            const Eigen::Matrix<double, 9, 3> dxa = numeric(by_xa, 1e-7), dva = numeric(by_va, 1e-6);
+            // Eq. 10: A_th = -dt dF_A/dv_h - dt^2 dF_A/dx_h; Eq. 8: A_ht = -dt dW/dv_A - dt^2 dW/dx_A
+            const Mat36 ath = -dt * dv.topRows<3>() - dt * dt * dx.topRows<3>();
+            const Mat63 aht = -dt * dva.bottomRows<6>() - dt * dt * dxa.bottomRows<6>();
+            const Mat3 at = -dt * dva.topRows<3>() - dt * dt * dxa.topRows<3>();
+            worst = std::max({worst, relative(cb.ath[j], ath), relative(cb.aht[j], aht), relative(cb.at_diagonal[j], at)});
+            ah += -dt * dv.bottomRows<6>() - dt * dt * dx.bottomRows<6>();
+        }
+        worst = std::max(worst, relative(cb.ah, ah));
+    }
+    std::printf("spring blocks per bone against central differences: %.2g relative\n", worst);
+    CHECK_LT(worst, 1e-8);
+}
+
+TEST(a_bones_wrench_depends_on_its_own_state_only) {
+    // hh_bone_wrenches' W_b against finite differences in every bone's state: bone b's through
+    // Eq. 11 summed over its nodes, every other bone's exactly zero
+    const Model m = three_bone_bar();
+    Data d(m);
+    moving_state(m, d, 5);
+    const std::vector<Vec6> w0 = bone_wrenches(m, d);
+    double worst = 0;
+    for (int b = 0; b < m.n_bones(); ++b) {
+        Mat6 dx = Mat6::Zero(), dv = Mat6::Zero();  // analytic dW_b/d(x, theta), d(v, omega)
+        const HandleModel& bone = m.skeleton.bones[b];
+        for (size_t j = 0; j < bone.nodes.size(); ++j) {
+            const SpringJacobian jac = spring_jacobian(m.params.spring_stiffness, m.params.spring_damping,
+                                                       d.x.segment<3>(3 * bone.nodes[j]), d.v.segment<3>(3 * bone.nodes[j]),
+                                                       bone.r_body[j], bone_state(d, b));
+            dx += jac.dfh_dxh;
+            dv += jac.dfh_dvh;
+        }
+        for (int k = 0; k < 12; ++k) {
+            auto moved = [&](double s) {
+                const HandleState kept = bone_state(d, b);
+                HandleState& h = bone_state(d, b);
+                Vec3 u = Vec3::Zero();
+                u[k % 3] = s;
+                if (k < 3) h.x_com += u;
+                else if (k < 6) h.q = quat_multiply(quat_from_rotation_vector(u), h.q);
+                else if (k < 9) h.v_com += u;
+                else h.omega += u;
+                const std::vector<Vec6> w = bone_wrenches(m, d);
+                h = kept;
+                return w;
+            };
+            const double step = k < 6 ? 1e-7 : 1e-6;
+            const std::vector<Vec6> wp = moved(step), wm = moved(-step);
+            for (int c = 0; c < m.n_bones(); ++c) {
+                const Vec6 num = (wp[c] - wm[c]) / (2 * step);
+                if (c != b) {
+                    CHECK(wp[c] == w0[c] && wm[c] == w0[c]);
+                    continue;
+                }
+                const Vec6 analytic = k < 6 ? Vec6(dx.col(k)) : Vec6(dv.col(k - 6));
+                worst = std::max(worst, (num - analytic).norm() / std::max(dx.norm() * 1e-3, analytic.norm()));
+            }
+        }
+    }
+    std::printf("bone wrench derivatives against central differences: %.2g relative\n", worst);
+    CHECK_LT(worst, 1e-7);
+}
+
+TEST(schur_for_b_bones_equals_the_monolithic_solve) {
+    const Model m = three_bone_bar();
+    Data d(m);
+    moving_state(m, d, 9);
+    formulate_skeleton(m, d);
+    d.skeleton.solve();
+    const VecX mono = solve_monolithic(d.skeleton, d.skeleton.r);
+    std::printf("three bones, Schur against monolithic: %.2g relative\n",
+                (d.skeleton.s - mono).cwiseAbs().maxCoeff() / mono.cwiseAbs().maxCoeff());
+    CHECK_LT((d.skeleton.s - mono).cwiseAbs().maxCoeff() / mono.cwiseAbs().maxCoeff(), 1e-11);
+    // the prescribed bone's rows: v_b is its target velocity relative to the frame
+    CHECK_LT((d.skeleton.s.segment<6>(6) - d.skeleton.r.segment<6>(6)).norm(), 1e-14 * d.skeleton.r.segment<6>(6).norm());
+}
+
+TEST(the_b_bone_step_with_one_bone_is_todays_step) {
+    // The B-bone formulation (skeleton frame, per-bone blocks, SkeletonSystem) run on a one-bone
+    // model against today's single-handle step (which step() takes for one bone): the same
+    // equations, so the same step to round-off, from a deformed state spinning about a turned
+    // handle, free (the free frame's momentum correction), coupled and prescribed.
+    const BoxMesh box = make_box(6, 3, 3, 0.01);
+    hh_params p;
+    hh_default_params(&p);
+    p.rayleigh_alpha = 0.5;
+    p.palm_seed[0] = 0.03;
+    p.palm_seed[1] = p.palm_seed[2] = 0.015;
+    p.handle_radius = 0.012;
+    const Model m = build_model(box.nodes.data(), box.n_nodes(), box.tets.data(), box.n_tets(), p);
+    CHECK(m.n_bones() == 1);
+    double worst = 0;
+    for (int mode = 0; mode < 3; ++mode) {
+        Data today(m), general(m);
+        for (Data* d : {&today, &general}) {
+            std::mt19937 rng(17);
+            std::normal_distribution<double> g(0, 1);
+            const Vec3 omega(0.8, -1.5, 2.0);
+            d->h.q = quat_from_rotation_vector(Vec3(0.2, 0.4, -0.3));
+            const Mat3 r = quat_to_matrix(d->h.q);
+            for (int i = 0; i < m.mesh.n_nodes; ++i) {
+                const Vec3 x = m.handle.rest_com + r * (m.mesh.rest.segment<3>(3 * i) - m.handle.rest_com);
+                d->x.segment<3>(3 * i) = x + 3e-4 * Vec3(g(rng), g(rng), g(rng));
+                d->v.segment<3>(3 * i) = omega.cross(x - m.handle.rest_com) + 0.02 * Vec3(g(rng), g(rng), g(rng));
+            }
+            d->h.v_com = Vec3(0.02, -0.01, 0.03);
+            d->h.omega = omega;
+            d->device.enabled = mode > 0;
+            d->device.prescribed = mode == 2;
+            d->device.position = m.handle.rest_com + Vec3(0.002, 0, 0);
+            d->device.quaternion = quat_from_rotation_vector(Vec3(0.25, 0.35, -0.2));
+            d->device.velocity = Vec3(0.05, 0, 0);
+            d->device.angular_velocity = Vec3(0, 0.5, 0);
+        }
+        for (int k = 0; k < 8; ++k) {
+            step(m, today, false);
+            step_skeleton(m, general, false);
+        }
+        auto rel = [](const VecX& a, const VecX& b) { return (a - b).cwiseAbs().maxCoeff() / b.cwiseAbs().maxCoeff(); };
+        const double here = std::max({rel(general.v, today.v), rel(general.x - m.mesh.rest, today.x - m.mesh.rest),
+                          (general.h.omega - today.h.omega).norm() / today.h.omega.norm(),
+                          (general.h.v_com - today.h.v_com).norm() / today.h.v_com.norm(),
+                          (general.h.q - today.h.q).norm()});
+        std::printf("  mode %d: %.2g\n", mode, here);
+        worst = std::max(worst, here);
+    }
+    std::printf("one bone, B-bone step against today's: %.2g relative\n", worst);
+    CHECK_LT(worst, 1e-10);
+}
