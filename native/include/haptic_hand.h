@@ -214,8 +214,9 @@ int hh_linear_momentum(const hh_model* model, const hh_data* data, double out[3]
  * its own target. Arrays are row-major and contiguous, bones in skeleton order, quaternions
  * (x, y, z, s). A one-bone model behaves exactly as today's, and the handle functions above
  * (hh_get_state's handle, hh_set_device, hh_coupling_wrench, hh_model_info_get's handle fields)
- * address bone 0, the root. With more than one bone, hh_compare_solvers, the hand-alone
- * linearizations (hh_coupling_*) and hh_world_add_hand are refused (not built yet). */
+ * address bone 0, the root. With more than one bone, the palm handle's linearizations
+ * (hh_coupling_linear_model, _response, _model: use hh_bone_linear_model, hh_bone_response) and
+ * hh_world_add_hand are refused (a skeleton hand in a world is not built yet). */
 #define HH_BONE_FREE 0       /* no target: carried by the flesh */
 #define HH_BONE_COUPLED 1    /* follows its target through its virtual coupling */
 #define HH_BONE_PRESCRIBED 2 /* reaches its target pose at the end of the step */

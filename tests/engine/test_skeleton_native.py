@@ -323,3 +323,26 @@ def test_one_bone_model_is_the_palm_handles_model():
     assert np.array_equal(w0, b0) and np.array_equal(r, br)
     v = np.array([0.01, -0.02, 0.0, 0.2, 0.1, -0.3])
     assert np.array_equal(today.coupling_response(v), one.bone_response(v))
+
+
+def test_compare_solvers_takes_the_skeletons_system(sample_hand):
+    """hh_compare_solvers on a 16-bone model compares its B-bone Schur solve with the monolithic
+    one (the step is not taken)."""
+    model, sim, _ = driven_hand(sample_hand)
+    before = sim.positions()
+    assert sim.compare_solvers() < 1e-10
+    assert np.array_equal(sim.positions(), before)
+
+
+def test_collinear_bone_and_world_are_refused_with_the_fix():
+    nodes, tets = bar()
+    on_axis = np.flatnonzero(np.isclose(nodes[:, 1], -0.005) & np.isclose(nodes[:, 2], -0.005))  # a line of 7
+    o = np.zeros(3)
+    skel = sk.Skeleton([sk.Bone("palm", None, o, o, 0.02), sk.Bone("axis", "palm", o, o, 0, nodes=on_axis)])
+    with pytest.raises(native.InvalidInput, match=r"bone 'axis': its 7 nodes lie on a line, so its inertia is singular"):
+        ns.SkeletonModel(nodes, tets, skel)
+    two = sk.Skeleton([sk.Bone("a", None, np.array([-0.03, 0, 0]), np.array([-0.015, 0, 0]), 0.012),
+                       sk.Bone("b", "a", np.array([0.015, 0, 0]), np.array([0.03, 0, 0]), 0.012)])
+    sim = ns.SkeletonSimulation(ns.SkeletonModel(nodes, tets, two))
+    with pytest.raises(native.InvalidInput, match="hh_coupling_model takes a hand with one handle; this model has 2 bones"):
+        sim.coupling_model()

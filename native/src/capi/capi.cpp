@@ -8,6 +8,7 @@
 
 #include "haptic_hand.h"
 #include "haptics/coupling_model.h"
+#include "sim/skeleton_step.h"
 #include "rigid/quaternion.h"
 
 #include "capi/guard.h"
@@ -223,16 +224,25 @@ int hh_step_monolithic(const hh_model* model, hh_data* data, hh_step_stats* out_
 int hh_compare_solvers(const hh_model* model, const hh_data* data, double* out_relative_difference) {
     return guard([&] {
         require(model && data && out_relative_difference, "hh_compare_solvers: null pointer");
-        hh::capi::require_one_bone(model->m, "hh_compare_solvers");
         hh::Data work(model->m);
         work.x = data->d.x;
         work.v = data->d.v;
         work.h = data->d.h;
         work.device = data->d.device;
-        hh::formulate(model->m, work);
-        work.hand.solve();
-        const hh::VecX schur = work.hand.s;
-        const hh::VecX mono = hh::solve_monolithic(work.hand, work.hand.r);
+        hh::VecX schur, mono;
+        if (model->m.n_bones() > 1) {  // a skeleton (docs/skeleton.md): its B-bone system
+            work.bones = data->d.bones;
+            work.targets = data->d.targets;
+            hh::formulate_skeleton(model->m, work);
+            work.skeleton.solve();
+            schur = work.skeleton.s;
+            mono = hh::solve_monolithic(work.skeleton, work.skeleton.r);
+        } else {
+            hh::formulate(model->m, work);
+            work.hand.solve();
+            schur = work.hand.s;
+            mono = hh::solve_monolithic(work.hand, work.hand.r);
+        }
         const double scale = mono.cwiseAbs().maxCoeff();
         const double diff = (schur - mono).cwiseAbs().maxCoeff();
         *out_relative_difference = scale > 0 ? diff / scale : diff;
