@@ -53,6 +53,7 @@ class World:
         self._handle = handle
         self.dt = float(p.dt)
         self.last_stats = WorldStats()
+        self._bones = {}  # per hand body: its bones' count
 
     def __del__(self):
         if getattr(self, "_handle", None):
@@ -62,7 +63,8 @@ class World:
     # --- building ---
     def add_hand(self, model: HandModel, surface_nodes, surface_weights, faces, friction=None,
                  self_collision=None) -> int:
-        """friction, self_collision: None takes the table's default."""
+        """model: a HandModel (the palm handle) or a native_skeleton.SkeletonModel (B bones, driven
+        by set_bone_targets). friction, self_collision: None takes the table's default."""
         friction = _default(friction, "hand.friction")
         self_collision = _default(self_collision, "hand.self_collision")
         n4 = _i32(surface_nodes, 4, "surface_nodes")
@@ -72,6 +74,7 @@ class World:
         _check(library().hh_world_add_hand(self._handle, model._handle, _ptr(n4, ctypes.c_int), _ptr(w4), len(n4),
                                            _ptr(f3, ctypes.c_int), len(f3), float(friction), int(self_collision),
                                            ctypes.byref(out)))
+        self._bones[out.value] = getattr(model, "n_bones", 1)
         return out.value
 
     def add_soft_body(self, nodes, tets, surface_nodes, surface_weights, faces, fixed_nodes=(), friction=None,
@@ -202,6 +205,42 @@ class World:
         p, q, f, t = np.empty(3), np.empty(4), np.empty(3), np.empty(3)
         _check(library().hh_world_hand_state(self._handle, hand, _ptr(p), _ptr(q), _ptr(f), _ptr(t)))
         return p, q, f, t
+
+    def n_bones(self, hand: int) -> int:
+        """How many bones drive the hand (1: the palm handle)."""
+        if hand not in self._bones:
+            raise InvalidInput(f"body {hand} is not the hand: give the index add_hand returned")
+        return self._bones[hand]
+
+    def set_bone_targets(self, hand: int, modes, positions=None, quaternions=None, velocities=None,
+                         angular_velocities=None) -> None:
+        """Each bone's target at the end of the next step (docs/skeleton.md, Section 4): modes (B,)
+        FREE 0, COUPLED 1 or PRESCRIBED 2, positions (B, 3) of the bones' centres of mass,
+        quaternions (B, 4) (x, y, z, w); None keeps a pose and makes a velocity zero."""
+        b = self.n_bones(hand)
+        m = np.asarray(modes)
+        if m.shape != (b,) or m.dtype.kind not in "iu":
+            raise InvalidInput(f"bone modes must be {b} integers (FREE 0, COUPLED 1, PRESCRIBED 2), got {m!r}")
+        m = np.ascontiguousarray(m, dtype=np.int32)
+        args = [None if a is None else _f64(a, (b, k), name)
+                for a, k, name in ((positions, 3, "target positions"), (quaternions, 4, "target quaternions"),
+                                   (velocities, 3, "target velocities"), (angular_velocities, 3, "target angular velocities"))]
+        _check(library().hh_world_set_bone_targets(self._handle, hand, b, _ptr(m, ctypes.c_int), *(_ptr(a) for a in args)))
+
+    def bone_states(self, hand: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(positions (B, 3) of the bones' centres of mass, quaternions (B, 4), wrenches (B, 6): each
+        bone's springs' force and torque about its centre of mass)."""
+        b = self.n_bones(hand)
+        p, q, w = np.empty((b, 3)), np.empty((b, 4)), np.empty((b, 6))
+        _check(library().hh_world_bone_states(self._handle, hand, b, _ptr(p), _ptr(q), _ptr(w)))
+        return p, q, w
+
+    def node_contact_forces(self, body: int) -> np.ndarray:
+        """(n, 3): the force (N) the last step's contacts put on each node of the hand or a soft body."""
+        n = self.body_kind(body)[1]
+        out = np.empty((n, 3))
+        _check(library().hh_world_node_contact_forces(self._handle, body, _ptr(out), n))
+        return out
 
     def hand_step_stats(self, hand: int) -> dict:
         """Assembly / deformable solves / Schur split of the hand's implicit step (last step)."""

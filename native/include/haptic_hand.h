@@ -215,8 +215,9 @@ int hh_linear_momentum(const hh_model* model, const hh_data* data, double out[3]
  * (x, y, z, s). A one-bone model behaves exactly as today's, and the handle functions above
  * (hh_get_state's handle, hh_set_device, hh_coupling_wrench, hh_model_info_get's handle fields)
  * address bone 0, the root. With more than one bone, the palm handle's linearizations
- * (hh_coupling_linear_model, _response, _model: use hh_bone_linear_model, hh_bone_response) and
- * hh_world_add_hand are refused (a skeleton hand in a world is not built yet). */
+ * (hh_coupling_linear_model, _response, _model: use hh_bone_linear_model, hh_bone_response),
+ * hh_world_coupling_model and haptic sessions are refused; a world takes the hand
+ * (hh_world_add_hand) and drives its bones with hh_world_set_bone_targets. */
 #define HH_BONE_FREE 0       /* no target: carried by the flesh */
 #define HH_BONE_COUPLED 1    /* follows its target through its virtual coupling */
 #define HH_BONE_PRESCRIBED 2 /* reaches its target pose at the end of the step */
@@ -382,6 +383,18 @@ int hh_world_hand_state(const hh_world* world, int hand_body, double handle_posi
 int hh_world_hand_step_stats(const hh_world* world, int hand_body, hh_step_stats* out);
 /* Linear momentum of all dynamic bodies (kg m/s). */
 int hh_world_linear_momentum(const hh_world* world, double out[3]);
+/* A skeleton hand's bones in a world (any hand: a one-bone hand has n_bones 1, its root the
+ * handle). Targets at the end of the next step as hh_set_bone_targets; states: each bone's
+ * centre of mass positions[B][3], quaternions[B][4] and its springs' wrenches[B][6] (force,
+ * torque about the centre of mass); any pointer may be NULL. */
+int hh_world_set_bone_targets(hh_world* world, int hand_body, int n_bones, const int* modes,
+                              const double* positions, const double* quaternions,
+                              const double* velocities, const double* angular_velocities);
+int hh_world_bone_states(const hh_world* world, int hand_body, int n_bones, double* positions,
+                         double* quaternions, double* wrenches);
+/* The force (N) the last step's contacts put on each node of the hand or a soft body,
+ * out[n_nodes][3] (their sum is hh_world_contact_force's). */
+int hh_world_node_contact_forces(const hh_world* world, int body, double* out, int n_nodes);
 
 /* ===================== haptic rendering (Section 3) =====================
  * A session runs the visual loop (the world, with the hand's handle driven to the proxy and

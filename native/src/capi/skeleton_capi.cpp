@@ -10,6 +10,7 @@
 #include "haptics/bone_model.h"
 #include "sim/skeleton_step.h"
 
+#include "capi/bone_targets.h"
 #include "capi/guard.h"
 
 using hh::capi::guard;
@@ -188,20 +189,9 @@ int hh_set_bone_targets(const hh_model* model, hh_data* data, int n_bones, const
                         const double* quaternions, const double* velocities, const double* angular_velocities) {
     return guard([&] {
         require_bones(model, n_bones, "bone targets");
-        require(data && modes, "hh_set_bone_targets: null data or modes");
-        std::vector<hh::DeviceFrame> targets(n_bones);
-        for (int b = 0; b < n_bones; ++b) {
-            require(modes[b] == HH_BONE_FREE || modes[b] == HH_BONE_COUPLED || modes[b] == HH_BONE_PRESCRIBED,
-                    "bone " + std::to_string(b) + " has mode " + std::to_string(modes[b]) +
-                        ": give HH_BONE_FREE (0), HH_BONE_COUPLED (1) or HH_BONE_PRESCRIBED (2)");
-            const hh::Vec3 zero = hh::Vec3::Zero();
-            // (velocities not given: zero, as the docs say; poses not given: kept)
-            targets[b] = hh::capi::updated_device(hh::bone_target(data->d, b), modes[b],
-                                                  positions ? positions + 3 * b : nullptr,
-                                                  quaternions ? quaternions + 4 * b : nullptr,
-                                                  velocities ? velocities + 3 * b : zero.data(),
-                                                  angular_velocities ? angular_velocities + 3 * b : zero.data());
-        }
+        require(data != nullptr, "hh_set_bone_targets: null data");
+        const std::vector<hh::DeviceFrame> targets =
+            hh::capi::bone_targets(data->d, n_bones, modes, positions, quaternions, velocities, angular_velocities);
         for (int b = 0; b < n_bones; ++b) hh::bone_target(data->d, b) = targets[b];
         return HH_OK;
     });

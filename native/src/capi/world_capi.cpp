@@ -82,7 +82,6 @@ int hh_world_add_hand(hh_world* world, const hh_model* model, const int* surface
                       int* out_body) {
     return guard([&] {
         require(world && model && out_body, "hh_world_add_hand: null pointer");
-        hh::capi::require_one_bone(model->m, "hh_world_add_hand");
         require_friction(friction, true);
         auto b = std::make_unique<hh::Body>();
         b->kind = hh::BodyKind::Hand;

@@ -155,6 +155,10 @@ CouplingModel linearize_coupling(const World& world, int hand) {
     if (hand < 0 || hand >= static_cast<int>(world.bodies.size()) || world.bodies[hand]->kind != BodyKind::Hand)
         throw InvalidArgument("linearize_coupling: not the hand's body index");
     const Body& b = *world.bodies[hand];
+    if (b.skeleton())
+        throw InvalidArgument("the handle-space model with contacts held takes a hand with one handle; this hand has " +
+                              std::to_string(b.hand_model->n_bones()) +
+                              " bones (a skeleton): its model with contacts held is not built yet");
     if (!b.hand->device.prescribed)
         throw InvalidArgument("the coupling model needs the handle driven to a prescribed pose (the proxy)");
     int held_rows = 0;

@@ -27,6 +27,10 @@ void put_pose(double* out, const Vec3& p, const Vec4& q) {
 Body& hand_body(World& world, int hand) {
     if (hand < 0 || hand >= static_cast<int>(world.bodies.size()) || world.bodies[hand]->kind != BodyKind::Hand)
         throw InvalidArgument("a haptic session needs the hand's body index");
+    if (world.bodies[hand]->skeleton())
+        throw InvalidArgument("a haptic session drives a hand with one handle; this hand has " +
+                              std::to_string(world.bodies[hand]->hand_model->n_bones()) +
+                              " bones (a skeleton): drive its bones with hh_world_set_bone_targets and step the world");
     return *world.bodies[hand];
 }
 

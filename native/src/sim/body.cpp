@@ -9,7 +9,7 @@ namespace hh {
 
 int Body::dofs() const {
     switch (kind) {
-        case BodyKind::Hand: return 6 + 3 * hand_model->mesh.n_nodes;
+        case BodyKind::Hand: return handle_dofs() + 3 * hand_model->mesh.n_nodes;
         case BodyKind::Soft: return 3 * soft.flesh->mesh.n_nodes;
         case BodyKind::Rigid: return 6;
         default: return 0;
@@ -75,6 +75,23 @@ double fastest_node(const VecX& v) {
 }
 }  // namespace
 
+// m: how far the points bone b carries move in the step of dt: the palm handle carries the
+// whole hand (its arm reaches every point); a bone of a skeleton its own nodes, each of which
+// is carried further by its parent's motion only through that parent's own target
+double Body::bone_travel(int b, double dt) const {
+    const HandleState& h = bone_state(*hand, b);
+    const DeviceFrame& d = bone_target(*hand, b);
+    double arm = 0;
+    if (!skeleton()) arm = farthest(points, h.x_com);
+    else for (int i : hand_model->skeleton.bones[b].nodes) arm = std::max(arm, (points[i] - h.x_com).norm());
+    double travel = (h.v_com.norm() + h.omega.norm() * arm) * dt;
+    if (d.enabled) {  // the bone goes to its target's pose (prescribed) or is pulled toward it
+        travel = std::max(travel, pose_travel(h.x_com, h.q, d.position, d.quaternion, arm));
+        travel = std::max(travel, (d.velocity.norm() + d.angular_velocity.norm() * arm) * dt);
+    }
+    return travel;
+}
+
 // Bounds from what the step knows before it starts. Start-of-step velocities alone miss what
 // is driven: a scripted pusher or a prescribed handle that is still at the start of a fast
 // move, or a hand whose device has jumped away; their end-of-step targets are known already.
@@ -82,14 +99,8 @@ double Body::step_travel(double dt) const {
     switch (kind) {
         case BodyKind::Soft: return fastest_node(state.v) * dt;
         case BodyKind::Hand: {
-            const HandleState& h = hand->h;
-            const DeviceFrame& d = hand->device;
-            const double arm = farthest(points, h.x_com);
-            double travel = std::max(fastest_node(hand->v), h.v_com.norm() + h.omega.norm() * arm) * dt;
-            if (d.enabled) {  // the handle goes to the device's pose (prescribed) or is pulled toward it
-                travel = std::max(travel, pose_travel(h.x_com, h.q, d.position, d.quaternion, arm));
-                travel = std::max(travel, (d.velocity.norm() + d.angular_velocity.norm() * arm) * dt);
-            }
+            double travel = fastest_node(hand->v) * dt;
+            for (int b = 0; b < hand_model->n_bones(); ++b) travel = std::max(travel, bone_travel(b, dt));
             return travel;
         }
         case BodyKind::Rigid: {

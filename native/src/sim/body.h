@@ -95,7 +95,12 @@ struct Body {
     VecX carried_impulse;
 
     bool dynamic() const { return kind == BodyKind::Hand || kind == BodyKind::Soft || kind == BodyKind::Rigid; }
+    // a hand driven by a skeleton of more than one bone (docs/skeleton.md): its step is
+    // step_skeleton's (sim/skeleton_step.h) and its unknowns (v_1, omega_1, ..., v_B, omega_B, v_t)
+    bool skeleton() const { return kind == BodyKind::Hand && hand_model->n_bones() > 1; }
     int dofs() const;
+    // how many of its unknowns come before the flesh's: 6 per bone of a hand, else 0
+    int handle_dofs() const { return kind == BodyKind::Hand ? 6 * hand_model->n_bones() : 0; }
     // The flesh system its contact responses are solved through (hand, soft body), or null
     DeformableSystem* response_system();
     // points from the body's state (the surface's points: flesh nodes or mesh vertices)
@@ -105,6 +110,7 @@ struct Body {
     // m: how far its farthest-moving surface point can travel in the next step of dt (speculative
     // contact's reach, World::begin_detection)
     double step_travel(double dt) const;
+    double bone_travel(int bone, double dt) const;  // (a hand's part of it, per bone)
 };
 
 // Mass, centre of mass and inertia about it of a closed, outward-wound triangle mesh of

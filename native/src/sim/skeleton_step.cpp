@@ -51,7 +51,19 @@ void bone_block(const Model& model, Data& data, int b, const CouplingBlocks& cb)
 }
 }  // namespace
 
+void formulate_skeleton_begin(const Model& model, Data& data) {
+    StepFrame& f = data.frame;
+    update_skeleton_frame(model, data, f, data.carried);
+    begin_flesh(model, data, data.tool);
+    for (Vec4& q : data.rotations.q) q = quat_multiply(f.turn, q);
+}
+
 void formulate_skeleton(const Model& model, Data& data) {
+    formulate_skeleton_begin(model, data);
+    formulate_skeleton_end(model, data);
+}
+
+void formulate_skeleton_end(const Model& model, Data& data) {
     const hh_params& p = model.params;
     const double dt = p.dt;
     const int n = model.mesh.n_nodes, nb = model.n_bones();
@@ -59,10 +71,7 @@ void formulate_skeleton(const Model& model, Data& data) {
     SkeletonSystem& sys = data.skeleton;
     sys.resize(nb);
     sys.r.resize(6 * nb + 3 * n);
-    StepFrame& f = data.frame;
-    update_skeleton_frame(model, data, f, data.carried);
-    begin_flesh(model, data, data.tool);
-    for (Vec4& q : data.rotations.q) q = quat_multiply(f.turn, q);
+    const StepFrame& f = data.frame;
     for (int part = 0; part < 3; ++part) flesh_pass(model, data, dt, p.rayleigh_beta, data.tool, part, &f.x);
 
     // A_t and b_t as formulate_end's, the springs of every bone on its own nodes (Eq. 7)

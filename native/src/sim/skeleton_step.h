@@ -10,8 +10,12 @@
 
 namespace hh {
 
-// Fills data.skeleton (A_h per bone, A_t, A_ht, A_th, r) for one step of dt.
+// Fills data.skeleton (A_h per bone, A_t, A_ht, A_th, r) for one step of dt: begin (the step's
+// rigid frame and the element rotations carried by it; what the world's contact setup reads,
+// so it runs before the step's tasks), then end (the element pass, A_t, b_t, every bone's blocks).
 void formulate_skeleton(const Model& model, Data& data);
+void formulate_skeleton_begin(const Model& model, Data& data);
+void formulate_skeleton_end(const Model& model, Data& data);
 // Advances the flesh and every bone with the step's velocities s = (v_h, v_t) (integrate()'s rule).
 void integrate_skeleton(const Model& model, Data& data, const VecX& s);
 void step_skeleton(const Model& model, Data& data, bool monolithic);

@@ -9,6 +9,8 @@
 
 #include "common/clock.h"
 #include "params/table.h"
+#include "sim/skeleton_frame.h"
+#include "sim/skeleton_step.h"
 
 namespace hh {
 
@@ -66,6 +68,10 @@ void World::solve_free(Body& b) {
     const double dt = settings.dt;
     switch (b.kind) {
         case BodyKind::Hand: {
+            if (b.skeleton()) {
+                solve_free_skeleton(b);
+                break;
+            }
             // (formulate_begin and the element pass's parts 0 and 1 ran already, as tasks of
             // World::step that two threads can share; b.hand_step.pass_seconds holds their cost)
             HandStep& hs = b.hand_step;
@@ -116,12 +122,43 @@ void World::solve_free(Body& b) {
     b.contact_force.setZero();
 }
 
+// A skeleton hand's free solve: the rest of formulate_skeleton (its begin ran before the step's
+// tasks, World::add_free_solves), the B-bone Schur solve, and its velocities; with the reused
+// factor the last step's contact impulses carried in as for the palm-handle hand above.
+void World::solve_free_skeleton(Body& b) {
+    const auto t0 = std::chrono::steady_clock::now();
+    Data& d = *b.hand;
+    hh_step_stats& st = d.stats;
+    st = hh_step_stats{};
+    formulate_skeleton_end(*b.hand_model, d);
+    st.t_assembly = b.hand_step.pass_seconds[0] + seconds_since(t0);
+    d.tool.reset_counters();
+    SkeletonSystem& sys = d.skeleton;
+    const VecX carried = take_carried_impulse(b, d.tool);
+    if (carried.size()) {
+        const Eigen::Index n3 = sys.r.size() - b.handle_dofs();
+        d.tool.set_reference_norm(0, sys.r.tail(n3).norm());
+        sys.r += carried;
+    }
+    sys.solve();
+    b.v_free = skeleton_frame_velocities(*b.hand_model, d.frame, d.carried, sys.s);
+    if (carried.size()) b.v_free -= sys.apply_inverse(carried);
+    st.t_deformable = sys.t_deformable;
+    st.t_schur = sys.t_schur;
+    st.cg_iterations = d.tool.iterations;
+    st.max_residual = d.tool.max_residual;
+    st.t_total = b.hand_step.pass_seconds[0] + seconds_since(t0);
+}
+
 void World::integrate() {
     const double dt = settings.dt;
     for (auto& bp : bodies) {
         Body& b = *bp;
         switch (b.kind) {
-            case BodyKind::Hand: hh::integrate(*b.hand_model, *b.hand, b.v_new); break;
+            case BodyKind::Hand:
+                if (b.skeleton()) integrate_skeleton(*b.hand_model, *b.hand, b.v_new);
+                else hh::integrate(*b.hand_model, *b.hand, b.v_new);
+                break;
             case BodyKind::Soft: b.soft.integrate(b.state, b.v_new, dt); break;
             case BodyKind::Rigid: MeshParts::integrate(b.rigid, b.v_new, dt); break;
             case BodyKind::Kinematic: b.rigid = b.target; break;

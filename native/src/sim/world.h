@@ -137,6 +137,7 @@ private:
     void reduce_contacts();
     // Each dynamic body's free solve (sim/world.cpp)
     void solve_free(Body& b);
+    void solve_free_skeleton(Body& b);
     void assemble_hand(Body& b);
     // The contact solve in parts (sim/world_contact.cpp), scheduled by step as tasks: prepare
     // from the contacts alone; per dynamic body, once its free solve is done, its responses;

@@ -101,7 +101,7 @@ void World::prepare_contacts() {
                 if (b.kind == BodyKind::Rigid) {
                     ts->push_back({0, sign * side.weight[k], true, b.surface.x[v] - b.rigid.x_com});
                 } else {
-                    const int base = b.kind == BodyKind::Hand ? 6 : 0;
+                    const int base = b.handle_dofs();
                     for (int q = 0; q < 4; ++q) {
                         const int node = b.surface.nodes[v][q];
                         // a fixed node of a soft body does not move: it takes no impulse
@@ -298,9 +298,11 @@ void World::ready_contact_body(int bi) {
     // the unit columns from the kept response columns, when the body's solver keeps them
     // (the hand's with Eq. 12 on top)
     bool units = false;
-    if (!cb.row_basis && b.kind == BodyKind::Hand) units = b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
+    // (a skeleton hand's columns all go through SkeletonSystem::apply_inverse_many)
+    const bool palm = b.kind == BodyKind::Hand && !b.skeleton();
+    if (!cb.row_basis && palm) units = b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
     if (!cb.row_basis && b.kind == BodyKind::Soft) units = b.soft.tool->response_units(cb.touched, cb.K, b.soft.beside);
-    if (b.kind == BodyKind::Hand) {
+    if (palm) {
         if (!cb.row_basis && !units) b.hand->hand.prepare_unit_columns(cb.touched);
         if (!handle_terms_apart(bi)) form_handle_terms(bi);
     }
@@ -312,7 +314,7 @@ void World::ready_contact_body(int bi) {
     build.unit_order.clear();
     DeformableSystem* system = b.response_system();
     if (system && system->prepare_concurrent_solves() && !cb.row_basis && build.first == 0) {
-        const int base = b.kind == BodyKind::Hand ? 6 : 0;
+        const int base = b.handle_dofs();
         std::vector<std::pair<int, int>> keyed;  // (elimination position of the node, column)
         keyed.reserve(cb.touched.size());
         for (size_t j = 0; j < cb.touched.size(); ++j) {
@@ -329,7 +331,7 @@ void World::ready_contact_body(int bi) {
 // at the handle nodes. Only the coupling model reads them, after the step.
 void World::form_handle_terms(int bi) {
     Body& b = *bodies[bi];
-    if (b.kind != BodyKind::Hand || !b.hand->device.prescribed) return;
+    if (b.kind != BodyKind::Hand || b.skeleton() || !b.hand->device.prescribed) return;
     ContactBody& cb = contact_bodies.at(bi);
     MatX at_touched;
     // (Aht at the handle's end-of-step pose, where the model differentiates the springs' wrench)
@@ -344,7 +346,8 @@ void World::form_handle_terms(int bi) {
 // writes the solve's bookkeeping).
 bool World::handle_terms_apart(int bi) const {
     const Body& b = *bodies[bi];
-    return b.kind == BodyKind::Hand && b.hand->device.prescribed && b.hand->tool.solver() == DeformableSolver::ReusedCholesky;
+    return b.kind == BodyKind::Hand && !b.skeleton() && b.hand->device.prescribed &&
+           b.hand->tool.solver() == DeformableSolver::ReusedCholesky;
 }
 
 // Share `part` of `parts` of the body's solves: every parts-th batch of kWidestSolve columns
@@ -368,7 +371,8 @@ void World::solve_contact_body(int bi, int part, int parts) {
             for (int j = 0; j < w; ++j) units[j] = cb.touched[build.unit_order[first + j]];
             x.resize(cb.K.rows(), w);
             bool done = false;
-            if (b.kind == BodyKind::Hand) done = b.hand->hand.apply_inverse_unit_columns(units, w, cb.touched, x);
+            if (b.kind == BodyKind::Hand && !b.skeleton())
+                done = b.hand->hand.apply_inverse_unit_columns(units, w, cb.touched, x);
             if (b.kind == BodyKind::Soft) done = b.soft.tool->solve_units(units, w, cb.touched, x.data(), x.rows());
             if (done) {
                 for (int j = 0; j < w; ++j) cb.K.col(build.unit_order[first + j]) = x.col(j);
@@ -386,7 +390,8 @@ void World::solve_contact_body(int bi, int part, int parts) {
         }
         switch (b.kind) {
             case BodyKind::Hand:  // only the touched rows, straight into K
-                b.hand->hand.apply_inverse_many(rhs, x, &cb.touched);
+                if (b.skeleton()) b.hand->skeleton.apply_inverse_many(rhs, x, &cb.touched);
+                else b.hand->hand.apply_inverse_many(rhs, x, &cb.touched);
                 cb.K.middleCols(first, w) = x;
                 continue;
             case BodyKind::Soft: b.soft.tool->solve_response(rhs, x, &build.touched_nodes); break;
@@ -523,7 +528,7 @@ void World::apply_contact_body(int bi) {
     for (size_t k = 0; k < cb.touched.size(); ++k) rhs[cb.touched[k]] = f[k];
     switch (b.kind) {
         case BodyKind::Hand:
-            b.v_new += b.hand->hand.apply_inverse(rhs);
+            b.v_new += b.skeleton() ? b.hand->skeleton.apply_inverse(rhs) : b.hand->hand.apply_inverse(rhs);
             // (carried into the next free solve, World::solve_free)
             if (b.hand->tool.solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
             break;

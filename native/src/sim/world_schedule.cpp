@@ -18,6 +18,7 @@
 #include "common/clock.h"
 #include "common/task_graph.h"
 #include "rigid/quaternion.h"
+#include "sim/skeleton_step.h"
 #include "sim/world.h"
 #include "sim/world_contact.h"
 
@@ -123,7 +124,11 @@ void World::add_free_solves(StepTasks& tasks) {
     for (size_t i = 0; i < bodies.size(); ++i) {
         Body& b = *bodies[i];
         std::vector<int> after;
-        if (b.kind == BodyKind::Hand) {
+        if (b.skeleton()) {  // (its frame before the contact setup reads it; the rest in its free solve)
+            HandStep& hs = b.hand_step;
+            hs = HandStep{};
+            timed(hs.pass_seconds[0], [&b] { formulate_skeleton_begin(*b.hand_model, *b.hand); });
+        } else if (b.kind == BodyKind::Hand) {
             HandStep& hs = b.hand_step;
             timed(hs.pass_seconds[0], [&b] { formulate_begin(*b.hand_model, *b.hand); });
             for (int part = 0; part < 2; ++part)

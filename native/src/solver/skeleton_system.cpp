@@ -62,7 +62,8 @@ void SkeletonSystem::solve() {
     // Partial pivoting suffices: S is dominated by its diagonal blocks (each bone's mass,
     // inertia and springs; a prescribed bone's identity), and a singular S shows as a non-finite
     // step below.
-    const VecX vh = schur.partialPivLu().solve(rh);
+    schur_lu_.compute(schur);
+    const VecX vh = schur_lu_.solve(rh);
     t_schur += seconds_since(t0);
 
     // Eq. 12: v_t = A_t^-1 b_t - (A_t^-1 A_th) v_h

@@ -33,8 +33,19 @@ public:
     // After solve(): A_t^-1 A_th (3n x 6B), the flesh's velocity response to the bones'
     const MatX& flesh_response() const { return response_; }
 
+    // The world's contact responses (solver/skeleton_response.cpp), after solve(), on its factor
+    // of A_t, its A_t^-1 A_th and the LU of S, as HandSystem's (the one-bone hand's):
+    // A^-1 rhs for a right-hand side (v_h, v_t) of 6B + 3n (one A_t solve, Eq. 13 for v_h, Eq. 12
+    // for v_t), through the tool's response operator (DeformableSystem::solve_response: the
+    // warped factor with ReusedCholesky). Only reads: calls may run side by side on the step's
+    // Cholesky factor (World::solve_contact_body).
+    VecX apply_inverse(const VecX& rhs) const;
+    // the same for every column of rhs; rows: only those rows of the result (indices into (v_h, v_t))
+    void apply_inverse_many(const MatX& rhs, MatX& out, const std::vector<int>* rows = nullptr) const;
+
 private:
     MatX rhs_, solved_, response_;
+    Eigen::PartialPivLU<MatX> schur_lu_;  // of the last step's S
     double schur_condition_ = 0;  // of the last step's S (0: none yet)
 };
 
