@@ -197,7 +197,9 @@ TEST(live_session_runs_both_loops_and_stops_cleanly) {
     CHECK(hh_session_loop_info(rig.session, &cpu, &isolated, &locked, &refused, &minor, &major) == HH_OK);
     CHECK(locked + refused >= static_cast<double>(hh::Session::kHapticStackBytes + sizeof(hh::Session)));
     CHECK(!st.realtime || cpu >= 0);
-    CHECK(major == 0);
+    // a sanitizer's runtime reads its own code and shadow pages in lazily, even from disk (a TSan
+    // run in CI took one major fault); the plain build holds the loop to none
+    CHECK(kSanitized || major == 0);
     std::printf("  loop: cpu %d, locked %.0f, refused %.0f, faults %.0f minor %.0f major\n", cpu, locked, refused, minor, major);
     CHECK(kSanitized || refused > 0 || minor == 0);
 }
