@@ -13,40 +13,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from haptic_hand.engine import gripper as gr
 from haptic_hand.engine import native_skeleton as ns
 from haptic_hand.engine import native_world as nw
 
-import gripper as gr
-
 G = np.array([0.0, 0.0, -9.81])
-DT = 1.0 / 30.0
-GAP = 0.025       # m between the fingers: the ball (20 mm across) clears each by 2.5 mm open
-SQUEEZE = 0.004   # m each finger moves in to close
-LIFT = 0.03       # m the palm rises with the ball
-BALL = dict(young_modulus=3e4, poisson_ratio=0.3, density=500.0)
-CLOSE, LIFTED, HELD, OPEN_FOR = 10, 25, 85, 15   # steps: closed by, lifted by, held until; then open
-
-
-def grasp_world(friction: float):
-    """The gripper open above a ground plane, a soft ball (8.5 mm voxel radius) resting on the
-    ground between its fingers; friction on every pair."""
-    w = nw.World(dt=DT, gravity=list(G))
-    hand, _, _ = gr.add_gripper(w, GAP, friction, G)
-    nodes, tets = gr.voxel_ball(0.0085, np.array([gr.FINGER + GAP / 2, 0.0, -0.035]))
-    w.add_plane([0.0, 0.0, nodes[:, 2].min() - 0.001], [0.0, 0.0, 1.0], friction=friction)
-    ball = gr.add_soft(w, nodes, tets, friction, **BALL)
-    return w, hand, ball
-
-
-def grasp_targets(p0, k: int):
-    """Bone positions at step k: the fingers close over CLOSE steps, the palm (and the fingers with
-    it) rises LIFT over the next ones; from HELD on the fingers are back at their rest spread."""
-    p = p0.copy()
-    closed = min(1.0, k / CLOSE) if k < HELD else 0.0
-    p[1, 0] += SQUEEZE * closed
-    p[2, 0] -= SQUEEZE * closed
-    p[:, 2] += LIFT * np.clip((k - CLOSE) / (LIFTED - CLOSE), 0.0, 1.0)
-    return p
+DT, LIFT, LIFTED, HELD, OPEN_FOR = gr.DT, gr.LIFT, gr.LIFTED, gr.HELD, gr.OPEN_FOR
+grasp_world, grasp_targets = gr.grasp_world, gr.grasp_targets
 
 
 def run_grasp(friction: float):

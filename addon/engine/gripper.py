@@ -1,7 +1,7 @@
-"""A two-finger soft gripper for the skeleton's grasp and pinch checks (issue 40,
-tests/engine/test_grasp.py): a palm block and two fingers hanging from it, cut from one
-structured tet grid (so the flesh joins them), with one bone for the palm and one per finger;
-and the soft objects it holds, a voxel ball and a soft letter."""
+"""A two-finger soft gripper, the smallest skeleton hand that grasps (issue 40): a palm block and
+two fingers hanging from it, cut from one structured tet grid (so the flesh joins them), with one
+bone for the palm and one per finger; and the soft objects it holds, a voxel ball and a soft
+letter. Used by tests/engine/test_grasp.py and bench/bench_grasp.py."""
 
 import numpy as np
 
@@ -70,3 +70,35 @@ def letter(ch: str, centre):
     """shapes.letter_tets(ch) (4 cm tall, 12 mm deep), its bounding box centred at centre."""
     nodes, tets = shapes.letter_tets(ch)
     return nodes + (np.asarray(centre) - 0.5 * (nodes.min(axis=0) + nodes.max(axis=0))), tets
+
+
+# The grasp scene: close, lift, hold 2 s, open (tests/engine/test_grasp.py, bench/bench_grasp.py)
+DT = 1.0 / 30.0
+GAP = 0.025       # m between the fingers: the ball (20 mm across) clears each by 2.5 mm open
+SQUEEZE = 0.004   # m each finger moves in to close
+LIFT = 0.03       # m the palm rises with the ball
+BALL = dict(young_modulus=3e4, poisson_ratio=0.3, density=500.0)
+CLOSE, LIFTED, HELD, OPEN_FOR = 10, 25, 85, 15   # steps: closed by, lifted by, held until; then open
+
+
+def grasp_world(friction: float, **world):
+    """The gripper open above a ground plane, a soft ball (8.5 mm voxel radius) resting on the
+    ground between its fingers; friction on every pair; world: more hh_world_params (threads).
+    Returns (world, hand, ball)."""
+    w = nw.World(dt=DT, gravity=[0.0, 0.0, -9.81], **world)
+    hand, _, _ = add_gripper(w, GAP, friction, (0.0, 0.0, -9.81))
+    nodes, tets = voxel_ball(0.0085, np.array([FINGER + GAP / 2, 0.0, -0.035]))
+    w.add_plane([0.0, 0.0, nodes[:, 2].min() - 0.001], [0.0, 0.0, 1.0], friction=friction)
+    ball = add_soft(w, nodes, tets, friction, **BALL)
+    return w, hand, ball
+
+
+def grasp_targets(p0, k: int):
+    """Bone positions at step k: the fingers close over CLOSE steps, the palm (and the fingers with
+    it) rises LIFT over the next ones; from HELD on the fingers are back at their rest spread."""
+    p = p0.copy()
+    closed = min(1.0, k / CLOSE) if k < HELD else 0.0
+    p[1, 0] += SQUEEZE * closed
+    p[2, 0] -= SQUEEZE * closed
+    p[:, 2] += LIFT * np.clip((k - CLOSE) / (LIFTED - CLOSE), 0.0, 1.0)
+    return p
