@@ -17,18 +17,13 @@ from haptic_hand.engine import gripper as gr
 from haptic_hand.engine import native_skeleton as ns
 from haptic_hand.engine import native_world as nw
 
-G = np.array([0.0, 0.0, -9.81])
-DT, LIFT, LIFTED, HELD, OPEN_FOR = gr.DT, gr.LIFT, gr.LIFTED, gr.HELD, gr.OPEN_FOR
-grasp_world, grasp_targets = gr.grasp_world, gr.grasp_targets
-
-
 def run_grasp(friction: float):
     """The ball's mean node position and the palm bone's position after every step."""
-    w, hand, ball = grasp_world(friction)
+    w, hand, ball = gr.grasp_world(friction)
     p0, q0, _ = w.bone_states(hand)
     ball_at, palm_at = [], []
-    for k in range(HELD + OPEN_FOR):
-        w.set_bone_targets(hand, np.full(3, ns.PRESCRIBED), grasp_targets(p0, k), q0)
+    for k in range(gr.HELD + gr.OPEN_FOR):
+        w.set_bone_targets(hand, np.full(3, ns.PRESCRIBED), gr.grasp_targets(p0, k), q0)
         w.step()
         ball_at.append(w.nodes(ball)[0].mean(axis=0))
         palm_at.append(w.bone_states(hand)[0][0].copy())
@@ -39,29 +34,29 @@ def test_a_closed_grasp_holds_a_ball_by_friction_and_opening_drops_it():
     ball, palm = run_grasp(0.8)
     start = ball[0]
     # lifted off the ground with the palm
-    assert ball[LIFTED, 2] - start[2] > 0.9 * LIFT
+    assert ball[gr.LIFTED, 2] - start[2] > 0.9 * gr.LIFT
     # held 2 s (60 steps): where the palm carries it, within 3 mm
-    carried = ball[LIFTED:HELD] - palm[LIFTED:HELD]
+    carried = ball[gr.LIFTED:gr.HELD] - palm[gr.LIFTED:gr.HELD]
     drift = np.linalg.norm(carried - carried[0], axis=1).max()
-    assert HELD - LIFTED == round(2.0 / DT)
+    assert gr.HELD - gr.LIFTED == round(2.0 / gr.DT)
     assert drift < 0.003, drift
     # opened: it falls more than 2 cm within 0.5 s
-    assert ball[HELD - 1, 2] - ball[HELD - 1 + OPEN_FOR, 2] > 0.02
-    assert OPEN_FOR * DT <= 0.5
+    assert ball[gr.HELD - 1, 2] - ball[gr.HELD - 1 + gr.OPEN_FOR, 2] > 0.02
+    assert gr.OPEN_FOR * gr.DT <= 0.5
 
 
 def test_without_friction_the_same_grasp_lifts_nothing():
     """The control: the squeeze alone (no friction) cannot carry the weight, so the hand rises
     without the ball, which stays on the ground."""
     ball, palm = run_grasp(0.0)
-    assert palm[HELD - 1, 2] - palm[0, 2] > 0.9 * LIFT
-    assert ball[HELD - 1, 2] - ball[0, 2] < 0.005
+    assert palm[gr.HELD - 1, 2] - palm[0, 2] > 0.9 * gr.LIFT
+    assert ball[gr.HELD - 1, 2] - ball[0, 2] < 0.005
 
 
 def pinch_world(letter: bool):
     """Gravity off: the gripper (20 mm gap) with, if letter, a soft 'I' (16 mm wide) between its
     fingers."""
-    w = nw.World(dt=DT, gravity=[0.0, 0.0, 0.0])
+    w = nw.World(dt=gr.DT, gravity=[0.0, 0.0, 0.0])
     hand, _, _ = gr.add_gripper(w, 0.02, 0.5, (0.0, 0.0, 0.0))
     body = None
     if letter:
@@ -113,19 +108,19 @@ def test_a_held_ball_turns_with_the_hand(axis, degrees):
     """Lifted, the whole gripper turns about the palm bone (tilting its fingers forward, sideways
     so that one finger is under the ball, or twisting about the vertical) over 0.5 s and holds
     1 s: seen from the palm bone's own frame, the ball stays within 3 mm of where it was held."""
-    w, hand, ball = grasp_world(0.8)
+    w, hand, ball = gr.grasp_world(0.8)
     p0, q0, _ = w.bone_states(hand)
     turn, hold = 15, 30
     in_palm = []
-    for k in range(LIFTED + turn + hold):
-        p = grasp_targets(p0, min(k, LIFTED))
-        turned = Rotation.from_rotvec(np.radians(degrees) * np.clip((k - LIFTED) / turn, 0.0, 1.0) * np.eye(3)[axis])
+    for k in range(gr.LIFTED + turn + hold):
+        p = gr.grasp_targets(p0, min(k, gr.LIFTED))
+        turned = Rotation.from_rotvec(np.radians(degrees) * np.clip((k - gr.LIFTED) / turn, 0.0, 1.0) * np.eye(3)[axis])
         w.set_bone_targets(hand, np.full(3, ns.PRESCRIBED), p[0] + turned.apply(p - p[0]),
                            (turned * Rotation.from_quat(q0)).as_quat())
         w.step()
         position, quaternion, _ = w.bone_states(hand)
         in_palm.append(Rotation.from_quat(quaternion[0]).inv().apply(w.nodes(ball)[0].mean(axis=0) - position[0]))
     assert Rotation.from_quat(w.bone_states(hand)[1][0]).magnitude() == pytest.approx(np.radians(degrees), abs=1e-6)
-    in_palm = np.array(in_palm[LIFTED:])
+    in_palm = np.array(in_palm[gr.LIFTED:])
     drift = np.linalg.norm(in_palm - in_palm[0], axis=1).max()
     assert drift < 0.003, drift
