@@ -308,9 +308,9 @@ def assemble(rig: Rig, state: State, drive: Drive, still_jacobians: bool = False
     still_jacobians: the springs' Jacobians taken at zero velocities (every x, omega at the
     state's positions, every v and omega zero) instead of the state's. The two differ only in the
     velocity-dependent parts of dF/dx (the damping's turn d [omega]x [R r]x and the [F_B]x term's
-    damping force). The native step linearizes about the velocities of its rigid frame (the root
-    bone's turn, docs/maths.md "Rotation-consistent integration"), which are zero when the root
-    does not turn: with the root's omega = 0 and this flag the two steps are the same step."""
+    damping force). The native step linearizes about the velocities of its rigid frame (the whole
+    hand's turn, docs/maths.md "Rotation-consistent integration"), which are zero when the hand
+    does not turn as a whole: then, with this flag, the two steps are the same step."""
     dt, n, nb = rig.dt, rig.n, len(rig.bones)
     off = 6 * nb
     f_el, kel = elastic(rig, state.x)

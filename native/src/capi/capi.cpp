@@ -7,6 +7,7 @@
 #include <string>
 
 #include "haptic_hand.h"
+#include "haptics/bone_model.h"
 #include "haptics/coupling_model.h"
 #include "sim/skeleton_step.h"
 #include "rigid/quaternion.h"
@@ -250,51 +251,15 @@ int hh_compare_solvers(const hh_model* model, const hh_data* data, double* out_r
     });
 }
 
-namespace {
-// A copy of the data stepped with its handle driven at the velocity vh = (v_com, omega): prescribed
-// to the pose that velocity reaches (a prescribed handle is held, so its step's frame turns about
-// the handle at its angular velocity: x_com + dt v_com, and the frame's turn followed by
-// exp(dt (omega - omega_start)), sim/step.cpp integrate), as the visual loop drives it to the proxy.
-std::unique_ptr<hh::Data> driven_copy(const hh::Model& m, const hh::Data& d, const hh::Vec6& vh) {
-    auto work = std::make_unique<hh::Data>(m);
-    static_cast<hh::FleshState&>(*work) = static_cast<const hh::FleshState&>(d);
-    work->h = d.h;
-    work->device = d.device;
-    work->device.enabled = work->device.prescribed = true;
-    const double dt = m.params.dt;
-    const hh::Vec4 turned = hh::quat_multiply(hh::quat_from_rotation_vector(dt * d.h.omega), d.h.q).normalized();
-    work->device.position = d.h.x_com + dt * vh.head<3>();
-    work->device.quaternion =
-        hh::quat_multiply(hh::quat_from_rotation_vector(dt * (vh.tail<3>() - d.h.omega)), turned).normalized();
-    hh::step(m, *work, false);
-    return work;
-}
-
-// J_l(phi): d exp(phi + e) = exp(J_l e) exp(phi) to first order in e
-hh::Mat3 left_jacobian(const hh::Vec3& phi) {
-    const double a = phi.norm();
-    const hh::Mat3 k = hh::skew(phi);
-    if (a < 1e-6) return hh::Mat3::Identity() + 0.5 * k + k * k / 6.0;
-    return hh::Mat3::Identity() + (1 - std::cos(a)) / (a * a) * k + (a - std::sin(a)) / (a * a * a) * k * k;
-}
-}  // namespace
-
 int hh_coupling_linear_model(const hh_model* model, const hh_data* data, double wrench0[6], double response[36]) {
     return guard([&] {
         require(model && data && wrench0 && response, "hh_coupling_linear_model: null pointer");
         hh::capi::require_one_bone(model->m, "hh_coupling_linear_model");
-        const hh::Model& m = model->m;
-        const double dt = m.params.dt;
-        // the step with v_h = 0 (the handle ends where it starts) and the model's stiffness there,
-        // taken to the velocity: d(dx, dtheta) = dt (dv_com, J_l(-dt omega) domega)
-        auto w = driven_copy(m, data->d, hh::Vec6::Zero());
-        const hh::CouplingModel cm = hh::hand_coupling_model(m, *w, hh::Mat6::Zero());
-        hh::Mat6 pose_rate = dt * hh::Mat6::Identity();
-        pose_rate.bottomRightCorner<3, 3>() = dt * left_jacobian(-dt * data->d.h.omega);
-        const hh::Mat6 r = cm.stiffness * pose_rate;
+        // the palm handle is the one bone of hh_bone_linear_model (haptics/bone_model.h)
+        const hh::BoneLinearModel lm = hh::bone_linear_model(model->m, data->d);
         for (int i = 0; i < 6; ++i) {
-            wrench0[i] = cm.wrench[i];
-            for (int j = 0; j < 6; ++j) response[6 * i + j] = r(i, j);
+            wrench0[i] = lm.wrench0[i];
+            for (int j = 0; j < 6; ++j) response[6 * i + j] = lm.response(i, j);
         }
         return HH_OK;
     });
@@ -308,13 +273,8 @@ int hh_coupling_response(const hh_model* model, const hh_data* data, const doubl
         hh::Vec6 vh;
         for (int i = 0; i < 6; ++i) vh[i] = handle_velocity[i];
         require(vh.allFinite(), "handle velocity must be finite");
-        auto w = driven_copy(m, data->d, vh);
-        hh::Vec3 f, t;
-        hh::coupling_wrench(m, *w, f, t);
-        for (int i = 0; i < 3; ++i) {
-            wrench[i] = f[i];
-            wrench[3 + i] = t[i];
-        }
+        const hh::VecX w = hh::bone_response(m, data->d, vh);
+        for (int i = 0; i < 6; ++i) wrench[i] = w[i];
         return HH_OK;
     });
 }

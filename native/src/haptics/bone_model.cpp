@@ -20,6 +20,11 @@ VecX stacked(const std::vector<Vec6>& w) {
     for (size_t b = 0; b < w.size(); ++b) out.segment<6>(6 * b) = w[b];
     return out;
 }
+// The angular velocity of the frame of a step whose bones are all prescribed (the root held).
+Vec3 held_turn(const Model& m, const Data& d) {
+    return hand_motion(m, d.x, d.v, true, [&](int b) -> const HandleState& { return bone_state(d, b); }).omega;
+}
+
 }  // namespace
 
 std::unique_ptr<Data> driven_bones(const Model& m, const Data& d, const VecX& vh) {
@@ -32,9 +37,10 @@ std::unique_ptr<Data> driven_bones(const Model& m, const Data& d, const VecX& vh
     work->bones = d.bones;
     work->targets = d.targets;
     work->device = d.device;
-    // a prescribed root holds the frame: it turns by exp(dt omega_root) about the root's centre
+    // a prescribed root holds the frame: it turns by exp(dt omega) about the root's centre, omega
+    // the hand's own turn (sim/step_frame.h)
     const double dt = m.params.dt;
-    const Vec3 c = d.h.x_com, omega = d.h.omega;
+    const Vec3 c = d.h.x_com, omega = held_turn(m, d);
     const Vec4 turn = quat_from_rotation_vector(dt * omega);
     const Mat3 rot = quat_to_matrix(turn);
     for (int b = 0; b < nb; ++b) {
@@ -63,7 +69,7 @@ BoneLinearModel bone_linear_model(const Model& m, const Data& d) {
     if (nb == 1) {  // the palm handle's model (hh_coupling_linear_model), the same step
         const CouplingModel cm = hand_coupling_model(m, *w, Mat6::Zero());
         Mat6 pose_rate = dt * Mat6::Identity();
-        pose_rate.bottomRightCorner<3, 3>() = dt * left_jacobian(-dt * d.h.omega);
+        pose_rate.bottomRightCorner<3, 3>() = dt * left_jacobian(-dt * held_turn(m, d));
         out.wrench0 = cm.wrench;
         out.response = cm.stiffness * pose_rate;
         return out;
@@ -71,9 +77,9 @@ BoneLinearModel bone_linear_model(const Model& m, const Data& d) {
     out.wrench0 = stacked(bone_wrenches(m, *w));
     const double k = m.params.spring_stiffness, damping = m.params.spring_damping;
     // d(x_b, theta_b)/d(v_b, omega_b) of the end pose at v_h = 0: dt I, and dt J_l of the end's
-    // turn relative to the frame, exp(dt (omega_b - omega_root)) at omega_b = 0
+    // turn relative to the frame, exp(dt (omega_b - omega)) at omega_b = 0
     Mat6 pose_rate = dt * Mat6::Identity();
-    pose_rate.bottomRightCorner<3, 3>() = dt * left_jacobian(-dt * d.h.omega);
+    pose_rate.bottomRightCorner<3, 3>() = dt * left_jacobian(-dt * held_turn(m, d));
     const MatX& columns = w->skeleton.flesh_response();  // A_t^-1 A_th (3n x 6B)
     out.response = MatX::Zero(6 * nb, 6 * nb);
     for (int b = 0; b < nb; ++b) {

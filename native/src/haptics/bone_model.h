@@ -12,7 +12,7 @@
 namespace hh {
 
 // A copy of d with every bone prescribed to the pose its end velocity vh (6B: v_b, omega_b)
-// reaches from the step's frame (the root's turn about the root), stepped once.
+// reaches from the step's frame (the hand's turn about the root), stepped once.
 std::unique_ptr<Data> driven_bones(const Model& m, const Data& d, const VecX& vh);
 
 // W(vh): every bone's springs' wrench (force, torque about its centre) at the end of that step.

@@ -31,25 +31,12 @@ void free_frame_terms(const Model& model, const Data& data, const std::vector<Ha
 
 void update_skeleton_frame(const Model& model, const Data& data, StepFrame& f, std::vector<HandleState>& carried) {
     const int n = model.mesh.n_nodes, nb = model.n_bones();
-    const HandleState& root = data.h;
     const bool held = data.device.enabled || data.device.prescribed;
     f.dt = model.params.dt;
-    f.omega = root.omega;
-    if (held) {
-        f.center = root.x_com;
-    } else {
-        Vec3 sum = Vec3::Zero();
-        double mass = 0;
-        for (int b = 0; b < nb; ++b) {
-            sum += model.skeleton.bones[b].mass * bone_state(data, b).x_com;
-            mass += model.skeleton.bones[b].mass;
-        }
-        for (int i = 0; i < n; ++i) {
-            sum += model.masses[i] * data.x.segment<3>(3 * i);
-            mass += model.masses[i];
-        }
-        f.center = sum / mass;
-    }
+    const FrameMotion motion =
+        hand_motion(model, data.x, data.v, held, [&](int b) -> const HandleState& { return bone_state(data, b); });
+    f.center = motion.center;
+    f.omega = motion.omega;
     f.turn = quat_from_rotation_vector(f.dt * f.omega);
     f.rotation = quat_to_matrix(f.turn);
     f.remainder = (Mat3::Identity() - f.dt * skew(f.omega)) * f.rotation - Mat3::Identity();

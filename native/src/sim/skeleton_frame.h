@@ -1,7 +1,7 @@
-// The step's rigid frame (sim/step_frame.h) for a hand of B bones: the root bone's rotation
-// over the step at its start-of-step angular velocity, R = exp(dt omega_root), about the root's
-// centre when a target holds it, else the whole hand's centre of mass (every bone counted, as
-// the palm handle is). Every bone is carried by it as the palm handle is: centre c + R (x_b - c),
+// The step's rigid frame (sim/step_frame.h) for a hand of B bones: the hand's own rotation
+// over the step at its start-of-step angular velocity, R = exp(dt omega) (hand_motion, every
+// bone counted with its mass, inertia and spin), about the root's centre when a target holds
+// it, else the whole hand's centre of mass. Every bone is carried by it as the palm handle is: centre c + R (x_b - c),
 // orientation R q_b, velocity omega x R (x_b - c), angular velocity omega. With one bone this is
 // update_step_frame; the one-bone step uses that and never comes here.
 #pragma once

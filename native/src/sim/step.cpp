@@ -107,7 +107,7 @@ void formulate_end(const Model& model, Data& data) {
     ah.bottomRightCorner<3, 3>() = inertia;
     Vec6 bh;
     bh.head<3>() = relative_momentum(f, model.handle.mass, h.x_com, h.v_com) - f.imbalance;
-    bh.tail<3>() = inertia * (h.omega - f.omega) - dt * f.omega.cross(inertia * f.omega);  // gyroscopic, explicit
+    bh.tail<3>() = inertia * (h.omega - f.omega) - dt * h.omega.cross(inertia * h.omega);  // gyroscopic, explicit
     const DeviceFrame& dev = data.device;
     if (dev.enabled) {
         // One-directional viscoelastic virtual coupling to the device frame at the end of the

@@ -4,23 +4,29 @@
 
 namespace hh {
 
+namespace {
+Mat3 point_inertia(double m, const Vec3& r) { return m * (r.squaredNorm() * Mat3::Identity() - r * r.transpose()); }
+}  // namespace
+
+void TurnFit::add_point(double m, const Vec3& r, const Vec3& v_relative) {
+    inertia += point_inertia(m, r);
+    momentum += m * r.cross(v_relative);
+}
+
+void TurnFit::add_body(double m, const Mat3& world_inertia, const Vec3& r, const Vec3& v_relative, const Vec3& omega) {
+    add_point(m, r, v_relative);
+    inertia += world_inertia;
+    momentum += world_inertia * omega;
+}
+
+Vec3 TurnFit::omega() const { return inertia.ldlt().solve(momentum); }
+
 void update_step_frame(const Model& model, const VecX& x, const VecX& v, const HandleState& h, bool held, StepFrame& f) {
     const int n = model.mesh.n_nodes;
     f.dt = model.params.dt;
-    f.omega = h.omega;
-    // Held, the hand turns about its handle (the device's pose is the handle's); free, about
-    // its centre of mass, which then moves on a straight line as the frame's centre does.
-    if (held) {
-        f.center = h.x_com;
-    } else {
-        Vec3 sum = model.handle.mass * h.x_com;
-        double mass = model.handle.mass;
-        for (int i = 0; i < n; ++i) {
-            sum += model.masses[i] * x.segment<3>(3 * i);
-            mass += model.masses[i];
-        }
-        f.center = sum / mass;
-    }
+    const FrameMotion motion = hand_motion(model, x, v, held, [&](int) -> const HandleState& { return h; });
+    f.center = motion.center;
+    f.omega = motion.omega;
     f.turn = quat_from_rotation_vector(f.dt * f.omega);
     f.rotation = quat_to_matrix(f.turn);
     f.remainder = (Mat3::Identity() - f.dt * skew(f.omega)) * f.rotation - Mat3::Identity();
@@ -44,9 +50,6 @@ void update_step_frame(const Model& model, const VecX& x, const VecX& v, const H
     f.inertia_inverse.setZero();
     f.start_moment.setZero();
     if (f.free) {
-        auto point_inertia = [](double m, const Vec3& r) {
-            return m * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
-        };
         const Mat3 turned = quat_to_matrix(f.handle.q);
         Mat3 inertia =
             turned * model.handle.inertia_body * turned.transpose() + point_inertia(model.handle.mass, handle_turned);

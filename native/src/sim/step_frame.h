@@ -1,11 +1,12 @@
 // The rigid motion a step advances the whole hand by (docs/maths.md, "Rotation-consistent
-// integration"): the handle's rotation over the step at its start-of-step angular velocity,
+// integration"): the hand's own rotation over the step at its start-of-step angular velocity,
 // R = exp(dt omega), about a centre c. The step linearizes Eq. 7 about the state this motion
 // carries the hand to, and solves for the velocities relative to it: a hand that turns rigidly
 // with its handle then turns exactly (its springs and flesh are not stretched by the chord of
 // the turn, r (1 - cos omega dt)), its velocities turn with it, and its momentum is kept.
 #pragma once
 #include "coupling/springs.h"
+#include "rigid/quaternion.h"
 #include "sim/model.h"
 
 namespace hh {
@@ -14,7 +15,7 @@ struct StepFrame {
     double dt = 0;
     Vec3 center = Vec3::Zero();  // c: the handle's centre of mass when the handle is held (a
                                  // device couples or prescribes it), else the hand's (flesh and handle)
-    Vec3 omega = Vec3::Zero();   // the handle's angular velocity at the start of the step
+    Vec3 omega = Vec3::Zero();   // the hand's angular velocity at the start of the step (TurnFit)
     Vec4 turn = Vec4(0, 0, 0, 1);  // exp(dt omega)
     Mat3 rotation = Mat3::Identity();
     // (I - dt [omega]x) R - I: what turning by R adds to the straight step dt omega x R r of the
@@ -44,6 +45,63 @@ struct StepFrame {
         return out;
     }
 };
+
+// The angular velocity of the rigid turn about c that best fits a hand's velocities: the least
+// squares fit, weighted by mass, of v - v_c = omega x (x - c) over its flesh nodes and handles
+// (a handle with its inertia and its own spin): omega = I_c^-1 sum m (x - c) x (v - v_c). A hand
+// turning rigidly gives its handle's angular velocity; a handle spun alone (a device's sudden
+// turn, a state set by hand) leaves the frame with the flesh, where the linearization belongs:
+// a frame at the handle's angular velocity while the flesh stood still turned the stiff springs'
+// linearization point away from where the step ends, and the step gained energy.
+struct TurnFit {
+    Mat3 inertia = Mat3::Zero();
+    Vec3 momentum = Vec3::Zero();
+    void add_point(double m, const Vec3& r, const Vec3& v_relative);
+    void add_body(double m, const Mat3& world_inertia, const Vec3& r, const Vec3& v_relative, const Vec3& omega);
+    Vec3 omega() const;
+};
+
+// The frame's centre and angular velocity for a hand whose bone b (0: the palm handle or the
+// root) has the state bone(b): c the root's centre when a device holds it (the hand turns about
+// the device's pose), else the hand's centre of mass (moving on a straight line); omega the
+// TurnFit about c.
+struct FrameMotion {
+    Vec3 center, omega;
+};
+template <class Bones>
+FrameMotion hand_motion(const Model& model, const VecX& x, const VecX& v, bool held, const Bones& bone) {
+    const int n = model.mesh.n_nodes, nb = model.n_bones();
+    FrameMotion out;
+    Vec3 v_center = bone(0).v_com;
+    out.center = bone(0).x_com;
+    if (!held) {
+        Vec3 sum = Vec3::Zero(), p = Vec3::Zero();
+        double mass = 0;
+        for (int b = 0; b < nb; ++b) {
+            sum += model.skeleton.bones[b].mass * bone(b).x_com;
+            p += model.skeleton.bones[b].mass * bone(b).v_com;
+            mass += model.skeleton.bones[b].mass;
+        }
+        for (int i = 0; i < n; ++i) {
+            sum += model.masses[i] * x.segment<3>(3 * i);
+            p += model.masses[i] * v.segment<3>(3 * i);
+            mass += model.masses[i];
+        }
+        out.center = sum / mass;
+        v_center = p / mass;
+    }
+    TurnFit fit;
+    for (int b = 0; b < nb; ++b) {
+        const HandleState& h = bone(b);
+        const Mat3 turned = quat_to_matrix(h.q);
+        fit.add_body(model.skeleton.bones[b].mass, turned * model.skeleton.bones[b].inertia_body * turned.transpose(),
+                     h.x_com - out.center, h.v_com - v_center, h.omega);
+    }
+    for (int i = 0; i < n; ++i)
+        fit.add_point(model.masses[i], x.segment<3>(3 * i) - out.center, v.segment<3>(3 * i) - v_center);
+    out.omega = fit.omega();
+    return out;
+}
 
 // The frame of the step from the current state (x, v, the handle, whether a device holds it).
 void update_step_frame(const Model& model, const VecX& x, const VecX& v, const HandleState& h, bool held, StepFrame& f);
