@@ -217,7 +217,8 @@ def _check_haptics(scene: "Scene") -> None:
 
 def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     if not isinstance(data, dict):
-        raise SceneError("a scene is a JSON object")
+        raise SceneError(f"the scene is {json.dumps(data)[:40]}, not a JSON object: a scene file holds one object, "
+                         f'{{"format": "{format_name()}", "hand": {{...}}, ...}} (docs/scene_format.md)')
     if "format" not in data:
         raise SceneError(f'the scene has no "format": add "format": "{format_name()}" (docs/scene_format.md)')
     merged = _merge(defaults(), data, "")

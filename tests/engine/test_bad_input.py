@@ -140,8 +140,34 @@ def hand_tets(d: Path):
     return stored["nodes"], stored["tets"]
 
 
+def soft_box(**fields) -> dict:
+    return {"name": "b", "type": "soft", "mesh": "box", "position": [0.3, 0, 0], **fields}
+
+
 # (name, how the base scene changes given the scene's folder, words the message must hold)
 BAD_SCENES = [
+    # whole sections of the wrong JSON type: the field, what it must be
+    ("hand a string", lambda d, s: put(s, "hand", "hand.obj"), 'hand = "hand.obj" is invalid: it must be an object'),
+    ("material a list", lambda d, s: put(s, "material", [5e4, 0.3]), "material = [50000.0, 0.3] is invalid: it must "
+     "be an object with the fields young_modulus"),
+    ("haptics a number", lambda d, s: put(s, "haptics", 1), "haptics = 1 is invalid: it must be an object"),
+    ("device null", lambda d, s: put(s, "device", None), "device = null is invalid: it must be an object"),
+    ("trajectory an object", lambda d, s: put(s, "device.trajectory", {"t": 0}),
+     "device.trajectory must be a non-empty list"),
+    ("hand.tetrahedralize a list", lambda d, s: put(s, "hand.tetrahedralize", [0.2]),
+     "hand.tetrahedralize = [0.2] is invalid: it must be an object"),
+    ("bodies an object", lambda d, s: put(s, "bodies", soft_box()), "bodies = {\"name\": \"b\""),
+    ("bodies a string", lambda d, s: put(s, "bodies", "box"), 'bodies = "box" is invalid: it must be a list of body '
+     "objects"),
+    ("a body a string", lambda d, s: put(s, "bodies", ["box"]), 'bodies[0] = "box" is invalid: each body must be an '
+     "object"),
+    ("a body null", lambda d, s: put(s, "bodies", [soft_box(), None]), "bodies[1] = null is invalid"),
+    ("a body's material a list", lambda d, s: put(s, "bodies", [soft_box(material=[1e5])]),
+     "bodies[0] ('b').material = [100000.0] is invalid: it must be an object"),
+    ("a body's solver a string", lambda d, s: put(s, "bodies", [soft_box(solver="cg")]),
+     "bodies[0] ('b').solver = \"cg\" is invalid: it must be an object"),
+    ("the scene a list", lambda d, s: [s], "the scene is [{"),
+    ("the scene null", lambda d, s: None, "the scene is null, not a JSON object"),
     ("trajectory point not an object", lambda d, s: put(s, "device.trajectory", [1, 2]), "device.trajectory[0]"),
     ("trajectory time a string", lambda d, s: put(s, "device.trajectory", [{"t": "x"}]), "device.trajectory[0].t"),
     ("trajectory position of strings", lambda d, s: put(s, "device.trajectory", [{"t": 0, "position": ["1", "2", "3"]}]),
