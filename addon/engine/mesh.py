@@ -187,9 +187,12 @@ def procedural_hand_palm_seed() -> np.ndarray:
 
 
 def load_obj(path):
-    """Vertices and triangles of an OBJ file; polygons are split into fans, vt/vn ignored."""
+    """Vertices and triangles of an OBJ file; polygons are split into fans, vt/vn ignored.
+    A line that cannot be read, or a face index outside the file's vertices, is a MeshError
+    naming the line (an index is never wrapped to 32 bits)."""
     vertices = []
     triangles = []
+    face_lines = []  # the line of each triangle, for messages
     with open(path, encoding="utf-8", errors="replace") as obj:
         for line_number, line in enumerate(obj, start=1):
             fields = line.split()
@@ -197,22 +200,39 @@ def load_obj(path):
                 continue
             try:
                 if fields[0] == "v":
+                    if len(fields) < 4:
+                        raise ValueError(f"a vertex needs 3 coordinates x y z, this one has {len(fields) - 1}")
                     vertices.append([float(x) for x in fields[1:4]])
                 elif fields[0] == "f":
+                    if len(fields) < 4:
+                        raise ValueError(f"a face needs at least 3 corners, this one has {len(fields) - 1}")
                     # "f 1/2/3 ..." keeps only the position index; negative is relative.
                     corners = [int(field.split("/")[0]) for field in fields[1:]]
                     corners = [c - 1 if c > 0 else len(vertices) + c for c in corners]
                     triangles.extend(
                         [corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1)
                     )
+                    face_lines.extend([line_number] * (len(corners) - 2))
             except ValueError as error:
                 raise MeshError(
                     f"{path}:{line_number}: cannot read {fields[0]!r} line ({error}); "
                     "re-export the mesh as OBJ with triangulated or polygon faces"
                 ) from None
     V = np.array(vertices, dtype=np.float64).reshape(-1, 3)
-    F = np.array(triangles, dtype=np.int32).reshape(-1, 3)
-    return V, F
+    return V, _obj_faces(triangles, face_lines, len(V), path)
+
+
+def _obj_faces(triangles: list, lines: list, n: int, path) -> np.ndarray:
+    """The triangles as int32, each index checked against the n vertices while still a Python
+    integer (numpy would wrap 2^32 + 3 to 3)."""
+    outside = next((k for k, t in enumerate(triangles) if not all(0 <= c < n for c in t)), None)
+    if outside is not None:
+        shown = [c + 1 for c in triangles[outside]]  # OBJ counts from 1
+        raise MeshError(
+            f"{path}:{lines[outside]}: face refers to vertex {shown}, outside 1..{n} (the file has {n} vertices; "
+            "an index is refused, never wrapped); re-export the mesh"
+        )
+    return np.array(triangles, dtype=np.int32).reshape(-1, 3)
 
 
 def save_obj(path, V, F):

@@ -135,6 +135,22 @@ def overlapping_shells_obj(d: Path) -> str:
     return "two_hands.obj"
 
 
+def hand_obj_with(d: Path, name: str, edit) -> str:
+    """The procedural hand as an OBJ file whose lines `edit` changes (a list of str in, out)."""
+    v, f = mesh.procedural_hand()
+    mesh.save_obj(d / name, v, f)
+    (d / name).write_text("".join(edit((d / name).read_text().splitlines(keepends=True))))
+    return name
+
+
+def wrapped_face(lines: list) -> list:
+    """The first face's first corner moved up by 2^32: wrapped to 32 bits it is the same vertex."""
+    k = next(i for i, line in enumerate(lines) if line.startswith("f "))
+    corners = lines[k].split()[1:]
+    lines[k] = f"f {int(corners[0]) + 2**32} {corners[1]} {corners[2]}\n"
+    return lines
+
+
 def hand_tets(d: Path):
     stored = np.load(HAND_TETS)
     return stored["nodes"], stored["tets"]
@@ -214,6 +230,13 @@ BAD_SCENES = [
      "6 mm deep"),
     ("hand of two overlapping shells", lambda d, s: put(put(s, "hand.mesh", overlapping_shells_obj(d)),
                                                         "hand.palm_seed", [0, 0, -0.0425]), "intersects itself"),
+    ("OBJ vertex of two coordinates", lambda d, s: put(s, "hand.mesh", hand_obj_with(
+        d, "two.obj", lambda lines: ["v 0.01 0.02\n"] + lines)), "two.obj:1: cannot read 'v' line (a vertex needs 3 "
+     "coordinates x y z, this one has 2)"),
+    ("OBJ face of two corners", lambda d, s: put(s, "hand.mesh", hand_obj_with(
+        d, "edge.obj", lambda lines: lines + ["f 1 2\n"])), "a face needs at least 3 corners"),
+    ("OBJ face index beyond 32 bits", lambda d, s: put(s, "hand.mesh", hand_obj_with(d, "wide.obj", wrapped_face)),
+     "face refers to vertex [42949"),
     ("playback file missing", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:nope.csv"}),
      "does not exist"),
     ("playback file corrupt", lambda d, s: put(s, "haptics", {"enabled": True,
@@ -248,6 +271,48 @@ def test_bad_scene_gets_a_message_and_check_rig_refuses_it_alike(scene_dir, caps
     assert main(["check-rig", str(path), "--json"]) == 1
     report = json.loads(capsys.readouterr().out)
     assert not report["ok"] and [c["detail"] for c in report["checks"]] == [message]
+
+
+def not_utf8(path: Path) -> Path:
+    path.write_bytes(json.dumps(base_scene()).replace("procedural", "proc\u00e9dural").encode("latin-1"))
+    return path
+
+
+@pytest.mark.parametrize("make, words", [
+    (not_utf8, "is not UTF-8 text (byte 0xe9 at offset"),
+    (lambda p: p.mkdir() or p, "is a directory: give the path of a scene .json file"),
+    (lambda p: p.with_name("missing.json"), "does not exist: give the path of a scene .json file"),
+], ids=["not UTF-8", "a directory", "missing"])
+def test_a_scene_file_that_cannot_be_read_gets_a_message(scene_dir, capsys, make, words):
+    path = make(scene_dir / "scene.json")
+    assert main(["simulate", str(path), "--out", str(scene_dir / "result.npz"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "internal error" not in err and "Traceback" not in err
+    assert main(["check-rig", str(path), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["checks"][0]["detail"] == err.strip().removeprefix("error: ")
+
+
+def test_a_scene_file_with_a_byte_order_mark_is_read(scene_dir):
+    path = scene_dir / "scene.json"
+    path.write_bytes(b"\xef\xbb\xbf" + json.dumps(base_scene()).encode())
+    assert scenes.load(path).frames == 2
+
+
+def test_check_rig_json_reports_an_internal_error_with_every_key(scene_dir, capsys, monkeypatch):
+    path = scene_dir / "scene.json"
+    path.write_text(json.dumps(put(base_scene(), "hand.tets", "nope.npz")))
+    assert main(["check-rig", str(path), "--json"]) == 1
+    refused = json.loads(capsys.readouterr().out)
+
+    def bug(scene):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(rig_check, "check", bug)
+    assert main(["check-rig", str(path), "--json"]) == 3
+    report = json.loads(capsys.readouterr().out)
+    assert set(report) == set(refused) == {"ok", "checks", "warnings"}
+    assert report["warnings"] == [] and "internal error (ZeroDivisionError: a bug)" in report["checks"][0]["detail"]
 
 
 def test_check_rig_json_is_json_for_a_file_that_is_not_json(scene_dir, capsys):
