@@ -94,7 +94,7 @@ import shutil  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from haptic_hand.__main__ import main  # noqa: E402
-from haptic_hand.engine import rig_check, scene as scenes  # noqa: E402
+from haptic_hand.engine import params, rig_check, scene as scenes  # noqa: E402
 
 SAMPLES = Path(__file__).resolve().parents[2] / "addon" / "engine" / "sample_scenes"
 HAND_TETS = SAMPLES / "procedural_hand_tets.npz"
@@ -330,6 +330,34 @@ def test_a_run_too_large_for_memory_is_refused_before_allocating(scene_dir):
     with pytest.raises(scenes.SceneError, match=r"frames = 1000000 would need about 2\d\.\d GiB"):
         scenes.check_memory(scene, 937, available=16 * 2**30)
     scenes.check_memory(scenes.from_dict(base_scene(), scene_dir), 937, available=16 * 2**30)
+
+
+@pytest.mark.parametrize("frames, shown", [(2e9, "2e+09"), (2_000_000_000, "2e+09"), (1_000_001, "1000001")])
+def test_frames_beyond_the_cap_are_refused_before_anything_is_allocated(scene_dir, capsys, frames, shown):
+    """frames = 2e9 once asked numpy for 40.9 TiB (a MemoryError); the table caps frames at 1e6
+    (about 9 hours at 30 Hz), checked when the scene is read, before the tets are loaded."""
+    import tracemalloc
+
+    path = scene_dir / "scene.json"
+    path.write_text(json.dumps(put(base_scene(), "frames", frames)))
+    tracemalloc.start()
+    try:
+        code = main(["simulate", str(path), "--out", str(scene_dir / "result.npz"), "--quiet"])
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    err = capsys.readouterr().err
+    assert code == 2 and f"frames = {shown} is invalid: it must be a whole number in [1, 1e+06]" in err
+    assert peak < 32 * 2**20, f"{peak / 2**20:.0f} MiB allocated before refusing"  # the hand's tets alone are ~0.1 MiB
+    assert main(["check-rig", str(path), "--json"]) == 1
+    assert json.loads(capsys.readouterr().out)["checks"][0]["detail"] == err.strip().removeprefix("error: ")
+
+
+def test_the_frames_cap_is_a_million():
+    assert params.by_json("frames").max == 1e6
+    assert scenes.from_dict(put(base_scene(), "frames", 1_000_000)).frames == 1_000_000
+    with pytest.raises(scenes.SceneError, match=r"frames = 1000001 is invalid"):
+        scenes.from_dict(put(base_scene(), "frames", 1_000_001))
 
 
 def test_the_memory_estimate_covers_what_a_run_holds(scene_dir):
