@@ -323,9 +323,17 @@ def _check_coincident_vertices(V, F) -> None:
         twins = used[np.flatnonzero(np.all(V[used] == V[first], axis=1))]
         raise MeshError(
             f"surface has {int(repeated.sum())} vertices at the same position as another (first: vertices "
-            f"{', '.join(map(str, twins[:4]))} at {np.round(V[first], 6).tolist()} m): the surface touches itself "
-            "there; merge them (Blender: Mesh > Clean Up > Merge by Distance)"
+            f"{', '.join(map(str, twins[:4]))} at {np.round(V[first], 6).tolist()} m, in triangles "
+            f"{_triangles_at(F, twins)}): the surface touches itself there; duplicated vertices: merge them "
+            "(Blender: Mesh > Clean Up > Merge by Distance); two parts touching along an edge or at a corner: move "
+            "them apart, or overlap them and join them into one shell (Face > Intersect (Boolean), Union)"
         )
+
+
+def _triangles_at(F, vertices, shown: int = 8) -> str:
+    """The first triangles that use any of the vertices, for messages."""
+    faces = np.flatnonzero(np.isin(F, vertices).any(axis=1))
+    return ", ".join(map(str, faces[:shown])) + (", ..." if len(faces) > shown else "")
 
 
 def _unique_edges(F) -> np.ndarray:
@@ -360,10 +368,11 @@ def _check_spikes(V, F) -> None:
         first = spikes[np.argmax(shortest[spikes])]
         raise MeshError(
             f"surface has {len(spikes)} spike vertices whose every edge is over {SPIKE_FACTOR:g}x the surface's "
-            f"median edge ({median * 1e3:.3g} mm): vertex {first} at {np.round(V[first], 6).tolist()} m has its "
-            f"shortest edge {shortest[first] * 1e3:.3g} mm (a coordinate lost on export reads as 0; Blender's OBJ "
-            "importer turns nan into 0); move it back onto the surface or delete it and fill the hole "
-            "(Blender: select it, Mesh > Delete > Vertices, then Face > Fill)"
+            f"median edge ({median * 1e3:.3g} mm): vertex {first} at {np.round(V[first], 6).tolist()} m, in "
+            f"triangles {_triangles_at(F, [first])}, has its shortest edge {shortest[first] * 1e3:.3g} mm (a "
+            "coordinate lost on export reads as 0; Blender's OBJ importer turns nan into 0); move it back onto the "
+            "surface, or delete it and fill the hole (Blender: select it, Mesh > Delete > Vertices, then Mesh > "
+            "Clean Up > Fill Holes)"
         )
 
 
@@ -386,7 +395,8 @@ def _check_manifold_edges(V, F) -> None:
             "surface is non-manifold: {count} edges shared by more than two triangles",
             "make every edge border exactly two faces (Blender: Select > Select All by "
             "Trait > Non Manifold, then delete or separate the extra faces; Mesh > Clean Up > "
-            "Merge by Distance if they are duplicates)",
+            "Merge by Distance if they are duplicates; two solids sharing an edge: move them apart, "
+            "or overlap them and join them with Face > Intersect (Boolean), Union)",
         ),
     ):
         if mask.any():
