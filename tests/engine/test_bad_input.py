@@ -247,7 +247,7 @@ BAD_SCENES = [
     ("playback file with NaN times", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:" + write_text(
         d, "nt.csv", "0,0,0,0\nnan,0,0,0\n")}), "finite"),
     ("playback file empty", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:" + write_text(
-        d, "e.csv", "")}), "every line"),
+        d, "e.csv", "")}), "holds no rows"),
     ("playback times not increasing", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:" + write_text(
         d, "m.csv", "0,0,0,0\n1,0,0,0\n0.5,0,0,0\n")}), "increase strictly"),
 ]
