@@ -356,3 +356,62 @@ def test_check_rig_in_blender_reports_the_droop_and_refuses_a_soft_rig(addon, bu
     nodes = int(handle["detail"].split()[0])
     expected = hand_mass * 9.81 / (nodes * 20.0)
     assert 0.8 * expected < droop["spring_stretch"] < 1.3 * expected, (droop["spring_stretch"], expected)
+
+
+def test_tetrahedralize_warns_of_a_hand_modelled_in_millimetres(addon, capfd):
+    """The procedural hand (19 cm) modelled in millimetres and read as metres is 190 m long: a
+    WARNING report names the unit it looks modelled in and the factor; a hand of human size
+    gets none, and neither does a soft body of any size."""
+    context = addon
+    v, f = meshing.procedural_hand()
+    length = float(np.ptp(v, axis=0).max())
+    hand = add_mesh(context, "Hand", v * 1000, f)
+    o = hand.haptic_hand
+    o.edge_length_fac, o.coarsen, o.epsilon = 0.2, True, 0.004
+    assert bpy.ops.haptic_hand.use_as_hand() == {"FINISHED"}
+    capfd.readouterr()
+    assert bpy.ops.haptic_hand.tetrahedralize() == {"FINISHED"}
+    out = capfd.readouterr().out
+    expected = (f"Warning: 'Hand': the hand is {length * 1000:.4g} m long, far from a human hand's 5-50 cm: it looks "
+                f"modelled in millimetres ({length * 1000:.4g} millimetres = {length * 100:.3g} cm): scale it by 0.001")
+    assert expected in out, out
+    assert out.index(expected) < out.index("Info: 'Hand':"), "warned when it starts, before the tets are made"
+
+    human = add_mesh(context, "Human", v, f)
+    context.scene.haptic_hand.hand = human
+    job = ops_rig.start_tetrahedralize(context, human)
+    job.cancel(), job.child.wait(), job.release()
+    assert job.warnings == []
+    giant = add_mesh(context, "Giant", v * 1000, f)  # not the hand: a soft body has no human size
+    job = ops_rig.start_tetrahedralize(context, giant)
+    job.cancel(), job.child.wait(), job.release()
+    assert job.warnings == []
+
+
+def test_bake_warns_of_a_hand_modelled_in_millimetres(addon, built_scenes, tmp_path, capfd):
+    """The sample hand scaled by 1000 (a hand in millimetres read as metres): Bake warns when it
+    starts, Check Rig lists the warning; with the handle radius left in centimetres the bake is
+    refused, and the refusal says why."""
+    from blender_helpers import open_copy
+
+    context = open_copy(built_scenes("hand_wave"), tmp_path)
+    s = context.scene.haptic_hand
+    s.bake_frame_end = s.bake_frame_start + 2
+    length = float(np.ptp(meshdata.world_vertices(s.hand, context.scene), axis=0).max())
+    s.hand.scale = (1000.0,) * 3
+    context.view_layer.update()
+    with pytest.raises(RuntimeError, match=r"captures 0 node.*it looks modelled in millimetres.*scale it by 0.001"):
+        bpy.ops.haptic_hand.bake()
+    assert not s.baked
+
+    s.handle_radius *= 1000  # the handle now catches the nodes it caught before; no gravity to hang on it
+    context.scene.use_gravity = False
+    capfd.readouterr()
+    bpy.ops.haptic_hand.bake()
+    out = capfd.readouterr().out
+    expected = f"Warning: the hand is {length * 1000:.4g} m long, far from a human hand's 5-50 cm: it looks modelled in " \
+               "millimetres"
+    assert expected in out and out.index(expected) < out.index("Info:"), out
+    capfd.readouterr()
+    bpy.ops.haptic_hand.check_rig()  # and Check Rig lists it with its report
+    assert f"warning: the hand is {length * 1000:.4g} m long" in capfd.readouterr().out
