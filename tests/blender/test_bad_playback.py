@@ -96,6 +96,20 @@ def wave(addon, built_scenes, tmp_path):
     return context
 
 
+def bake_refused(context, capfd, words, path, recording=None) -> None:
+    """prepare() refuses the bake, and so does its operator, run from a script or invoked."""
+    with pytest.raises((ops_bake.BakeError, devices.DeviceError), match=words):
+        ops_bake.prepare(context, recording=recording)
+    name = "bake" if recording is None else "bake_recording"
+    if recording is not None and not bpy.ops.haptic_hand.bake_recording.poll():
+        # no recording at all: the button is greyed out, its tooltip saying why
+        with pytest.raises(RuntimeError, match="Record a live session first"):
+            bpy.ops.haptic_hand.bake_recording()
+        return
+    refused(capfd, getattr(bpy.ops.haptic_hand, name), words, path)
+    invoke_refused(getattr(ops_bake, f"HAPTIC_HAND_OT_{name}"), context, words, path)
+
+
 @pytest.mark.parametrize("haptics", [True, False], ids=["haptic loop", "device trajectory"])
 @pytest.mark.parametrize("name, file, content, words", BAD_RECORDINGS, ids=IDS)
 def test_bake_refuses_a_bad_playback_file(wave, tmp_path, capfd, haptics, name, file, content, words):
@@ -106,10 +120,7 @@ def test_bake_refuses_a_bad_playback_file(wave, tmp_path, capfd, haptics, name, 
     s.haptics_enabled = haptics
     s.device, s.device_file = "PLAYBACK", write(tmp_path, file, content)
     before = snapshot(context)
-    with pytest.raises((ops_bake.BakeError, devices.DeviceError), match=words):
-        ops_bake.prepare(context)
-    refused(capfd, bpy.ops.haptic_hand.bake, words, s.device_file)
-    invoke_refused(ops_bake.HAPTIC_HAND_OT_bake, context, words, s.device_file)
+    bake_refused(context, capfd, words, s.device_file)
     assert snapshot(context) == before and runtime.state.bake is None
 
 
@@ -119,15 +130,8 @@ def test_bake_recording_refuses_a_bad_recording(wave, tmp_path, capfd, name, fil
     s = context.scene.haptic_hand
     s.live_recording = write(tmp_path, file, content)
     before = snapshot(context)
-    with pytest.raises((ops_bake.BakeError, devices.DeviceError), match=words):
-        ops_bake.prepare(context, recording=s.live_recording)
-    if content is None:  # the button is greyed out, its tooltip saying why
-        assert not bpy.ops.haptic_hand.bake_recording.poll()
-        with pytest.raises(RuntimeError, match="Record a live session first"):
-            bpy.ops.haptic_hand.bake_recording()
-    else:
-        refused(capfd, bpy.ops.haptic_hand.bake_recording, words, s.live_recording)
-        invoke_refused(ops_bake.HAPTIC_HAND_OT_bake_recording, context, words, s.live_recording)
+    bake_refused(context, capfd, words, s.live_recording, recording=s.live_recording)
+    assert bpy.ops.haptic_hand.bake_recording.poll() == (content is not None)
     assert snapshot(context) == before and runtime.state.bake is None
 
 
