@@ -51,6 +51,12 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def failed_report(name: str, detail: str) -> dict:
+    """check-rig's report of a run that never reached the rig's checks, with the keys of every
+    other report."""
+    return {"ok": False, "checks": [{"name": name, "ok": False, "detail": detail}], "warnings": []}
+
+
 def cmd_check_rig(args) -> int:
     try:
         scene = scenes.load(args.scene)
@@ -58,7 +64,7 @@ def cmd_check_rig(args) -> int:
         if not args.json:
             raise
         scene = None
-        report = {"ok": False, "checks": [{"name": "scene", "ok": False, "detail": str(e)}], "warnings": []}
+        report = failed_report("scene", str(e))
     if scene is not None:
         report = rig_check.check(scene)
     print(json.dumps(report, indent=2) if args.json else rig_check.format_report(report))
@@ -118,7 +124,7 @@ def main(argv=None) -> int:
             raise
         message = f"internal error ({type(e).__name__}: {e}): please report it with the scene file"
         if as_json:
-            print(json.dumps({"ok": False, "checks": [{"name": "internal", "ok": False, "detail": message}]}))
+            print(json.dumps(failed_report("internal", message), indent=2))
         print(f"error: {message}", file=sys.stderr)
         return EXIT_INTERNAL
     finally:

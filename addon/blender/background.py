@@ -18,6 +18,7 @@ class ChildJob:
         self.child = child
         self.error = None
         self.summary = None
+        self.warnings = []  # what is suspicious but not refused, reported when the job starts
 
     @property
     def progress(self) -> float:
@@ -53,6 +54,10 @@ class BackgroundOperator:
     status-bar text and finish(context, state) -> the operator's result."""
 
     slot = ""
+
+    def report_warnings(self, job) -> None:
+        for warning in job.warnings:
+            self.report({"WARNING"}, warning)
 
     def start_modal(self, context, job):
         setattr(runtime.state, self.slot, job)

@@ -53,10 +53,16 @@ class LiveState:
 
 
 def device_name(s) -> str:
+    """haptics.device for the session; a playback recording is read here, so a bad one is
+    refused before anything is exported or built."""
     if s.device == "PLAYBACK":
         path = bpy.path.abspath(s.device_file)
         if not s.device_file:
             raise LiveError("Choose the recording to play back (Haptic Hand > Device > Recording)")
+        try:
+            devices.load_recording(path)
+        except devices.DeviceError as e:
+            raise LiveError(f"The live session could not start: {e}") from None
         return f"playback:{path}"
     if s.device == "HID":
         if s.hid_device == "NONE":

@@ -45,6 +45,7 @@ class BakeJob(background.ChildJob):
         self.result_path = export.folder / "result.npz"
         super().__init__(child_process.Child(["bake", export.folder / "scene.json", self.result_path],
                                              what="The bake's engine process", argv=argv))
+        self.warnings = list(export.scene.warnings)  # a hand far outside a human hand's size
         self.unchanged = True  # the previous bake is as it was (false only if a swap broke half-way)
 
     def run(self, on_progress=None) -> str:
@@ -175,6 +176,7 @@ class _BakeOperator(background.BackgroundOperator):
         except START_ERRORS as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
+        self.report_warnings(job)
         wm = context.window_manager
         wm.progress_begin(0.0, 1.0)
         try:
@@ -190,6 +192,7 @@ class _BakeOperator(background.BackgroundOperator):
         except START_ERRORS as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
+        self.report_warnings(job)
         return self.start_modal(context, job.start())
 
     def step(self, context, job):

@@ -110,7 +110,10 @@ def start_tetrahedralize(context, obj, confirmed: bool = False, argv=None) -> Te
             f"'{obj.name}' would get about {estimate} tets, more than Rig > Confirm above ({limit}): raise Edge "
             "length, or press Tetrahedralize and confirm (from a script: confirmed=True)")
     options = dict(edge_length_fac=o.edge_length_fac, coarsen=o.coarsen, epsilon=o.epsilon)
-    return TetJob(obj, surface, faces, options, argv=argv).start()
+    job = TetJob(obj, surface, faces, options, argv=argv)
+    warning = meshing.scale_warning(surface, "hand") if obj == scene.haptic_hand.hand else None
+    job.warnings += [f"'{obj.name}': {warning}"] if warning else []
+    return job.start()
 
 
 def poll_tetrahedralize(context, job: TetJob) -> str:
@@ -200,6 +203,7 @@ class HAPTIC_HAND_OT_tetrahedralize(background.BackgroundOperator, bpy.types.Ope
         except (meshing.MeshError, OSError) as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
+        self.report_warnings(job)
         if self.interactive and context.window is not None:
             return self.start_modal(context, job)
         runtime.state.tetrahedralize = self.job = job

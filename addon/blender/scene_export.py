@@ -140,9 +140,10 @@ def seed_world(scene) -> np.ndarray:
     return np.array(s.seed.matrix_world.translation, dtype=np.float64) * meshdata.unit_scale(scene)
 
 
-def check_seed(scene, nodes, tets) -> np.ndarray:
+def check_seed(scene, nodes, tets, scale_warning: str | None = None) -> np.ndarray:
     """The seed (m) if it lies inside the hand's tets and the handle catches a usable number
-    of nodes; else ExportError with the fix."""
+    of nodes; else ExportError with the fix (and the hand's scale warning, the likely cause
+    of a handle that catches too few)."""
     s = scene.haptic_hand
     seed = seed_world(scene)
     tet_index, weights = meshing.embed_points(nodes, tets, seed[None])
@@ -156,7 +157,8 @@ def check_seed(scene, nodes, tets) -> np.ndarray:
     try:
         native.check_handle(nodes, seed, s.handle_radius_si)
     except native.InvalidInput as e:
-        raise ExportError(f"The palm seed '{s.seed.name}': {e} (Haptic Hand > Rig > Handle radius)") from None
+        cause = f"; {scale_warning}" if scale_warning else ""
+        raise ExportError(f"The palm seed '{s.seed.name}': {e} (Haptic Hand > Rig > Handle radius){cause}") from None
     return seed
 
 
@@ -232,7 +234,8 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
         meshing.check_closed_surface(surface, faces)
     except meshing.MeshError as e:
         raise ExportError(f"The hand '{hand.name}': {e}") from None
-    seed = check_seed(bscene, nodes, tets)
+    scale_warning = meshing.scale_warning(surface, "hand")
+    seed = check_seed(bscene, nodes, tets, scale_warning)
 
     data = {"format": scenes.format_name(), "bodies": []}
     param_props.to_scene(s, data, params.UI_SCENE)
@@ -313,6 +316,7 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
     except scenes.SceneError as e:
         raise ExportError(str(e)) from None
     engine_scene.surface_vertices, engine_scene.surface_faces = surface, faces
+    engine_scene.warnings += [scale_warning] if scale_warning else []
     engine_scene.nodes, engine_scene.tets = nodes, tets
     return Export(engine_scene, hand, meshdata.matrix(hand), links, scale, f0, f1, rate, folder,
                   target_rest=target_rest)

@@ -52,12 +52,15 @@ def defaults() -> dict:
 def parse(specs: list, base_dir: Path) -> list[dict]:
     from .scene import SceneError, _merge, check_fields, timed_poses
 
+    example = '{"name": "cube", "type": "soft", "mesh": "box"}'
     if not isinstance(specs, list):
-        raise BodyError("'bodies' must be a list of body descriptions")
+        raise BodyError(f"bodies = {json.dumps(specs)[:60]} is invalid: it must be a list of body objects, e.g. "
+                        f"[{example}] (or [] for none)")
     out, names = [], set()
     for i, given in enumerate(specs):
         if not isinstance(given, dict):
-            raise BodyError(f"bodies[{i}] must be an object")
+            raise BodyError(f"bodies[{i}] = {json.dumps(given)[:60]} is invalid: each body must be an object, e.g. "
+                            f"{example}")
         label = f"bodies[{i}]" + (f" ('{given['name']}')" if isinstance(given.get("name"), str) else "")
         try:
             spec = _merge(defaults(), given, f"{label}.")

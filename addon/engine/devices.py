@@ -96,21 +96,29 @@ def load_recording(path: Path | str) -> tuple[np.ndarray, np.ndarray, np.ndarray
                 except ValueError:
                     if rows:
                         raise DeviceError(f"{path}: line {len(rows) + 1} is not numbers") from None
-        if not rows or len({len(r) for r in rows}) != 1 or len(rows[0]) not in (4, 8):
+        if not rows:
+            raise DeviceError(f"{path} holds no rows: record it again, or give a .csv of t, x, y, z lines")
+        if len({len(r) for r in rows}) != 1 or len(rows[0]) not in (4, 8):
             raise DeviceError(f"{path}: every line must be t, x, y, z or t, x, y, z, qx, qy, qz, qs")
         a = np.array(rows)
         t, p = a[:, 0], a[:, 1:4]
         q = a[:, 4:8] if a.shape[1] == 8 else None
     if q is None:
         q = np.tile([0.0, 0.0, 0.0, 1.0], (len(t), 1))
-    if len(t) < 1 or p.shape != (len(t), 3) or q.shape != (len(t), 4):
+    if len(t) < 1:
+        raise DeviceError(f"{path} holds no rows: record it again")
+    if p.shape != (len(t), 3) or q.shape != (len(t), 4):
         raise DeviceError(f"{path}: needs one position (3) and quaternion (4) per time, got {len(t)} times, "
-                          f"positions {p.shape}, quaternions {q.shape}")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
-        raise DeviceError(f"{path}: times, positions and quaternions must be finite (no NaN or inf)")
+                          f"positions {p.shape}, quaternions {q.shape}: record it again")
+    finite = np.isfinite(t) & np.isfinite(p).all(axis=1) & np.isfinite(q).all(axis=1)
+    if not finite.all():
+        k = int(np.argmin(finite))
+        raise DeviceError(f"{path}: times, positions and quaternions must be finite (no NaN or inf); row {k} is "
+                          f"not: record it again, or remove or fix the {int((~finite).sum())} such rows")
     if np.any(np.diff(t) <= 0):
         k = int(np.argmax(np.diff(t) <= 0)) + 1
-        raise DeviceError(f"{path}: times must increase strictly (row {k}: {t[k]:g} s after {t[k - 1]:g} s)")
+        raise DeviceError(f"{path}: times must increase strictly (row {k}: {t[k]:g} s after {t[k - 1]:g} s): sort "
+                          "the rows by time and drop repeated times")
     return t, p, q
 
 

@@ -187,9 +187,12 @@ def procedural_hand_palm_seed() -> np.ndarray:
 
 
 def load_obj(path):
-    """Vertices and triangles of an OBJ file; polygons are split into fans, vt/vn ignored."""
+    """Vertices and triangles of an OBJ file; polygons are split into fans, vt/vn ignored.
+    A line that cannot be read, or a face index outside the file's vertices, is a MeshError
+    naming the line (an index is never wrapped to 32 bits)."""
     vertices = []
     triangles = []
+    face_lines = []  # the line of each triangle, for messages
     with open(path, encoding="utf-8", errors="replace") as obj:
         for line_number, line in enumerate(obj, start=1):
             fields = line.split()
@@ -197,22 +200,39 @@ def load_obj(path):
                 continue
             try:
                 if fields[0] == "v":
+                    if len(fields) < 4:
+                        raise ValueError(f"a vertex needs 3 coordinates x y z, this one has {len(fields) - 1}")
                     vertices.append([float(x) for x in fields[1:4]])
                 elif fields[0] == "f":
+                    if len(fields) < 4:
+                        raise ValueError(f"a face needs at least 3 corners, this one has {len(fields) - 1}")
                     # "f 1/2/3 ..." keeps only the position index; negative is relative.
                     corners = [int(field.split("/")[0]) for field in fields[1:]]
                     corners = [c - 1 if c > 0 else len(vertices) + c for c in corners]
                     triangles.extend(
                         [corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1)
                     )
+                    face_lines.extend([line_number] * (len(corners) - 2))
             except ValueError as error:
                 raise MeshError(
                     f"{path}:{line_number}: cannot read {fields[0]!r} line ({error}); "
                     "re-export the mesh as OBJ with triangulated or polygon faces"
                 ) from None
     V = np.array(vertices, dtype=np.float64).reshape(-1, 3)
-    F = np.array(triangles, dtype=np.int32).reshape(-1, 3)
-    return V, F
+    return V, _obj_faces(triangles, face_lines, len(V), path)
+
+
+def _obj_faces(triangles: list, lines: list, n: int, path) -> np.ndarray:
+    """The triangles as int32, each index checked against the n vertices while still a Python
+    integer (numpy would wrap 2^32 + 3 to 3)."""
+    outside = next((k for k, t in enumerate(triangles) if not all(0 <= c < n for c in t)), None)
+    if outside is not None:
+        shown = [c + 1 for c in triangles[outside]]  # OBJ counts from 1
+        raise MeshError(
+            f"{path}:{lines[outside]}: face refers to vertex {shown}, outside 1..{n} (the file has {n} vertices; "
+            "an index is refused, never wrapped); re-export the mesh"
+        )
+    return np.array(triangles, dtype=np.int32).reshape(-1, 3)
 
 
 def save_obj(path, V, F):
@@ -303,9 +323,17 @@ def _check_coincident_vertices(V, F) -> None:
         twins = used[np.flatnonzero(np.all(V[used] == V[first], axis=1))]
         raise MeshError(
             f"surface has {int(repeated.sum())} vertices at the same position as another (first: vertices "
-            f"{', '.join(map(str, twins[:4]))} at {np.round(V[first], 6).tolist()} m): the surface touches itself "
-            "there; merge them (Blender: Mesh > Clean Up > Merge by Distance)"
+            f"{', '.join(map(str, twins[:4]))} at {np.round(V[first], 6).tolist()} m, in triangles "
+            f"{_triangles_at(F, twins)}): the surface touches itself there; duplicated vertices: merge them "
+            "(Blender: Mesh > Clean Up > Merge by Distance); two parts touching along an edge or at a corner: move "
+            "them apart, or overlap them and join them into one shell (Face > Intersect (Boolean), Union)"
         )
+
+
+def _triangles_at(F, vertices, shown: int = 8) -> str:
+    """The first triangles that use any of the vertices, for messages."""
+    faces = np.flatnonzero(np.isin(F, vertices).any(axis=1))
+    return ", ".join(map(str, faces[:shown])) + (", ..." if len(faces) > shown else "")
 
 
 def _unique_edges(F) -> np.ndarray:
@@ -340,10 +368,11 @@ def _check_spikes(V, F) -> None:
         first = spikes[np.argmax(shortest[spikes])]
         raise MeshError(
             f"surface has {len(spikes)} spike vertices whose every edge is over {SPIKE_FACTOR:g}x the surface's "
-            f"median edge ({median * 1e3:.3g} mm): vertex {first} at {np.round(V[first], 6).tolist()} m has its "
-            f"shortest edge {shortest[first] * 1e3:.3g} mm (a coordinate lost on export reads as 0; Blender's OBJ "
-            "importer turns nan into 0); move it back onto the surface or delete it and fill the hole "
-            "(Blender: select it, Mesh > Delete > Vertices, then Face > Fill)"
+            f"median edge ({median * 1e3:.3g} mm): vertex {first} at {np.round(V[first], 6).tolist()} m, in "
+            f"triangles {_triangles_at(F, [first])}, has its shortest edge {shortest[first] * 1e3:.3g} mm (a "
+            "coordinate lost on export reads as 0; Blender's OBJ importer turns nan into 0); move it back onto the "
+            "surface, or delete it and fill the hole (Blender: select it, Mesh > Delete > Vertices, then Mesh > "
+            "Clean Up > Fill Holes)"
         )
 
 
@@ -366,7 +395,8 @@ def _check_manifold_edges(V, F) -> None:
             "surface is non-manifold: {count} edges shared by more than two triangles",
             "make every edge border exactly two faces (Blender: Select > Select All by "
             "Trait > Non Manifold, then delete or separate the extra faces; Mesh > Clean Up > "
-            "Merge by Distance if they are duplicates)",
+            "Merge by Distance if they are duplicates; two solids sharing an edge: move them apart, "
+            "or overlap them and join them with Face > Intersect (Boolean), Union)",
         ),
     ):
         if mask.any():

@@ -217,7 +217,8 @@ def _check_haptics(scene: "Scene") -> None:
 
 def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     if not isinstance(data, dict):
-        raise SceneError("a scene is a JSON object")
+        raise SceneError(f"the scene is {json.dumps(data)[:40]}, not a JSON object: a scene file holds one object, "
+                         f'{{"format": "{format_name()}", "hand": {{...}}, ...}} (docs/scene_format.md)')
     if "format" not in data:
         raise SceneError(f'the scene has no "format": add "format": "{format_name()}" (docs/scene_format.md)')
     merged = _merge(defaults(), data, "")
@@ -241,10 +242,20 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
 
 def load(path: Path | str) -> Scene:
     path = Path(path)
+    if path.is_dir():
+        found = sorted(p.name for p in path.glob("*.json"))[:3]
+        raise SceneError(f"scene file {path} is a directory: give the path of a scene .json file"
+                         + (f" (it holds {', '.join(found)})" if found else ""))
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8-sig"))  # a BOM (Notepad) is allowed
     except FileNotFoundError:
-        raise SceneError(f"scene file {path} does not exist") from None
+        raise SceneError(f"scene file {path} does not exist: give the path of a scene .json file") from None
+    except UnicodeDecodeError as e:
+        raise SceneError(f"scene file {path} is not UTF-8 text (byte 0x{e.object[e.start]:02x} at offset {e.start}): "
+                         "a scene is a JSON text file; save it as UTF-8") from None
+    except OSError as e:  # permissions, a device, a broken disk
+        reason = e.strerror or str(e)
+        raise SceneError(f"scene file {path} cannot be read ({reason}): check that it is a readable file") from None
     except json.JSONDecodeError as e:
         raise SceneError(f"{path} is not valid JSON: {e}") from None
     return from_dict(data, path.parent)

@@ -142,15 +142,103 @@ def test_seed_outside_hand_is_refused_and_scene_untouched(addon, built_scenes, t
     assert s.captured_nodes == native.count_captured(nodes, seed, s.handle_radius)
 
 
-def box_surface(half):
-    """A closed box surface (8 corners, 12 outward triangles) of half-extents `half`."""
-    v = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float) * half
+def hull_surface(v):
+    """The convex hull of points around the origin as outward triangles."""
     import scipy.spatial
 
     f = scipy.spatial.ConvexHull(v).simplices
     n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     f[np.einsum("ij,ij->i", n, v[f[:, 0]]) < 0] = f[np.einsum("ij,ij->i", n, v[f[:, 0]]) < 0][:, ::-1]
     return v, f
+
+
+def box_surface(half):
+    """A closed box surface (8 corners, 12 outward triangles) of half-extents `half`."""
+    return hull_surface(np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float) * half)
+
+
+def sphere_surface(radius, n=200):
+    """A closed sphere surface of n vertices (a Fibonacci lattice), centred on the origin."""
+    i = np.arange(n) + 0.5
+    polar, azimuth = np.arccos(1 - 2 * i / n), np.pi * (1 + 5**0.5) * i
+    return hull_surface(radius * np.c_[np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)])
+
+
+def two_cubes(offset, merged=False):
+    """Two 3 cm cubes, the second moved by offset; merged: one vertex where two coincide."""
+    v, f = box_surface(np.full(3, 0.015))
+    v, f = np.vstack([v, v + offset]), np.vstack([f, f + 8])
+    if merged:
+        v, inverse = np.unique(v.round(9), axis=0, return_inverse=True)
+        f = inverse.reshape(-1)[f]
+    return v, f
+
+
+def refusal(context, obj) -> str:
+    """Tetrahedralize obj: the refusal Blender reports (its ERROR report), with the scene as it was."""
+    context.view_layer.objects.active = obj
+    before = _state(context)
+    with pytest.raises(RuntimeError) as info:
+        bpy.ops.haptic_hand.tetrahedralize()
+    message = str(info.value)
+    assert message.startswith("Error: Cannot tetrahedralize") and "Traceback" not in message, message
+    assert f"'{obj.name}'" in message and "Mesh > Clean Up" in message, message
+    assert _state(context) == before
+    return message
+
+
+def named(message: str, after: str) -> list[int]:
+    """The numbers listed after `after` in a message ("triangles 3, 7, 12" -> [3, 7, 12])."""
+    import re
+
+    return [int(x) for x in re.search(re.escape(after) + r" ([\d, and]+)", message).group(1).replace(" and ", ", ")
+            .split(", ") if x.strip()]
+
+
+def test_overlapping_shells_are_refused_with_the_crossing_triangles_named(addon):
+    v, f = two_cubes([0.015, 0.008, 0.005])  # the second cube half inside the first
+    message = refusal(addon, add_mesh(addon, "Shells", v, f))
+    assert "intersects itself" in message
+    pairs = np.array(named(message, "first: triangles")).reshape(-1, 2)
+    assert len(pairs) and np.all(pairs[:, 0] < 12) and np.all(pairs[:, 1] >= 12), "one triangle of each cube"
+
+
+def test_two_cubes_along_an_edge_are_refused_with_the_faces_there_named(addon):
+    """Sharing the edge's two vertices, the edge has four faces (non-manifold); with a vertex
+    each, the cubes' vertices coincide there. Either way the faces at the edge are named."""
+    v, f = two_cubes([0.03, 0.03, 0.0], merged=True)
+    message = refusal(addon, add_mesh(addon, "Shared", v, f))
+    edge = np.flatnonzero(np.all(np.isclose(v[:, :2], 0.015), axis=1))  # the vertices on x = y = 1.5 cm
+    assert len(edge) == 2 and "non-manifold" in message
+    at_edge = np.flatnonzero(np.isin(f, edge).sum(axis=1) == 2)
+    assert len(at_edge) == 4 and named(message, "triangles") == at_edge.tolist()
+
+    v, f = two_cubes([0.03, 0.03, 0.0])
+    message = refusal(addon, add_mesh(addon, "Touching", v, f))
+    assert "same position as another" in message
+    repeated = np.flatnonzero(np.all(np.isclose(v[:, :2], 0.015), axis=1))  # two of each cube
+    faces = named(message, "in triangles")
+    assert len(repeated) == 4 and faces and np.all(np.isin(f[faces], repeated).any(axis=1))
+    assert min(faces) < 12 <= max(faces), "faces of both cubes"
+
+
+def test_a_spike_from_a_nan_coordinate_is_refused_with_its_faces_named(addon, tmp_path):
+    """Blender's OBJ importer reads a vertex of `nan` coordinates as the origin: a spike far from
+    the sphere it belongs to, refused with the vertex and its triangles named."""
+    v, f = sphere_surface(0.03)
+    lines = [f"v {x + 0.2!r} {y!r} {z!r}" for x, y, z in v]
+    lines[57] = "v nan nan nan"
+    (tmp_path / "spiked.obj").write_text("\n".join(lines + [f"f {a} {b} {c}" for a, b, c in f + 1]) + "\n")
+    bpy.ops.wm.obj_import(filepath=str(tmp_path / "spiked.obj"))
+    obj = addon.view_layer.objects.active
+    assert obj.name == "spiked"
+    imported = meshdata.world_vertices(obj, addon.scene)
+    spike = np.flatnonzero(np.all(imported == 0.0, axis=1))
+    assert len(spike) == 1, "the importer turned nan into 0"
+    message = refusal(addon, obj)
+    assert f"spike vertices" in message and f"vertex {spike[0]} at [0.0, 0.0, 0.0] m" in message
+    tri = meshdata.triangles(obj.data)
+    assert named(message, "in triangles") == np.flatnonzero((tri == spike[0]).any(axis=1)).tolist()
 
 
 def test_surface_gap_is_the_distance_outside_the_tets():
@@ -268,3 +356,62 @@ def test_check_rig_in_blender_reports_the_droop_and_refuses_a_soft_rig(addon, bu
     nodes = int(handle["detail"].split()[0])
     expected = hand_mass * 9.81 / (nodes * 20.0)
     assert 0.8 * expected < droop["spring_stretch"] < 1.3 * expected, (droop["spring_stretch"], expected)
+
+
+def test_tetrahedralize_warns_of_a_hand_modelled_in_millimetres(addon, capfd):
+    """The procedural hand (19 cm) modelled in millimetres and read as metres is 190 m long: a
+    WARNING report names the unit it looks modelled in and the factor; a hand of human size
+    gets none, and neither does a soft body of any size."""
+    context = addon
+    v, f = meshing.procedural_hand()
+    length = float(np.ptp(v, axis=0).max())
+    hand = add_mesh(context, "Hand", v * 1000, f)
+    o = hand.haptic_hand
+    o.edge_length_fac, o.coarsen, o.epsilon = 0.2, True, 0.004
+    assert bpy.ops.haptic_hand.use_as_hand() == {"FINISHED"}
+    capfd.readouterr()
+    assert bpy.ops.haptic_hand.tetrahedralize() == {"FINISHED"}
+    out = capfd.readouterr().out
+    expected = (f"Warning: 'Hand': the hand is {length * 1000:.4g} m long, far from a human hand's 5-50 cm: it looks "
+                f"modelled in millimetres ({length * 1000:.4g} millimetres = {length * 100:.3g} cm): scale it by 0.001")
+    assert expected in out, out
+    assert out.index(expected) < out.index("Info: 'Hand':"), "warned when it starts, before the tets are made"
+
+    human = add_mesh(context, "Human", v, f)
+    context.scene.haptic_hand.hand = human
+    job = ops_rig.start_tetrahedralize(context, human)
+    job.cancel(), job.child.wait(), job.release()
+    assert job.warnings == []
+    giant = add_mesh(context, "Giant", v * 1000, f)  # not the hand: a soft body has no human size
+    job = ops_rig.start_tetrahedralize(context, giant)
+    job.cancel(), job.child.wait(), job.release()
+    assert job.warnings == []
+
+
+def test_bake_warns_of_a_hand_modelled_in_millimetres(addon, built_scenes, tmp_path, capfd):
+    """The sample hand scaled by 1000 (a hand in millimetres read as metres): Bake warns when it
+    starts, Check Rig lists the warning; with the handle radius left in centimetres the bake is
+    refused, and the refusal says why."""
+    from blender_helpers import open_copy
+
+    context = open_copy(built_scenes("hand_wave"), tmp_path)
+    s = context.scene.haptic_hand
+    s.bake_frame_end = s.bake_frame_start + 2
+    length = float(np.ptp(meshdata.world_vertices(s.hand, context.scene), axis=0).max())
+    s.hand.scale = (1000.0,) * 3
+    context.view_layer.update()
+    with pytest.raises(RuntimeError, match=r"captures 0 node.*it looks modelled in millimetres.*scale it by 0.001"):
+        bpy.ops.haptic_hand.bake()
+    assert not s.baked
+
+    s.handle_radius *= 1000  # the handle now catches the nodes it caught before; no gravity to hang on it
+    context.scene.use_gravity = False
+    capfd.readouterr()
+    bpy.ops.haptic_hand.bake()
+    out = capfd.readouterr().out
+    expected = f"Warning: the hand is {length * 1000:.4g} m long, far from a human hand's 5-50 cm: it looks modelled in " \
+               "millimetres"
+    assert expected in out and out.index(expected) < out.index("Info:"), out
+    capfd.readouterr()
+    bpy.ops.haptic_hand.check_rig()  # and Check Rig lists it with its report
+    assert f"warning: the hand is {length * 1000:.4g} m long" in capfd.readouterr().out

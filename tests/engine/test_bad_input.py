@@ -94,7 +94,7 @@ import shutil  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from haptic_hand.__main__ import main  # noqa: E402
-from haptic_hand.engine import rig_check, scene as scenes  # noqa: E402
+from haptic_hand.engine import params, rig_check, scene as scenes  # noqa: E402
 
 SAMPLES = Path(__file__).resolve().parents[2] / "addon" / "engine" / "sample_scenes"
 HAND_TETS = SAMPLES / "procedural_hand_tets.npz"
@@ -135,13 +135,55 @@ def overlapping_shells_obj(d: Path) -> str:
     return "two_hands.obj"
 
 
+def hand_obj_with(d: Path, name: str, edit) -> str:
+    """The procedural hand as an OBJ file whose lines `edit` changes (a list of str in, out)."""
+    v, f = mesh.procedural_hand()
+    mesh.save_obj(d / name, v, f)
+    (d / name).write_text("".join(edit((d / name).read_text().splitlines(keepends=True))))
+    return name
+
+
+def wrapped_face(lines: list) -> list:
+    """The first face's first corner moved up by 2^32: wrapped to 32 bits it is the same vertex."""
+    k = next(i for i, line in enumerate(lines) if line.startswith("f "))
+    corners = lines[k].split()[1:]
+    lines[k] = f"f {int(corners[0]) + 2**32} {corners[1]} {corners[2]}\n"
+    return lines
+
+
 def hand_tets(d: Path):
     stored = np.load(HAND_TETS)
     return stored["nodes"], stored["tets"]
 
 
+def soft_box(**fields) -> dict:
+    return {"name": "b", "type": "soft", "mesh": "box", "position": [0.3, 0, 0], **fields}
+
+
 # (name, how the base scene changes given the scene's folder, words the message must hold)
 BAD_SCENES = [
+    # whole sections of the wrong JSON type: the field, what it must be
+    ("hand a string", lambda d, s: put(s, "hand", "hand.obj"), 'hand = "hand.obj" is invalid: it must be an object'),
+    ("material a list", lambda d, s: put(s, "material", [5e4, 0.3]), "material = [50000.0, 0.3] is invalid: it must "
+     "be an object with the fields young_modulus"),
+    ("haptics a number", lambda d, s: put(s, "haptics", 1), "haptics = 1 is invalid: it must be an object"),
+    ("device null", lambda d, s: put(s, "device", None), "device = null is invalid: it must be an object"),
+    ("trajectory an object", lambda d, s: put(s, "device.trajectory", {"t": 0}),
+     "device.trajectory must be a non-empty list"),
+    ("hand.tetrahedralize a list", lambda d, s: put(s, "hand.tetrahedralize", [0.2]),
+     "hand.tetrahedralize = [0.2] is invalid: it must be an object"),
+    ("bodies an object", lambda d, s: put(s, "bodies", soft_box()), "bodies = {\"name\": \"b\""),
+    ("bodies a string", lambda d, s: put(s, "bodies", "box"), 'bodies = "box" is invalid: it must be a list of body '
+     "objects"),
+    ("a body a string", lambda d, s: put(s, "bodies", ["box"]), 'bodies[0] = "box" is invalid: each body must be an '
+     "object"),
+    ("a body null", lambda d, s: put(s, "bodies", [soft_box(), None]), "bodies[1] = null is invalid"),
+    ("a body's material a list", lambda d, s: put(s, "bodies", [soft_box(material=[1e5])]),
+     "bodies[0] ('b').material = [100000.0] is invalid: it must be an object"),
+    ("a body's solver a string", lambda d, s: put(s, "bodies", [soft_box(solver="cg")]),
+     "bodies[0] ('b').solver = \"cg\" is invalid: it must be an object"),
+    ("the scene a list", lambda d, s: [s], "the scene is [{"),
+    ("the scene null", lambda d, s: None, "the scene is null, not a JSON object"),
     ("trajectory point not an object", lambda d, s: put(s, "device.trajectory", [1, 2]), "device.trajectory[0]"),
     ("trajectory time a string", lambda d, s: put(s, "device.trajectory", [{"t": "x"}]), "device.trajectory[0].t"),
     ("trajectory position of strings", lambda d, s: put(s, "device.trajectory", [{"t": 0, "position": ["1", "2", "3"]}]),
@@ -188,6 +230,13 @@ BAD_SCENES = [
      "6 mm deep"),
     ("hand of two overlapping shells", lambda d, s: put(put(s, "hand.mesh", overlapping_shells_obj(d)),
                                                         "hand.palm_seed", [0, 0, -0.0425]), "intersects itself"),
+    ("OBJ vertex of two coordinates", lambda d, s: put(s, "hand.mesh", hand_obj_with(
+        d, "two.obj", lambda lines: ["v 0.01 0.02\n"] + lines)), "two.obj:1: cannot read 'v' line (a vertex needs 3 "
+     "coordinates x y z, this one has 2)"),
+    ("OBJ face of two corners", lambda d, s: put(s, "hand.mesh", hand_obj_with(
+        d, "edge.obj", lambda lines: lines + ["f 1 2\n"])), "a face needs at least 3 corners"),
+    ("OBJ face index beyond 32 bits", lambda d, s: put(s, "hand.mesh", hand_obj_with(d, "wide.obj", wrapped_face)),
+     "face refers to vertex [42949"),
     ("playback file missing", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:nope.csv"}),
      "does not exist"),
     ("playback file corrupt", lambda d, s: put(s, "haptics", {"enabled": True,
@@ -198,7 +247,7 @@ BAD_SCENES = [
     ("playback file with NaN times", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:" + write_text(
         d, "nt.csv", "0,0,0,0\nnan,0,0,0\n")}), "finite"),
     ("playback file empty", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:" + write_text(
-        d, "e.csv", "")}), "every line"),
+        d, "e.csv", "")}), "holds no rows"),
     ("playback times not increasing", lambda d, s: put(s, "haptics", {"enabled": True, "device": "playback:" + write_text(
         d, "m.csv", "0,0,0,0\n1,0,0,0\n0.5,0,0,0\n")}), "increase strictly"),
 ]
@@ -224,6 +273,48 @@ def test_bad_scene_gets_a_message_and_check_rig_refuses_it_alike(scene_dir, caps
     assert not report["ok"] and [c["detail"] for c in report["checks"]] == [message]
 
 
+def not_utf8(path: Path) -> Path:
+    path.write_bytes(json.dumps(base_scene()).replace("procedural", "proc\u00e9dural").encode("latin-1"))
+    return path
+
+
+@pytest.mark.parametrize("make, words", [
+    (not_utf8, "is not UTF-8 text (byte 0xe9 at offset"),
+    (lambda p: p.mkdir() or p, "is a directory: give the path of a scene .json file"),
+    (lambda p: p.with_name("missing.json"), "does not exist: give the path of a scene .json file"),
+], ids=["not UTF-8", "a directory", "missing"])
+def test_a_scene_file_that_cannot_be_read_gets_a_message(scene_dir, capsys, make, words):
+    path = make(scene_dir / "scene.json")
+    assert main(["simulate", str(path), "--out", str(scene_dir / "result.npz"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "internal error" not in err and "Traceback" not in err
+    assert main(["check-rig", str(path), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["checks"][0]["detail"] == err.strip().removeprefix("error: ")
+
+
+def test_a_scene_file_with_a_byte_order_mark_is_read(scene_dir):
+    path = scene_dir / "scene.json"
+    path.write_bytes(b"\xef\xbb\xbf" + json.dumps(base_scene()).encode())
+    assert scenes.load(path).frames == 2
+
+
+def test_check_rig_json_reports_an_internal_error_with_every_key(scene_dir, capsys, monkeypatch):
+    path = scene_dir / "scene.json"
+    path.write_text(json.dumps(put(base_scene(), "hand.tets", "nope.npz")))
+    assert main(["check-rig", str(path), "--json"]) == 1
+    refused = json.loads(capsys.readouterr().out)
+
+    def bug(scene):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(rig_check, "check", bug)
+    assert main(["check-rig", str(path), "--json"]) == 3
+    report = json.loads(capsys.readouterr().out)
+    assert set(report) == set(refused) == {"ok", "checks", "warnings"}
+    assert report["warnings"] == [] and "internal error (ZeroDivisionError: a bug)" in report["checks"][0]["detail"]
+
+
 def test_check_rig_json_is_json_for_a_file_that_is_not_json(scene_dir, capsys):
     path = scene_dir / "broken.json"
     path.write_text("{not json")
@@ -239,6 +330,34 @@ def test_a_run_too_large_for_memory_is_refused_before_allocating(scene_dir):
     with pytest.raises(scenes.SceneError, match=r"frames = 1000000 would need about 2\d\.\d GiB"):
         scenes.check_memory(scene, 937, available=16 * 2**30)
     scenes.check_memory(scenes.from_dict(base_scene(), scene_dir), 937, available=16 * 2**30)
+
+
+@pytest.mark.parametrize("frames, shown", [(2e9, "2e+09"), (2_000_000_000, "2e+09"), (1_000_001, "1000001")])
+def test_frames_beyond_the_cap_are_refused_before_anything_is_allocated(scene_dir, capsys, frames, shown):
+    """frames = 2e9 once asked numpy for 40.9 TiB (a MemoryError); the table caps frames at 1e6
+    (about 9 hours at 30 Hz), checked when the scene is read, before the tets are loaded."""
+    import tracemalloc
+
+    path = scene_dir / "scene.json"
+    path.write_text(json.dumps(put(base_scene(), "frames", frames)))
+    tracemalloc.start()
+    try:
+        code = main(["simulate", str(path), "--out", str(scene_dir / "result.npz"), "--quiet"])
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    err = capsys.readouterr().err
+    assert code == 2 and f"frames = {shown} is invalid: it must be a whole number in [1, 1e+06]" in err
+    assert peak < 32 * 2**20, f"{peak / 2**20:.0f} MiB allocated before refusing"  # the hand's tets alone are ~0.1 MiB
+    assert main(["check-rig", str(path), "--json"]) == 1
+    assert json.loads(capsys.readouterr().out)["checks"][0]["detail"] == err.strip().removeprefix("error: ")
+
+
+def test_the_frames_cap_is_a_million():
+    assert params.by_json("frames").max == 1e6
+    assert scenes.from_dict(put(base_scene(), "frames", 1_000_000)).frames == 1_000_000
+    with pytest.raises(scenes.SceneError, match=r"frames = 1000001 is invalid"):
+        scenes.from_dict(put(base_scene(), "frames", 1_000_001))
 
 
 def test_the_memory_estimate_covers_what_a_run_holds(scene_dir):

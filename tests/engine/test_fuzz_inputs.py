@@ -29,6 +29,20 @@ FIELDS = [p.json for p in params.table() if not p.body and not p.flags & params.
 BODY_FIELDS = [p.json[len(params.BODY):] for p in params.table() if p.body]
 
 
+def sections(defaults: dict, where: str = "") -> list[str]:
+    """Every object of the defaults by its path (hand, hand.tetrahedralize, ...): whole sections
+    a scene may give as any JSON value."""
+    out = []
+    for key, value in defaults.items():
+        if isinstance(value, dict):
+            out += [where + key] + sections(value, f"{where}{key}.")
+    return out
+
+
+SECTIONS = sections(params.defaults()) + ["bodies", "device.trajectory"]
+BODY_SECTIONS = sections(params.defaults(body=True)) + ["trajectory"]
+
+
 def put(data: dict, path: str, value) -> None:
     node = data
     keys = path.split(".")
@@ -46,7 +60,9 @@ def bodies(draw):
             "position": [0.3, 0.0, 0.0], "cells": [1, 1, 1], "size": [0.02, 0.02, 0.02]}
     for path, value in draw(st.lists(st.tuples(st.sampled_from(BODY_FIELDS + ["junk"]), json_values), max_size=3)):
         put(body, path, value)
-    return body
+    if draw(st.integers(0, 3)) == 0:  # a whole section of any JSON type: the material as a list, ...
+        put(body, draw(st.sampled_from(BODY_SECTIONS)), draw(json_values))
+    return draw(st.one_of(st.just(body), json_values)) if draw(st.integers(0, 9)) == 0 else body
 
 
 @st.composite
@@ -57,7 +73,9 @@ def scenes_json(draw):
         put(data, path, value)
     if draw(st.booleans()):
         data["bodies"] = draw(st.lists(bodies(), max_size=2))
-    return data
+    if draw(st.integers(0, 3)) == 0:  # a whole section of any JSON type: the hand as a string, ...
+        put(data, draw(st.sampled_from(SECTIONS)), draw(json_values))
+    return draw(json_values) if draw(st.integers(0, 19)) == 0 else data
 
 
 @pytest.fixture(scope="module")

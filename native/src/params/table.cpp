@@ -1,5 +1,6 @@
 #include "params/table.h"
 
+#include <charconv>
 #include <cmath>
 #include <cstddef>
 #include <cstring>
@@ -104,6 +105,14 @@ std::string field_name(const hh_param_info& r) {
     return leaf == name || r.structure == HH_STRUCT_NONE ? json : json + " (" + name + ")";
 }
 
+// The shortest text that reads back as v: a stream's six digits would show 1000001, just over
+// the frames cap, as "1e+06".
+std::string exact(double v) {
+    char text[32];
+    const std::to_chars_result end = std::to_chars(text, text + sizeof text, v);
+    return std::string(text, end.ptr);
+}
+
 }  // namespace
 
 const std::vector<hh_param_info>& rows() {
@@ -142,7 +151,7 @@ void check(const hh_param_info& r, const double* values, int count) {
         std::ostringstream msg;
         msg << field_name(r);
         if (count > 1) msg << "[" << i << "]";
-        msg << " = " << values[i] << " is invalid: it must be " << rule(r) << "; " << r.advice;
+        msg << " = " << exact(values[i]) << " is invalid: it must be " << rule(r) << "; " << r.advice;
         throw InvalidArgument(msg.str());
     }
 }
