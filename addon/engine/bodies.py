@@ -17,6 +17,8 @@ import numpy as np
 from . import mesh as meshing
 from . import native_world as W
 from . import params, shapes
+from .embedding import check_embedding
+from .scene_fields import SceneError, check_fields, merge, timed_poses
 
 MAX_BOX_TETS = 200_000  # a box body's tets (6 a cell): beyond, a step takes seconds and memory runs out
 _DEPTH_SAMPLES = 256  # inside points whose depth is measured
@@ -50,8 +52,6 @@ def defaults() -> dict:
 
 
 def parse(specs: list, base_dir: Path) -> list[dict]:
-    from .scene import SceneError, _merge, check_fields, timed_poses
-
     if not isinstance(specs, list):
         raise BodyError("'bodies' must be a list of body descriptions")
     out, names = [], set()
@@ -60,7 +60,7 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
             raise BodyError(f"bodies[{i}] must be an object")
         label = f"bodies[{i}]" + (f" ('{given['name']}')" if isinstance(given.get("name"), str) else "")
         try:
-            spec = _merge(defaults(), given, f"{label}.")
+            spec = merge(defaults(), given, f"{label}.")
             if not isinstance(spec["type"], str) or spec["type"] not in TYPES:
                 raise BodyError(f"{label} has type {json.dumps(spec['type'])}: use one of {', '.join(TYPES)}")
             check_fields(spec, body=True, where=lambda p: f"{label}.{p.json[len(params.BODY):]}")
@@ -152,8 +152,6 @@ def _soft_tets(spec: dict, v: np.ndarray, f: np.ndarray, progress=None) -> tuple
 
 
 def prepare(spec: dict, progress=None) -> PreparedBody:
-    from .scene import check_embedding
-
     kind = TYPES[spec["type"]]
     body = PreparedBody(spec, kind)
     if kind == W.PLANE:

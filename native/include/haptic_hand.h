@@ -95,8 +95,14 @@ int hh_api_version(void);
 #define HH_STRUCT_WORLD_PARAMS 2
 #define HH_STRUCT_MATERIAL 3
 #define HH_STRUCT_SESSION_PARAMS 4
-#define HH_STRUCT_SKELETON_DESC 5 /* hh_skeleton_desc (no parameter rows; struct_size only) */
-#define HH_STRUCT_BONE_INFO 6     /* hh_bone_info */
+/* Structs with no parameter rows: hh_struct_size only, for the bindings' layout checks. */
+#define HH_STRUCT_SKELETON_DESC 5
+#define HH_STRUCT_BONE_INFO 6
+#define HH_STRUCT_MODEL_INFO 7
+#define HH_STRUCT_STEP_STATS 8
+#define HH_STRUCT_WORLD_STATS 9
+#define HH_STRUCT_SESSION_STATUS 10
+#define HH_STRUCT_SESSION_FRAME 11
 
 /* One row of the table, as declared there (strings live in the library). A row shared by two
  * structs (dt, gravity, the coupling) comes once for each, with the same values. */
@@ -415,6 +421,7 @@ typedef struct hh_session_params {
  * position (3) and quaternion (4), proxy position (3) and quaternion (4), feedback force (3, N)
  * and torque (3, N m). */
 #define HH_LOG_COLUMNS 23
+int hh_log_columns(void); /* HH_LOG_COLUMNS, for bindings */
 
 typedef struct hh_session_status {
     int running;             /* 1 while live threads run */

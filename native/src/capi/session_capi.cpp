@@ -52,6 +52,11 @@ void put_pose(const double* in, double* out) { std::memcpy(out, in, 7 * sizeof(d
 
 extern "C" {
 
+int hh_log_columns(void) {
+    static_assert(hh::kLogColumns == HH_LOG_COLUMNS, "the haptic log's rows are HH_LOG_COLUMNS wide");
+    return HH_LOG_COLUMNS;
+}
+
 int hh_session_params_check(const hh_session_params* params) {
     return guard([&] {
         require(params != nullptr, "hh_session_params_check: null pointer");
