@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from . import mesh as meshing
+from . import native
 from . import native_world as W
 from . import params, shapes
 from .embedding import check_embedding
 from .scene_fields import SceneError, check_fields, merge, timed_poses
 
-MAX_BOX_TETS = 200_000  # a box body's tets (6 a cell): beyond, a step takes seconds and memory runs out
 _DEPTH_SAMPLES = 256  # inside points whose depth is measured
 
 TYPES = {"soft": W.SOFT, "rigid": W.RIGID, "kinematic": W.KINEMATIC, "static": W.STATIC, "plane": W.PLANE}
@@ -75,9 +75,11 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
                             "or an .obj path)")
         _refuse_fields_of_other_types(spec, given)
         _check_fixed(spec)
-        if spec["type"] != "plane" and spec["mesh"] == "box" and 6 * int(np.prod(spec["cells"])) > MAX_BOX_TETS:
-            raise BodyError(f"body '{spec['name']}': cells {spec['cells']} make {6 * int(np.prod(spec['cells'])):,} "
-                            f"tets, over {MAX_BOX_TETS:,}: use fewer cells (a few per centimetre)")
+        if spec["type"] != "plane" and spec["mesh"] == "box":
+            try:
+                native.check_box_cells(spec["cells"])
+            except native.InvalidInput as e:
+                raise BodyError(f"body '{spec['name']}': {e}") from None
         if spec["type"] == "kinematic" and spec["trajectory"]:
             try:
                 timed_poses(spec["trajectory"], f"body '{spec['name']}': trajectory")

@@ -14,7 +14,7 @@ import numpy as np
 from . import params as table
 # (the errors and helpers every binding shares, also reached as native.*)
 from .native_library import (HH_OK, InvalidInput, NativeError, NumericalFailure, _candidates, _check,  # noqa: F401
-                             _f64, _indices, _points, _ptr, binding)
+                             _f64, _indices, _points, _ptr, _timed_poses, binding)
 
 
 class ModelInfo(ctypes.Structure):
@@ -76,6 +76,8 @@ library = binding({
     "hh_model_params": ([_vp, _vp], _i),
     "hh_count_captured": ([_pd, _i, _pd, _d, _pi], _i),
     "hh_check_handle": ([_pd, _i, _pd, _d, _pi], _i),
+    "hh_trajectory_check": ([_pd, _pd, _pd, _i], _i),
+    "hh_box_cells_check": ([_pd], _i),
     "hh_data_create": ([_vp, ctypes.POINTER(_vp)], _i),
     "hh_data_free": ([_vp], None),
     "hh_data_reset": ([_vp, _vp], _i),
@@ -162,6 +164,19 @@ def check_handle(nodes: np.ndarray, seed, radius: float) -> int:
     out = ctypes.c_int()
     _check(library().hh_check_handle(_ptr(x), x.shape[0], _ptr(s), float(radius), ctypes.byref(out)))
     return out.value
+
+
+def check_trajectory(times, positions, quaternions) -> None:
+    """InvalidInput (the library's message, naming the pose and the fix) unless these timed poses
+    ((n,), (n, 3), (n, 4)) have finite values, strictly increasing times and non-zero quaternions."""
+    t, p, q = _timed_poses(times, positions, quaternions)
+    _check(library().hh_trajectory_check(_ptr(t), _ptr(p), _ptr(q), len(t)))
+
+
+def check_box_cells(cells) -> None:
+    """InvalidInput (the library's message) unless a box body's cells are in range and make no
+    more tets than a step can take."""
+    _check(library().hh_box_cells_check(_ptr(_f64(cells, (3,), "cells"))))
 
 
 @dataclass

@@ -5,11 +5,10 @@ range, vectors, and timed poses. Messages name the field and the fix."""
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
 
-from . import params
+from . import native, params
 
 
 class SceneError(ValueError):
@@ -57,7 +56,8 @@ def vector(value, n: int, name: str) -> np.ndarray:
 
 def timed_poses(points, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(times, positions, unit quaternions) of a JSON list of {t, position, quaternion} objects;
-    SceneError naming `where` (e.g. device.trajectory) for anything else."""
+    SceneError naming `where` (e.g. device.trajectory) for anything else. The JSON types are
+    checked here, the values (times increasing, quaternions non-zero) by the library."""
     shape = f"{where} must be a non-empty list of {{t, position, quaternion}} objects"
     if not isinstance(points, list) or not points:
         raise SceneError(f"{shape}, got {json.dumps(points)[:60]}")
@@ -69,18 +69,14 @@ def timed_poses(points, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         if unknown:
             raise SceneError(f"{where}[{i}] has unknown fields {', '.join(sorted(unknown))}: use t, position, quaternion")
         t = p.get("t")
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+        if isinstance(t, bool) or not isinstance(t, (int, float)):
             raise SceneError(f"{where}[{i}].t = {json.dumps(t)} is invalid: it must be a finite number of seconds")
     times = np.array([float(p["t"]) for p in points])
-    if np.any(np.diff(times) <= 0):
-        k = int(np.argmax(np.diff(times) <= 0)) + 1
-        raise SceneError(f"{where} times 't' must increase strictly: point {k} has t = {times[k]:g} s after "
-                         f"{times[k - 1]:g} s")
     pos = np.array([vector(p.get("position", [0, 0, 0]), 3, f"{where}[{i}].position") for i, p in enumerate(points)])
     quat = np.array([vector(p.get("quaternion", [0, 0, 0, 1]), 4, f"{where}[{i}].quaternion")
                      for i, p in enumerate(points)])
-    norms = np.linalg.norm(quat, axis=1)
-    if np.any(norms < 1e-9):
-        k = int(np.argmax(norms < 1e-9))
-        raise SceneError(f"{where}[{k}].quaternion is zero: use (x, y, z, s) with s = 1 for no rotation")
-    return times, pos, quat / norms[:, None]
+    try:
+        native.check_trajectory(times, pos, quat)
+    except native.InvalidInput as e:
+        raise SceneError(str(e).replace("trajectory", where, 1)) from None
+    return times, pos, quat / np.linalg.norm(quat, axis=1)[:, None]

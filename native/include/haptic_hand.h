@@ -133,6 +133,16 @@ int hh_struct_size(int structure, int* out_size);
  * field, the valid range and a good value. The same check the structs get. */
 int hh_param_check(const char* json, const double* values, int count);
 
+/* --- checks of scene values that hold between numbers, before anything is built --- */
+/* Timed poses (a device or kinematic trajectory) as the library takes them: n >= 1 poses with
+ * finite values, strictly increasing times and non-zero quaternions (null: identity); else
+ * HH_ERR_INVALID_ARGUMENT with a message naming the pose and the fix. */
+int hh_trajectory_check(const double* times, const double* positions, const double* quaternions, int n);
+/* The cells of a box body (mesh "box", 6 tets a cell; whole numbers as doubles):
+ * HH_ERR_INVALID_ARGUMENT with a message naming the fix when they are out of range or make more
+ * tets than a step can take. */
+int hh_box_cells_check(const double cells[3]);
+
 /* --- surface checks, before a mesh is tetrahedralized or simulated --- */
 /* Pairs of triangles (faces int32 [n_faces][3]) that cross where a closed 2-manifold surface
  * keeps them apart: sharing no vertex and crossing (or overlapping, coplanar); sharing one vertex
