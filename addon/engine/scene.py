@@ -14,12 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from . import bodies as bodies_module
+from . import devices
 from . import mesh as meshing
 from . import native, native_session, params, quaternion
 from .embedding import check_embedding
 from .scene_fields import SceneError, check_fields, merge, timed_poses, vector
-
-DEVICES = ("simulated", "playback", "openhaptics", "hid", "external")
 
 
 @lru_cache(maxsize=None)
@@ -153,8 +152,8 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     if merged["haptics"]["enabled"]:
         _check_haptics(scene)
     name = merged["haptics"]["device"]
-    if name.split(":", 1)[0] not in DEVICES:
-        raise SceneError(f"haptics.device '{name}' is unknown: use {', '.join(DEVICES)} (playback:<file>)")
+    if name.split(":", 1)[0] not in devices.NAMES:
+        raise SceneError(f"haptics.device '{name}' is unknown: use {', '.join(devices.NAMES)} (playback:<file>)")
     try:
         parsed = bodies_module.parse(merged["bodies"], Path(base_dir))
     except bodies_module.BodyError as e:

@@ -1,9 +1,10 @@
 """Scene values that hold between numbers are checked once, by the library, and the scene loader
 passes its message on with the field's name: a trajectory's times and quaternions, a box body's
-cells."""
+cells. The device names a scene takes are engine.devices' one list."""
 
 import pytest
 
+from haptic_hand.engine import devices, params
 from haptic_hand.engine import scene as scenes
 
 
@@ -58,3 +59,12 @@ def test_a_box_body_of_more_tets_than_a_step_can_take_is_refused_before_it_is_me
     assert str(e.value) == ("body 'b': cells [34, 34, 29] make 201,144 tets, over 200,000: use fewer cells (a few "
                             "per centimetre)")
 
+
+def test_the_scene_takes_exactly_the_devices_engine_devices_lists():
+    for name in devices.NAMES:
+        assert scenes.from_dict(scene(haptics={"device": name})).data["haptics"]["device"] == name
+    with pytest.raises(scenes.SceneError, match="haptics.device 'phantom' is unknown: use " + ", ".join(devices.NAMES)):
+        scenes.from_dict(scene(haptics={"device": "phantom"}))
+    described = params.by_json("haptics.device").description
+    assert all(name in described for name in devices.NAMES)
+    assert set(devices.MENU_NAMES.values()) == set(devices.NAMES)
