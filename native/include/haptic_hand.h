@@ -366,11 +366,12 @@ int hh_world_add_plane(hh_world* world, const double point[3], const double norm
 /* Coulomb friction of a body: sticking holds up to static_friction, sliding feels
  * kinetic_friction (<= static). A pair uses the geometric mean of its bodies' values. */
 int hh_world_set_friction(hh_world* world, int body, double static_friction, double kinetic_friction);
-/* A soft body's solver. HH_SOLVER_CHOLESKY (the default): its system factored every step, and
- * every contact response solved on that factor. HH_SOLVER_REUSED_CHOLESKY: as the hand's, an
- * earlier step's factor warped by the nodes' rotations preconditions CG to the relative residual
- * cg_tolerance, and is the contact response operator, whose columns are kept until the factor is
- * renewed (for large soft bodies in long contact, like a bunny resting on the ground). */
+/* A soft body's solver (HH_SOLVER_AUTO, the table's default, until this is called).
+ * HH_SOLVER_CHOLESKY: its system factored every step, and every contact response solved on that
+ * factor. HH_SOLVER_REUSED_CHOLESKY: as the hand's, an earlier step's factor warped by the nodes'
+ * rotations preconditions CG to the relative residual cg_tolerance, and is the contact response
+ * operator, whose columns are kept until the factor is renewed (for large soft bodies in long
+ * contact, like a bunny resting on the ground). */
 int hh_world_set_body_solver(hh_world* world, int body, int solver, double cg_tolerance, int cg_max_iterations);
 /* Kinematic: the pose and velocity at the end of the next step. Rigid: the current state. Hand:
  * its handle's current state (with hh_world_set_body_nodes, the whole hand's state). */
