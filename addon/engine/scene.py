@@ -57,7 +57,7 @@ class Trajectory:
         """Linear and angular velocity over [t - dt, t] (the step that ends at t)."""
         p1, q1 = self.pose(t)
         p0, q0 = self.pose(t - dt)
-        return (p1 - p0) / dt, quaternion.rotationvector(quaternion.multiply(q1, quaternion.conjugate(q0))) / dt
+        return (p1 - p0) / dt, quaternion.rotation_vector(quaternion.multiply(q1, quaternion.conjugate(q0))) / dt
 
 
 def body_trajectory(spec: dict, start: np.ndarray) -> Trajectory:
