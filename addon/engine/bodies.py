@@ -15,10 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from . import mesh as meshing
+from . import native
 from . import native_world as W
 from . import params, shapes
+from .embedding import check_embedding
+from .scene_fields import SceneError, check_fields, merge, timed_poses
 
-MAX_BOX_TETS = 200_000  # a box body's tets (6 a cell): beyond, a step takes seconds and memory runs out
 _DEPTH_SAMPLES = 256  # inside points whose depth is measured
 
 TYPES = {"soft": W.SOFT, "rigid": W.RIGID, "kinematic": W.KINEMATIC, "static": W.STATIC, "plane": W.PLANE}
@@ -50,8 +52,6 @@ def defaults() -> dict:
 
 
 def parse(specs: list, base_dir: Path) -> list[dict]:
-    from .scene import SceneError, _merge, check_fields, timed_poses
-
     example = '{"name": "cube", "type": "soft", "mesh": "box"}'
     if not isinstance(specs, list):
         raise BodyError(f"bodies = {json.dumps(specs)[:60]} is invalid: it must be a list of body objects, e.g. "
@@ -63,7 +63,7 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
                             f"{example}")
         label = f"bodies[{i}]" + (f" ('{given['name']}')" if isinstance(given.get("name"), str) else "")
         try:
-            spec = _merge(defaults(), given, f"{label}.")
+            spec = merge(defaults(), given, f"{label}.")
             if not isinstance(spec["type"], str) or spec["type"] not in TYPES:
                 raise BodyError(f"{label} has type {json.dumps(spec['type'])}: use one of {', '.join(TYPES)}")
             check_fields(spec, body=True, where=lambda p: f"{label}.{p.json[len(params.BODY):]}")
@@ -78,9 +78,11 @@ def parse(specs: list, base_dir: Path) -> list[dict]:
                             "or an .obj path)")
         _refuse_fields_of_other_types(spec, given)
         _check_fixed(spec)
-        if spec["type"] != "plane" and spec["mesh"] == "box" and 6 * int(np.prod(spec["cells"])) > MAX_BOX_TETS:
-            raise BodyError(f"body '{spec['name']}': cells {spec['cells']} make {6 * int(np.prod(spec['cells'])):,} "
-                            f"tets, over {MAX_BOX_TETS:,}: use fewer cells (a few per centimetre)")
+        if spec["type"] != "plane" and spec["mesh"] == "box":
+            try:
+                native.check_box_cells(spec["cells"])
+            except native.InvalidInput as e:
+                raise BodyError(f"body '{spec['name']}': {e}") from None
         if spec["type"] == "kinematic" and spec["trajectory"]:
             try:
                 timed_poses(spec["trajectory"], f"body '{spec['name']}': trajectory")
@@ -155,8 +157,6 @@ def _soft_tets(spec: dict, v: np.ndarray, f: np.ndarray, progress=None) -> tuple
 
 
 def prepare(spec: dict, progress=None) -> PreparedBody:
-    from .scene import check_embedding
-
     kind = TYPES[spec["type"]]
     body = PreparedBody(spec, kind)
     if kind == W.PLANE:

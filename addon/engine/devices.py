@@ -28,6 +28,31 @@ class DeviceError(RuntimeError):
     """A device that cannot be used; the message says what to do."""
 
 
+@dataclass(frozen=True)
+class DeviceKind:
+    """One choice of device, as every layer names it."""
+
+    name: str         # haptics.device in the scene file (playback and hid add ":<source>")
+    menu_id: str      # the identifier Blender's Device menu stores in a .blend file
+    label: str
+    description: str  # the menu's tooltip
+
+
+# The devices a scene can name, in the order menus show them: the one list every layer uses.
+KINDS = (
+    DeviceKind("simulated", "SIMULATED", "Simulated", "A simulated user's arm follows the target empty's animation"),
+    DeviceKind("playback", "PLAYBACK", "Playback", "Replay a recorded haptic log (.npz)"),
+    DeviceKind("openhaptics", "OPENHAPTICS", "OpenHaptics",
+               "Phantom Omni / Touch through OpenHaptics (libHD), when installed"),
+    DeviceKind("hid", "HID", "HID device", "A 6-DoF HID input device (SpaceMouse) through hidapi"),
+    DeviceKind("external", "TARGET", "Viewport target",
+               "Move the target empty with the mouse; it stands for the device"),
+)
+NAMES = tuple(k.name for k in KINDS)
+#: Blender's Device menu identifier -> the scene file's device name
+MENU_NAMES = {k.menu_id: k.name for k in KINDS}
+
+
 # --- discovery ---
 def openhaptics_library() -> str | None:
     """Path or name of the OpenHaptics HD library when one can be loaded, else None."""

@@ -7,31 +7,14 @@ again in C; a native status becomes a Python exception carrying the native messa
 from __future__ import annotations
 
 import ctypes
-import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-HH_OK = 0
-HH_ERR_INVALID_ARGUMENT = -1
-HH_ERR_NUMERICAL = -2
-API_VERSION = 3
-
-_HERE = Path(__file__).resolve().parent
-LIBRARY_NAME = "libhaptic_hand.so"
-
-
-class NativeError(RuntimeError):
-    """The native engine reported a failure; the message says what and how to fix it."""
-
-
-class InvalidInput(NativeError, ValueError):
-    """Bad input (mesh, parameters, array sizes) rejected by the native engine."""
-
-
-class NumericalFailure(NativeError):
-    """A solve failed or produced non-finite values."""
+from . import params as table
+# (the errors and helpers every binding shares, also reached as native.*)
+from .native_library import (HH_OK, InvalidInput, NativeError, NumericalFailure, _candidates, _check,  # noqa: F401
+                             _f64, _indices, _points, _ptr, _timed_poses, binding)
 
 
 class ModelInfo(ctypes.Structure):
@@ -80,167 +63,71 @@ class WorldStats(ctypes.Structure):
         return {name: getattr(self, name) for name, _ in self._fields_}
 
 
-def _candidates() -> list[Path]:
-    found = []
-    if os.environ.get("HAPTIC_HAND_LIB"):
-        found.append(Path(os.environ["HAPTIC_HAND_LIB"]))
-    found.append(_HERE.parent / "lib" / LIBRARY_NAME)  # inside a built extension zip
-    found.append(_HERE.parents[1] / "build" / "native" / LIBRARY_NAME)  # a source checkout
-    return found
-
-
-_lib = None
-
-
-def library() -> ctypes.CDLL:
-    """Loads the native library once, declaring every signature."""
-    global _lib
-    if _lib is not None:
-        return _lib
-    tried = _candidates()
-    path = next((p for p in tried if p.is_file()), None)
-    if path is None:
-        raise NativeError(
-            "the native library libhaptic_hand.so was not found (looked in: "
-            + ", ".join(str(p) for p in tried)
-            + "); build it with `make native` or set HAPTIC_HAND_LIB to its path"
-        )
-    lib = ctypes.CDLL(str(path))
-    _declare(lib)
-    if lib.hh_api_version() != API_VERSION:
-        raise NativeError(
-            f"{path} implements API version {lib.hh_api_version()}, these bindings need "
-            f"{API_VERSION}: rebuild it with `make native`"
-        )
-    _lib = lib
-    return lib
-
-
-def _declare(lib: ctypes.CDLL) -> None:
-    d, i = ctypes.c_double, ctypes.c_int
-    pd, pi, vp = ctypes.POINTER(d), ctypes.POINTER(i), ctypes.c_void_p
-    sig = {
-        "hh_last_error": ([], ctypes.c_char_p),
-        "hh_api_version": ([], i),
-        "hh_param_count": ([], i),
-        "hh_param_info_get": ([i, vp], i),
-        "hh_struct_size": ([i, pi], i),
-        "hh_param_check": ([ctypes.c_char_p, pd, i], i),
-        "hh_default_params": ([vp], None),
-        "hh_model_create": ([pd, i, pi, i, vp, ctypes.POINTER(vp)], i),
-        "hh_model_free": ([vp], None),
-        "hh_model_info_get": ([vp, ctypes.POINTER(ModelInfo)], i),
-        "hh_model_handle_nodes": ([vp, pi, i], i),
-        "hh_model_lumped_masses": ([vp, pd, i], i),
-        "hh_model_params": ([vp, vp], i),
-        "hh_count_captured": ([pd, i, pd, d, pi], i),
-        "hh_check_handle": ([pd, i, pd, d, pi], i),
-        "hh_data_create": ([vp, ctypes.POINTER(vp)], i),
-        "hh_data_free": ([vp], None),
-        "hh_data_reset": ([vp, vp], i),
-        "hh_get_state": ([vp, vp, pd, pd, i, pd, pd, pd, pd], i),
-        "hh_set_state": ([vp, vp, pd, pd, i, pd, pd, pd, pd], i),
-        "hh_set_device": ([vp, i, pd, pd, pd, pd], i),
-        "hh_set_solver": ([vp, i, d, i], i),
-        "hh_step": ([vp, vp, ctypes.POINTER(StepStats)], i),
-        "hh_step_monolithic": ([vp, vp, ctypes.POINTER(StepStats)], i),
-        "hh_compare_solvers": ([vp, vp, pd], i),
-        "hh_coupling_wrench": ([vp, vp, pd, pd], i),
-        "hh_coupling_linear_model": ([vp, vp, pd, pd], i),
-        "hh_coupling_response": ([vp, vp, pd, pd], i),
-        "hh_coupling_model": ([vp, vp, pd, pd], i),
-        "hh_energies": ([vp, vp, pd, pd, pd], i),
-        "hh_linear_momentum": ([vp, vp, pd], i),
-        # worlds (scenes with contact)
-        "hh_default_world_params": ([vp], None),
-        "hh_default_material": ([vp], None),
-        "hh_world_create": ([vp, ctypes.POINTER(vp)], i),
-        "hh_world_free": ([vp], None),
-        "hh_world_add_hand": ([vp, vp, pi, pd, i, pi, i, d, i, pi], i),
-        "hh_world_add_soft_body": ([vp, pd, i, pi, i, vp, pi, i, pi, pd, i, pi, i, d, pi], i),
-        "hh_world_add_mesh_body": ([vp, i, pd, i, pi, i, d, d, pi], i),
-        "hh_world_add_plane": ([vp, pd, pd, d, pi], i),
-        "hh_world_set_pose": ([vp, i, pd, pd, pd, pd], i),
-        "hh_world_set_friction": ([vp, i, d, d], i),
-        "hh_world_set_body_solver": ([vp, i, i, d, i], i),
-        "hh_world_get_pose": ([vp, i, pd, pd, pd, pd], i),
-        "hh_world_set_device": ([vp, i, i, pd, pd, pd, pd], i),
-        "hh_world_step": ([vp, ctypes.POINTER(WorldStats)], i),
-        "hh_world_body_kind": ([vp, i, pi, pi, pi], i),
-        "hh_world_body_nodes": ([vp, i, pd, pd, i], i),
-        "hh_world_set_body_nodes": ([vp, i, pd, pd, i], i),
-        "hh_world_surface_positions": ([vp, i, pd, i], i),
-        "hh_world_contact_force": ([vp, i, pd], i),
-        "hh_world_hand_state": ([vp, i, pd, pd, pd, pd], i),
-        "hh_world_linear_momentum": ([vp, pd], i),
-        "hh_world_set_bone_targets": ([vp, i, i, ctypes.POINTER(i), pd, pd, pd, pd], i),
-        "hh_world_bone_states": ([vp, i, i, pd, pd, pd], i),
-        "hh_world_node_contact_forces": ([vp, i, pd, i], i),
-        "hh_world_hand_step_stats": ([vp, i, ctypes.POINTER(StepStats)], i),
-        "hh_world_set_script": ([vp, i, pd, pd, pd, i], i),
-        "hh_world_time": ([vp, pd], i),
-        "hh_world_last_stats": ([vp, ctypes.POINTER(WorldStats)], i),
-        "hh_world_coupling_model": ([vp, i, pd, pd, pi], i),
-    }
-    for name, (args, res) in sig.items():
-        fn = getattr(lib, name)
-        fn.argtypes = args
-        fn.restype = res
-
-
-def _check(status: int) -> None:
-    if status == HH_OK:
-        return
-    message = library().hh_last_error().decode("utf-8", "replace")
-    if status == HH_ERR_INVALID_ARGUMENT:
-        raise InvalidInput(message)
-    if status == HH_ERR_NUMERICAL:
-        raise NumericalFailure(message)
-    raise NativeError(message)
-
-
-def _f64(a, shape=None, name="array") -> np.ndarray:
-    try:
-        out = np.ascontiguousarray(a, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InvalidInput(f"{name} must be numbers (float64), got {type(a).__name__}") from None
-    if shape is not None and out.shape != shape:
-        raise InvalidInput(f"{name} has shape {out.shape}, expected {shape}")
-    return out
-
-
-def _indices(a, columns: int, name: str) -> np.ndarray:
-    """An (m, columns) int32 index array; floats are refused rather than truncated, indices
-    beyond 32 bits rather than wrapped."""
-    a = np.asarray(a)
-    if a.size == 0:
-        a = a.astype(np.int32)
-    if a.dtype.kind not in "iu":
-        raise InvalidInput(f"{name} must be integer indices, got {a.dtype} values (floats are refused, not truncated)")
-    if a.ndim != 2 or a.shape[1] != columns:
-        raise InvalidInput(f"{name} must be an (m, {columns}) integer array, got shape {a.shape}")
-    if a.size and (a.min() < -2**31 or a.max() > 2**31 - 1):
-        raise InvalidInput(f"{name} holds an index beyond 32 bits ({a.max()}): it is refused, not wrapped")
-    return np.ascontiguousarray(a, dtype=np.int32)
-
-
-def _ptr(a: np.ndarray | None, ctype=ctypes.c_double):
-    return None if a is None else a.ctypes.data_as(ctypes.POINTER(ctype))
+_d, _i, _vp = ctypes.c_double, ctypes.c_int, ctypes.c_void_p
+_pd, _pi = ctypes.POINTER(_d), ctypes.POINTER(_i)
+# the output structs, checked against the library's sizes when it is first used
+LAYOUTS = {ModelInfo: "hh_model_info", StepStats: "hh_step_stats", WorldStats: "hh_world_stats"}
+library = binding({
+    "hh_model_create": ([_pd, _i, _pi, _i, _vp, ctypes.POINTER(_vp)], _i),
+    "hh_model_free": ([_vp], None),
+    "hh_model_info_get": ([_vp, ctypes.POINTER(ModelInfo)], _i),
+    "hh_model_handle_nodes": ([_vp, _pi, _i], _i),
+    "hh_model_lumped_masses": ([_vp, _pd, _i], _i),
+    "hh_model_params": ([_vp, _vp], _i),
+    "hh_count_captured": ([_pd, _i, _pd, _d, _pi], _i),
+    "hh_check_handle": ([_pd, _i, _pd, _d, _pi], _i),
+    "hh_trajectory_check": ([_pd, _pd, _pd, _i], _i),
+    "hh_box_cells_check": ([_pd], _i),
+    "hh_data_create": ([_vp, ctypes.POINTER(_vp)], _i),
+    "hh_data_free": ([_vp], None),
+    "hh_data_reset": ([_vp, _vp], _i),
+    "hh_get_state": ([_vp, _vp, _pd, _pd, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_set_state": ([_vp, _vp, _pd, _pd, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_set_device": ([_vp, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_set_solver": ([_vp, _i, _d, _i], _i),
+    "hh_step": ([_vp, _vp, ctypes.POINTER(StepStats)], _i),
+    "hh_step_monolithic": ([_vp, _vp, ctypes.POINTER(StepStats)], _i),
+    "hh_compare_solvers": ([_vp, _vp, _pd], _i),
+    "hh_coupling_wrench": ([_vp, _vp, _pd, _pd], _i),
+    "hh_coupling_linear_model": ([_vp, _vp, _pd, _pd], _i),
+    "hh_coupling_response": ([_vp, _vp, _pd, _pd], _i),
+    "hh_coupling_model": ([_vp, _vp, _pd, _pd], _i),
+    "hh_energies": ([_vp, _vp, _pd, _pd, _pd], _i),
+    "hh_linear_momentum": ([_vp, _vp, _pd], _i),
+    # worlds (scenes with contact)
+    "hh_world_create": ([_vp, ctypes.POINTER(_vp)], _i),
+    "hh_world_free": ([_vp], None),
+    "hh_world_add_hand": ([_vp, _vp, _pi, _pd, _i, _pi, _i, _d, _i, _pi], _i),
+    "hh_world_add_soft_body": ([_vp, _pd, _i, _pi, _i, _vp, _pi, _i, _pi, _pd, _i, _pi, _i, _d, _pi], _i),
+    "hh_world_add_mesh_body": ([_vp, _i, _pd, _i, _pi, _i, _d, _d, _pi], _i),
+    "hh_world_add_plane": ([_vp, _pd, _pd, _d, _pi], _i),
+    "hh_world_set_pose": ([_vp, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_world_set_friction": ([_vp, _i, _d, _d], _i),
+    "hh_world_set_body_solver": ([_vp, _i, _i, _d, _i], _i),
+    "hh_world_get_pose": ([_vp, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_world_set_device": ([_vp, _i, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_world_step": ([_vp, ctypes.POINTER(WorldStats)], _i),
+    "hh_world_body_kind": ([_vp, _i, _pi, _pi, _pi], _i),
+    "hh_world_body_nodes": ([_vp, _i, _pd, _pd, _i], _i),
+    "hh_world_set_body_nodes": ([_vp, _i, _pd, _pd, _i], _i),
+    "hh_world_surface_positions": ([_vp, _i, _pd, _i], _i),
+    "hh_world_contact_force": ([_vp, _i, _pd], _i),
+    "hh_world_hand_state": ([_vp, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_world_linear_momentum": ([_vp, _pd], _i),
+    "hh_world_set_bone_targets": ([_vp, _i, _i, _pi, _pd, _pd, _pd, _pd], _i),
+    "hh_world_bone_states": ([_vp, _i, _i, _pd, _pd, _pd], _i),
+    "hh_world_node_contact_forces": ([_vp, _i, _pd, _i], _i),
+    "hh_world_hand_step_stats": ([_vp, _i, ctypes.POINTER(StepStats)], _i),
+    "hh_world_set_script": ([_vp, _i, _pd, _pd, _pd, _i], _i),
+    "hh_world_time": ([_vp, _pd], _i),
+    "hh_world_last_stats": ([_vp, ctypes.POINTER(WorldStats)], _i),
+    "hh_world_coupling_model": ([_vp, _i, _pd, _pd, _pi], _i),
+}, LAYOUTS)
 
 
 def default_params() -> dict:
     """The hand rig's defaults as {C field name: value} (the solver as its index)."""
-    from . import params
-
-    return params.struct_values(params.new_struct(params.STRUCT_PARAMS))
-
-
-def _points(a, name: str) -> np.ndarray:
-    """An (n, 3) float64 array (the C side reads 3 n numbers)."""
-    out = _f64(a, None, name)
-    if out.ndim != 2 or out.shape[1] != 3:
-        raise InvalidInput(f"{name} must be an (n, 3) array, got shape {out.shape}")
-    return out
+    return table.struct_values(table.new_struct(table.STRUCT_PARAMS))
 
 
 def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
@@ -255,9 +142,7 @@ def count_captured(nodes: np.ndarray, seed, radius: float) -> int:
 def solver_code(name: str, field: str = "solver.name") -> int:
     """The C code of a solver named as the parameter table names it (the hand's solver.name, or
     a soft body's bodies[].solver.name, whose choices add auto)."""
-    from . import params
-
-    choices = params.by_json(field).choices
+    choices = table.by_json(field).choices
     if name not in choices:
         raise InvalidInput(f"solver '{name}' is unknown: use one of {', '.join(choices)}")
     return choices.index(name)
@@ -281,6 +166,19 @@ def check_handle(nodes: np.ndarray, seed, radius: float) -> int:
     return out.value
 
 
+def check_trajectory(times, positions, quaternions) -> None:
+    """InvalidInput (the library's message, naming the pose and the fix) unless these timed poses
+    ((n,), (n, 3), (n, 4)) have finite values, strictly increasing times and non-zero quaternions."""
+    t, p, q = _timed_poses(times, positions, quaternions)
+    _check(library().hh_trajectory_check(_ptr(t), _ptr(p), _ptr(q), len(t)))
+
+
+def check_box_cells(cells) -> None:
+    """InvalidInput (the library's message) unless a box body's cells are in range and make no
+    more tets than a step can take."""
+    _check(library().hh_box_cells_check(_ptr(_f64(cells, (3,), "cells"))))
+
+
 @dataclass
 class HandleState:
     position: np.ndarray
@@ -297,8 +195,6 @@ class HandModel:
         if self.nodes.ndim != 2 or self.nodes.shape[1] != 3:
             raise InvalidInput(f"nodes must be an (n, 3) array, got shape {self.nodes.shape}")
         self.tets = _indices(tets, 4, "tets")
-        from . import params as table
-
         p = table.new_struct(table.STRUCT_PARAMS, _solver_index(params))
         handle = ctypes.c_void_p()
         _check(
@@ -346,8 +242,6 @@ class HandModel:
 
     def params(self) -> dict:
         """The model's parameters as {C field name: value}, the solver by name."""
-        from . import params as table
-
         p = table.structure(table.STRUCT_PARAMS)()
         _check(library().hh_model_params(self._handle, ctypes.byref(p)))
         out = table.struct_values(p)
@@ -356,8 +250,6 @@ class HandModel:
 
     def set_solver(self, solver: str, cg_tolerance: float | None = None, cg_max_iterations: int | None = None) -> None:
         """The hand's solver by name; a tolerance or iteration cap left out takes the table's default."""
-        from . import params as table
-
         tol = table.by_json("solver.cg_tolerance").default if cg_tolerance is None else cg_tolerance
         cap = table.by_json("solver.cg_max_iterations").default if cg_max_iterations is None else cg_max_iterations
         _check(library().hh_set_solver(self._handle, solver_code(solver), float(tol), int(cap)))

@@ -9,17 +9,24 @@ import math
 import numpy as np
 
 from . import params as table
-from .native import _check, _f64, _ptr, library
+from .native_library import NativeError, _check, _f64, _ptr, _timed_poses, binding
 from .native_world import World
 
-LOG_COLUMNS = 23
-# the haptic log's columns (native/src/haptics/haptic_log.h), as slices of a row
-LOG_FIELDS = {
-    "t": slice(0, 1), "period": slice(1, 2), "cost": slice(2, 3),
-    "device_position": slice(3, 6), "device_quaternion": slice(6, 10),
-    "proxy_position": slice(10, 13), "proxy_quaternion": slice(13, 17),
-    "force": slice(17, 20), "torque": slice(20, 23),
-}
+# the haptic log's columns (native/src/haptics/haptic_log.h): (name, width) in row order
+_LOG_LAYOUT = (("t", 1), ("period", 1), ("cost", 1), ("device_position", 3), ("device_quaternion", 4),
+               ("proxy_position", 3), ("proxy_quaternion", 4), ("force", 3), ("torque", 3))
+LOG_COLUMNS = sum(width for _, width in _LOG_LAYOUT)  # checked against the library's HH_LOG_COLUMNS
+
+
+def _log_fields() -> dict:
+    out, start = {}, 0
+    for name, width in _LOG_LAYOUT:
+        out[name] = slice(start, start + width)
+        start += width
+    return out
+
+
+LOG_FIELDS = _log_fields()
 
 
 class SessionStatus(ctypes.Structure):
@@ -49,54 +56,42 @@ class SessionFrame(ctypes.Structure):
     ]
 
 
-_declared = False
+def _check_log_columns(lib: ctypes.CDLL) -> None:
+    if lib.hh_log_columns() != LOG_COLUMNS:
+        raise NativeError(f"the native library's haptic log rows are {lib.hh_log_columns()} numbers wide and these "
+                          f"bindings read {LOG_COLUMNS}: they are from different versions; rebuild it with "
+                          "`make native`")
 
 
-def _lib() -> ctypes.CDLL:
-    global _declared
-    lib = library()
-    if _declared:
-        return lib
-    d, i = ctypes.c_double, ctypes.c_int
-    pd, pi, vp = ctypes.POINTER(d), ctypes.POINTER(i), ctypes.c_void_p
-    sig = {
-        "hh_session_create": ([vp, i, vp, ctypes.POINTER(vp)], i),
-        "hh_session_params_check": ([vp], i),
-        "hh_session_free": ([vp], None),
-        "hh_session_device_simulated": ([vp, pd, pd, pd, i, d, d, d, d], i),
-        "hh_session_device_playback": ([vp, pd, pd, pd, i, d], i),
-        "hh_session_device_external": ([vp, d], i),
-        "hh_session_push_device_pose": ([vp, pd, pd], i),
-        "hh_session_device_openhaptics": ([vp, ctypes.c_char_p, d, pd, d], i),
-        "hh_session_run_offline": ([vp, i], i),
-        "hh_session_start": ([vp], i),
-        "hh_session_stop": ([vp], i),
-        "hh_session_get_status": ([vp, ctypes.POINTER(SessionStatus)], i),
-        "hh_session_loop_info": ([vp, pi, pi, pd, pd, pd, pd], i),
-        "hh_session_fetch_frame": ([vp, pi, ctypes.POINTER(SessionFrame)], i),
-        "hh_session_frame_surface": ([vp, i, pd, i], i),
-        "hh_session_read_log": ([vp, pd, i, pi], i),
-        "hh_session_frame_pose": ([vp, i, pd], i),
-        "hh_session_coupling_model": ([vp, pd, pd, pi], i),
-    }
-    for name, (args, res) in sig.items():
-        fn = getattr(lib, name)
-        fn.argtypes = args
-        fn.restype = res
-    _declared = True
-    return lib
-
-
-def _trajectory(times, positions, quaternions):
-    t = _f64(times, None, "times").reshape(-1)
-    p = _f64(positions, (len(t), 3), "positions")
-    q = _f64(quaternions if quaternions is not None else np.tile([0, 0, 0, 1.0], (len(t), 1)), (len(t), 4),
-             "quaternions")
-    return t, p, q
+_d, _i, _vp = ctypes.c_double, ctypes.c_int, ctypes.c_void_p
+_pd, _pi = ctypes.POINTER(_d), ctypes.POINTER(_i)
+# the output structs, checked against the library's sizes when it is first used
+LAYOUTS = {SessionStatus: "hh_session_status", SessionFrame: "hh_session_frame"}
+_lib = binding({
+    "hh_log_columns": ([], _i),
+    "hh_session_create": ([_vp, _i, _vp, ctypes.POINTER(_vp)], _i),
+    "hh_session_params_check": ([_vp], _i),
+    "hh_session_free": ([_vp], None),
+    "hh_session_device_simulated": ([_vp, _pd, _pd, _pd, _i, _d, _d, _d, _d], _i),
+    "hh_session_device_playback": ([_vp, _pd, _pd, _pd, _i, _d], _i),
+    "hh_session_device_external": ([_vp, _d], _i),
+    "hh_session_push_device_pose": ([_vp, _pd, _pd], _i),
+    "hh_session_device_openhaptics": ([_vp, ctypes.c_char_p, _d, _pd, _d], _i),
+    "hh_session_run_offline": ([_vp, _i], _i),
+    "hh_session_start": ([_vp], _i),
+    "hh_session_stop": ([_vp], _i),
+    "hh_session_get_status": ([_vp, ctypes.POINTER(SessionStatus)], _i),
+    "hh_session_loop_info": ([_vp, _pi, _pi, _pd, _pd, _pd, _pd], _i),
+    "hh_session_fetch_frame": ([_vp, _pi, ctypes.POINTER(SessionFrame)], _i),
+    "hh_session_frame_surface": ([_vp, _i, _pd, _i], _i),
+    "hh_session_read_log": ([_vp, _pd, _i, _pi], _i),
+    "hh_session_frame_pose": ([_vp, _i, _pd], _i),
+    "hh_session_coupling_model": ([_vp, _pd, _pd, _pi], _i),
+}, LAYOUTS, _check_log_columns)
 
 
 def log_arrays(rows: np.ndarray) -> dict:
-    """The haptic log rows (k, 23) as named arrays (one row per haptic step)."""
+    """The haptic log rows (k, LOG_COLUMNS) as named arrays (one row per haptic step)."""
     rows = np.asarray(rows).reshape(-1, LOG_COLUMNS)
     out = {}
     for name, sl in LOG_FIELDS.items():
@@ -144,12 +139,12 @@ class NativeSession:
         arm_mass = arm["mass"] if arm_mass is None else arm_mass
         arm_stiffness = arm["stiffness"] if arm_stiffness is None else arm_stiffness
         arm_damping = arm["damping"] if arm_damping is None else arm_damping
-        t, p, q = _trajectory(times, positions, quaternions)
+        t, p, q = _timed_poses(times, positions, quaternions)
         _check(_lib().hh_session_device_simulated(self._handle, _ptr(t), _ptr(p), _ptr(q), len(t), float(arm_mass),
                                                   float(arm_stiffness), float(arm_damping), float(fail_at)))
 
     def device_playback(self, times, positions, quaternions=None, fail_at=math.inf) -> None:
-        t, p, q = _trajectory(times, positions, quaternions)
+        t, p, q = _timed_poses(times, positions, quaternions)
         _check(_lib().hh_session_device_playback(self._handle, _ptr(t), _ptr(p), _ptr(q), len(t), float(fail_at)))
 
     def device_external(self, timeout=None) -> None:
@@ -215,7 +210,7 @@ class NativeSession:
         return out
 
     def read_log(self, max_rows: int | None = None) -> np.ndarray:
-        """Unread haptic log rows, (k, 23), oldest first."""
+        """Unread haptic log rows, (k, LOG_COLUMNS), oldest first."""
         chunks = []
         while True:
             cap = 4096 if max_rows is None else max(0, max_rows - sum(len(c) for c in chunks))

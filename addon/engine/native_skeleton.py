@@ -3,7 +3,7 @@ skeleton section; docs/skeleton.md): a hand model whose handles are the bones of
 skeleton.Skeleton, their capture, info, states, targets and wrenches.
 
 The structures hh_skeleton_desc and hh_bone_info are checked against hh_struct_size when first
-used, as the parameter structs are (engine/params.py)."""
+used, as every structure the bindings pass is (engine/native_library.py)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ import ctypes
 import numpy as np
 
 from . import native
-from .native import InvalidInput, _check, _f64, _ptr
+from . import params as table
+from .native_library import InvalidInput, _check, _f64, _ptr, binding
 from .skeleton import Skeleton
 
 FREE, COUPLED, PRESCRIBED = 0, 1, 2  # HH_BONE_*
-_STRUCT_SKELETON_DESC, _STRUCT_BONE_INFO = 5, 6  # HH_STRUCT_*
 
 _pd, _pi = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int)
 
@@ -33,43 +33,24 @@ class BoneInfo(ctypes.Structure):
                 ("drive", ctypes.c_double * 4)]
 
 
-_lib = None
-
-
-def library() -> ctypes.CDLL:
-    """The native library with the skeleton's signatures declared and its structs checked."""
-    global _lib
-    if _lib is not None:
-        return _lib
-    lib = native.library()
-    d, i, vp = ctypes.c_double, ctypes.c_int, ctypes.c_void_p
-    pdesc = ctypes.POINTER(SkeletonDesc)
-    sig = {
-        "hh_skeleton_capture": ([_pd, i, pdesc, _pi, _pi], i),
-        "hh_model_create_skeleton": ([_pd, i, _pi, i, vp, pdesc, ctypes.POINTER(vp)], i),
-        "hh_model_bone_count": ([vp, _pi], i),
-        "hh_model_bone_info": ([vp, i, ctypes.POINTER(BoneInfo)], i),
-        "hh_model_bone_nodes": ([vp, i, _pi, i, _pi], i),
-        "hh_model_node_bones": ([vp, _pi, i], i),
-        "hh_get_bone_states": ([vp, vp, i, _pd, _pd, _pd, _pd], i),
-        "hh_set_bone_states": ([vp, vp, i, _pd, _pd, _pd, _pd], i),
-        "hh_set_bone_targets": ([vp, vp, i, _pi, _pd, _pd, _pd, _pd], i),
-        "hh_bone_wrenches": ([vp, vp, i, _pd], i),
-        "hh_bone_linear_model": ([vp, vp, i, _pd, _pd], i),
-        "hh_bone_response": ([vp, vp, i, _pd, _pd], i),
-    }
-    for name, (args, res) in sig.items():
-        fn = getattr(lib, name)
-        fn.argtypes = args
-        fn.restype = res
-    for struct, sid in ((SkeletonDesc, _STRUCT_SKELETON_DESC), (BoneInfo, _STRUCT_BONE_INFO)):
-        size = ctypes.c_int()
-        _check(lib.hh_struct_size(sid, ctypes.byref(size)))
-        if size.value != ctypes.sizeof(struct):
-            raise native.NativeError(f"{struct.__name__} is {ctypes.sizeof(struct)} bytes here and {size.value} in the "
-                                     f"library: rebuild it with `make native`")
-    _lib = lib
-    return lib
+_i, _vp = ctypes.c_int, ctypes.c_void_p
+_pdesc = ctypes.POINTER(SkeletonDesc)
+# the structs, checked against the library's sizes when it is first used
+LAYOUTS = {SkeletonDesc: "hh_skeleton_desc", BoneInfo: "hh_bone_info"}
+library = binding({
+    "hh_skeleton_capture": ([_pd, _i, _pdesc, _pi, _pi], _i),
+    "hh_model_create_skeleton": ([_pd, _i, _pi, _i, _vp, _pdesc, ctypes.POINTER(_vp)], _i),
+    "hh_model_bone_count": ([_vp, _pi], _i),
+    "hh_model_bone_info": ([_vp, _i, ctypes.POINTER(BoneInfo)], _i),
+    "hh_model_bone_nodes": ([_vp, _i, _pi, _i, _pi], _i),
+    "hh_model_node_bones": ([_vp, _pi, _i], _i),
+    "hh_get_bone_states": ([_vp, _vp, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_set_bone_states": ([_vp, _vp, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_set_bone_targets": ([_vp, _vp, _i, _pi, _pd, _pd, _pd, _pd], _i),
+    "hh_bone_wrenches": ([_vp, _vp, _i, _pd], _i),
+    "hh_bone_linear_model": ([_vp, _vp, _i, _pd, _pd], _i),
+    "hh_bone_response": ([_vp, _vp, _i, _pd, _pd], _i),
+}, LAYOUTS)
 
 
 class _Desc:
@@ -114,8 +95,6 @@ class SkeletonModel(native.HandModel):
     (params palm_seed and handle_radius are not read)."""
 
     def __init__(self, nodes, tets, skeleton: Skeleton, drive_scales=None, **params):
-        from . import params as table
-
         self.nodes = native._points(nodes, "nodes")
         self.tets = native._indices(tets, 4, "tets")
         self.skeleton = skeleton

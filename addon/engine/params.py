@@ -14,14 +14,15 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 
-from . import native
+from . import native_library
 
 KIND_DOUBLE, KIND_INT, KIND_BOOL, KIND_ENUM, KIND_STRING, KIND_PATH, KIND_JSON = range(7)
 NUMERIC_KINDS = (KIND_DOUBLE, KIND_INT, KIND_BOOL, KIND_ENUM)
 OPEN_MIN, OPEN_MAX, ZERO_OR_RANGE, NULLABLE, REQUIRED = 0x1, 0x2, 0x4, 0x8, 0x10
 UI_SCENE, UI_OBJECT, UI_DERIVED, UI_ADVANCED, INTERNAL = 0x20, 0x40, 0x80, 0x100, 0x200
 FOR_TYPES = {"soft": 0x1000, "rigid": 0x2000, "kinematic": 0x4000, "static": 0x8000, "plane": 0x10000}
-STRUCT_NONE, STRUCT_PARAMS, STRUCT_WORLD_PARAMS, STRUCT_MATERIAL, STRUCT_SESSION_PARAMS = range(5)
+STRUCT_NONE, STRUCT_PARAMS, STRUCT_WORLD_PARAMS, STRUCT_MATERIAL, STRUCT_SESSION_PARAMS = map(
+    native_library.STRUCT_NAMES.index, ("", "hh_params", "hh_world_params", "hh_material", "hh_session_params"))
 BODY = "bodies[]."
 
 
@@ -120,12 +121,12 @@ class Param:
 @lru_cache(maxsize=None)
 def rows() -> tuple[Param, ...]:
     """Every row the library declares (a row two structs share comes once for each)."""
-    lib = native.library()
+    lib = native_library.library()
     out = []
     for i in range(lib.hh_param_count()):
         info = ParamInfo()
         info.struct_size = ctypes.sizeof(ParamInfo)
-        native._check(lib.hh_param_info_get(i, ctypes.byref(info)))
+        native_library._check(lib.hh_param_info_get(i, ctypes.byref(info)))
         strings = {k: getattr(info, k).decode() for k in ("name", "json", "unit", "label", "text", "description",
                                                            "advice")}
         numbers = {k: getattr(info, k) for k in ("kind", "count", "flags", "structure", "offset", "min", "max",
@@ -161,13 +162,12 @@ def structure(struct_id: int) -> type:
     for p in fields:
         ctype = ctypes.c_double if p.kind == KIND_DOUBLE else ctypes.c_int
         layout.append((p.name, ctype * p.count if p.count > 1 else ctype))
-    cls = type(f"Struct{struct_id}", (ctypes.Structure,), {"_fields_": layout, "rows": tuple(fields)})
-    size = ctypes.c_int()
-    native._check(native.library().hh_struct_size(struct_id, ctypes.byref(size)))
-    offsets_ok = all(getattr(cls, p.name).offset == p.offset for p in fields)
-    if ctypes.sizeof(cls) != size.value or not offsets_ok:
-        raise native.NativeError(f"the parameter struct {struct_id} of the native library does not match its table "
-                                 "(a stale build?): rebuild it with `make native`")
+    c_name = native_library.STRUCT_NAMES[struct_id]
+    cls = type(c_name, (ctypes.Structure,), {"_fields_": layout, "rows": tuple(fields)})
+    native_library.check_layout(cls, c_name)
+    if not all(getattr(cls, p.name).offset == p.offset for p in fields):
+        raise native_library.NativeError(f"{c_name}'s fields lie elsewhere in the native library than its table "
+                                         "says (a stale build?): rebuild it with `make native`")
     return cls
 
 
@@ -176,13 +176,11 @@ def new_struct(struct_id: int, values: dict | None = None):
     s = structure(struct_id)()
     fill = {STRUCT_PARAMS: "hh_default_params", STRUCT_WORLD_PARAMS: "hh_default_world_params",
             STRUCT_MATERIAL: "hh_default_material", STRUCT_SESSION_PARAMS: "hh_default_session_params"}[struct_id]
-    fn = getattr(native.library(), fill)
-    fn.argtypes, fn.restype = [ctypes.c_void_p], None
-    fn(ctypes.byref(s))
+    getattr(native_library.library(), fill)(ctypes.byref(s))
     names = {p.name: p for p in s.rows}
     for name, value in (values or {}).items():
         if name not in names:
-            raise native.InvalidInput(f"unknown parameter '{name}'; known: {', '.join(names)}")
+            raise native_library.InvalidInput(f"unknown parameter '{name}'; known: {', '.join(names)}")
         p = names[name]
         if p.count > 1:
             value = (ctypes.c_double * p.count)(*[float(v) for v in value])
@@ -261,7 +259,7 @@ def check(p: Param, value, where: str | None = None) -> None:
         return
     numbers = [p.to_number(v) for v in (value if p.count > 1 else [value])]
     values = (ctypes.c_double * len(numbers))(*numbers)
-    status = native.library().hh_param_check(p.json.encode(), values, len(numbers))
-    if status != native.HH_OK:
-        message = native.library().hh_last_error().decode("utf-8", "replace")
+    status = native_library.library().hh_param_check(p.json.encode(), values, len(numbers))
+    if status != native_library.HH_OK:
+        message = native_library.library().hh_last_error().decode("utf-8", "replace")
         raise ParamError(message.replace(p.json, where, 1) if where != p.json else message)

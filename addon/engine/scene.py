@@ -7,7 +7,6 @@ Distances in metres, times in seconds, quaternions (x, y, z, s).
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -15,17 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from . import bodies as bodies_module
+from . import devices
 from . import mesh as meshing
-from . import native, params, quaternion
-
-DEVICES = ("simulated", "playback", "openhaptics", "hid", "external")
-#: The least slack a surface has outside its stored tets, as a fraction of their diagonal
-#: (the paper's 271-tet bunny cage lies within 0.33% of its bunny).
-EMBEDDING_SLACK = 0.01
-HAPTIC_LOG_COLUMNS = 23  # HH_LOG_COLUMNS
-
-class SceneError(ValueError):
-    """A scene file that cannot be used; the message names the field and the fix."""
+from . import native, native_session, params, quaternion
+from .embedding import check_embedding
+from .scene_fields import SceneError, check_fields, merge, timed_poses, vector
 
 
 @lru_cache(maxsize=None)
@@ -40,21 +33,6 @@ def defaults() -> dict:
 
 def format_name() -> str:
     return json.loads(params.by_json("format").text)
-
-
-def _merge(defaults: dict, given: dict, where: str) -> dict:
-    out = dict(defaults)
-    for key, value in given.items():
-        if key not in defaults:
-            raise SceneError(f"unknown field '{where}{key}'; known fields here: {', '.join(defaults)}")
-        if isinstance(defaults[key], dict) and isinstance(value, dict):
-            out[key] = _merge(defaults[key], value, f"{where}{key}.")
-        elif isinstance(defaults[key], dict):
-            raise SceneError(f"{where}{key} = {json.dumps(value)} is invalid: it must be an object with the fields "
-                             f"{', '.join(defaults[key])}")
-        else:
-            out[key] = value
-    return out
 
 
 @dataclass
@@ -80,37 +58,6 @@ class Trajectory:
         p1, q1 = self.pose(t)
         p0, q0 = self.pose(t - dt)
         return (p1 - p0) / dt, quaternion.rotation_vector(quaternion.multiply(q1, quaternion.conjugate(q0))) / dt
-
-
-def timed_poses(points, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(times, positions, unit quaternions) of a JSON list of {t, position, quaternion} objects;
-    SceneError naming `where` (e.g. device.trajectory) for anything else."""
-    shape = f"{where} must be a non-empty list of {{t, position, quaternion}} objects"
-    if not isinstance(points, list) or not points:
-        raise SceneError(f"{shape}, got {json.dumps(points)[:60]}")
-    for i, p in enumerate(points):
-        if not isinstance(p, dict):
-            raise SceneError(f"{where}[{i}] = {json.dumps(p)[:60]} is not an object: give each point as "
-                             "{\"t\": seconds, \"position\": [x, y, z], \"quaternion\": [x, y, z, s]}")
-        unknown = set(p) - {"t", "position", "quaternion"}
-        if unknown:
-            raise SceneError(f"{where}[{i}] has unknown fields {', '.join(sorted(unknown))}: use t, position, quaternion")
-        t = p.get("t")
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
-            raise SceneError(f"{where}[{i}].t = {json.dumps(t)} is invalid: it must be a finite number of seconds")
-    times = np.array([float(p["t"]) for p in points])
-    if np.any(np.diff(times) <= 0):
-        k = int(np.argmax(np.diff(times) <= 0)) + 1
-        raise SceneError(f"{where} times 't' must increase strictly: point {k} has t = {times[k]:g} s after "
-                         f"{times[k - 1]:g} s")
-    pos = np.array([_vector(p.get("position", [0, 0, 0]), 3, f"{where}[{i}].position") for i, p in enumerate(points)])
-    quat = np.array([_vector(p.get("quaternion", [0, 0, 0, 1]), 4, f"{where}[{i}].quaternion")
-                     for i, p in enumerate(points)])
-    norms = np.linalg.norm(quat, axis=1)
-    if np.any(norms < 1e-9):
-        k = int(np.argmax(norms < 1e-9))
-        raise SceneError(f"{where}[{k}].quaternion is zero: use (x, y, z, s) with s = 1 for no rotation")
-    return times, pos, quat / norms[:, None]
 
 
 def body_trajectory(spec: dict, start: np.ndarray) -> Trajectory:
@@ -147,7 +94,7 @@ class Scene:
             if self.data["hand"]["mesh"] != "procedural":
                 raise SceneError("hand.palm_seed is missing: give a point inside the palm, in metres")
             return meshing.procedural_hand_palm_seed()
-        return _vector(seed, 3, "hand.palm_seed")
+        return vector(seed, 3, "hand.palm_seed")
 
     def engine_params(self) -> dict:
         """The hand rig's parameters (hh_params) by C name, from the scene."""
@@ -176,38 +123,14 @@ class Scene:
         return Trajectory(times, pos, quat)
 
 
-def _vector(value, n: int, name: str) -> np.ndarray:
-    numbers = isinstance(value, (list, tuple)) and all(
-        isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)
-    if not numbers:
-        raise SceneError(f"{name} must be a list of {n} numbers, got {json.dumps(value, default=str)[:60]}")
-    v = np.asarray(value, dtype=np.float64)
-    if v.shape != (n,) or not np.all(np.isfinite(v)):
-        raise SceneError(f"{name} must be {n} finite numbers, got {json.dumps(value, default=str)[:60]}")
-    return v
-
-
 def __getattr__(name: str):
     if name == "FORMAT":  # the format's name, from the table
         return format_name()
     raise AttributeError(name)
 
 
-def check_fields(data: dict, body: bool = False, where=None) -> None:
-    """Every table field of a scene (or of one body, body=True) against its JSON type and range;
-    `where` turns a field's path into the name the message gives."""
-    for p in params.table():
-        if p.body == body and not p.flags & params.INTERNAL:
-            try:
-                params.check(p, params.get(data, p), where(p) if where else None)
-            except params.ParamError as e:
-                raise SceneError(str(e)) from None
-
-
 def _check_haptics(scene: "Scene") -> None:
     """The haptic loop's settings as the library checks them when a session starts."""
-    from . import native_session
-
     values = scene.struct_values(params.STRUCT_SESSION_PARAMS)
     try:
         native_session.check_params(**values)
@@ -221,7 +144,7 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
                          f'{{"format": "{format_name()}", "hand": {{...}}, ...}} (docs/scene_format.md)')
     if "format" not in data:
         raise SceneError(f'the scene has no "format": add "format": "{format_name()}" (docs/scene_format.md)')
-    merged = _merge(defaults(), data, "")
+    merged = merge(defaults(), data, "")
     if merged["format"] != format_name():
         raise SceneError(f"format {merged['format']!r} is not supported: this version reads '{format_name()}'")
     check_fields(merged)
@@ -230,8 +153,8 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     if merged["haptics"]["enabled"]:
         _check_haptics(scene)
     name = merged["haptics"]["device"]
-    if name.split(":", 1)[0] not in DEVICES:
-        raise SceneError(f"haptics.device '{name}' is unknown: use {', '.join(DEVICES)} (playback:<file>)")
+    if name.split(":", 1)[0] not in devices.NAMES:
+        raise SceneError(f"haptics.device '{name}' is unknown: use {', '.join(devices.NAMES)} (playback:<file>)")
     try:
         parsed = bodies_module.parse(merged["bodies"], Path(base_dir))
     except bodies_module.BodyError as e:
@@ -291,26 +214,6 @@ def load_hand_geometry(scene: Scene, progress=None) -> None:
         epsilon=float(opts["epsilon"]), progress=progress)
 
 
-def embedding_tolerance(nodes: np.ndarray, epsilon: float) -> float:
-    """How far (m) a surface may lie outside its tets: twice the envelope pytetwild keeps at this
-    epsilon, or 1% of the tets' diagonal (a coarse cage like the paper's bunny), the larger."""
-    return max(2.0 * epsilon, EMBEDDING_SLACK) * float(np.linalg.norm(np.ptp(nodes, axis=0)))
-
-
-def check_embedding(nodes, tets, surface, epsilon: float, who: str, field_name: str) -> tuple:
-    """The surface embedded in the tets, refused when a vertex lies outside them by more than
-    embedding_tolerance: the surface would ride on extrapolated weights, far from its flesh."""
-    tet_index, weights, gap = meshing.embed_points(nodes, tets, surface, return_gap=True)
-    tolerance = embedding_tolerance(nodes, epsilon)
-    if gap.max() > tolerance:
-        worst = int(np.argmax(gap))
-        raise meshing.MeshError(
-            f"{who}'s surface lies outside its tets ({field_name}): {int((gap > tolerance).sum())} vertices by more "
-            f"than {tolerance * 1e3:.3g} mm, vertex {worst} by {gap[worst] * 1e3:.3g} mm; the tets were made for "
-            "another surface or placement: tetrahedralize this surface again (or store tets made from it)")
-    return tet_index, weights
-
-
 def build_model(scene: Scene, progress=None) -> native.HandModel:
     if scene.nodes is None:
         load_hand_geometry(scene, progress)
@@ -335,7 +238,7 @@ def result_bytes(scene: Scene, n_nodes: int) -> int:
     total = (frames + 1) * per_frame
     if scene.data["haptics"]["enabled"]:
         steps = max(1, round(scene.dt * scene.data["haptics"]["rate"]))
-        total += (frames * steps + 1) * 8 * HAPTIC_LOG_COLUMNS * 2  # the native ring and its copy
+        total += (frames * steps + 1) * 8 * native_session.LOG_COLUMNS * 2  # the native ring and its copy
     return total
 
 

@@ -95,8 +95,14 @@ int hh_api_version(void);
 #define HH_STRUCT_WORLD_PARAMS 2
 #define HH_STRUCT_MATERIAL 3
 #define HH_STRUCT_SESSION_PARAMS 4
-#define HH_STRUCT_SKELETON_DESC 5 /* hh_skeleton_desc (no parameter rows; struct_size only) */
-#define HH_STRUCT_BONE_INFO 6     /* hh_bone_info */
+/* Structs with no parameter rows: hh_struct_size only, for the bindings' layout checks. */
+#define HH_STRUCT_SKELETON_DESC 5
+#define HH_STRUCT_BONE_INFO 6
+#define HH_STRUCT_MODEL_INFO 7
+#define HH_STRUCT_STEP_STATS 8
+#define HH_STRUCT_WORLD_STATS 9
+#define HH_STRUCT_SESSION_STATUS 10
+#define HH_STRUCT_SESSION_FRAME 11
 
 /* One row of the table, as declared there (strings live in the library). A row shared by two
  * structs (dt, gravity, the coupling) comes once for each, with the same values. */
@@ -126,6 +132,16 @@ int hh_struct_size(int structure, int* out_size);
  * JSON path against its range: HH_OK, or HH_ERR_INVALID_ARGUMENT with a message naming the
  * field, the valid range and a good value. The same check the structs get. */
 int hh_param_check(const char* json, const double* values, int count);
+
+/* --- checks of scene values that hold between numbers, before anything is built --- */
+/* Timed poses (a device or kinematic trajectory) as the library takes them: n >= 1 poses with
+ * finite values, strictly increasing times and non-zero quaternions (null: identity); else
+ * HH_ERR_INVALID_ARGUMENT with a message naming the pose and the fix. */
+int hh_trajectory_check(const double* times, const double* positions, const double* quaternions, int n);
+/* The cells of a box body (mesh "box", 6 tets a cell; whole numbers as doubles):
+ * HH_ERR_INVALID_ARGUMENT with a message naming the fix when they are out of range or make more
+ * tets than a step can take. */
+int hh_box_cells_check(const double cells[3]);
 
 /* --- surface checks, before a mesh is tetrahedralized or simulated --- */
 /* Pairs of triangles (faces int32 [n_faces][3]) that cross where a closed 2-manifold surface
@@ -350,11 +366,12 @@ int hh_world_add_plane(hh_world* world, const double point[3], const double norm
 /* Coulomb friction of a body: sticking holds up to static_friction, sliding feels
  * kinetic_friction (<= static). A pair uses the geometric mean of its bodies' values. */
 int hh_world_set_friction(hh_world* world, int body, double static_friction, double kinetic_friction);
-/* A soft body's solver. HH_SOLVER_CHOLESKY (the default): its system factored every step, and
- * every contact response solved on that factor. HH_SOLVER_REUSED_CHOLESKY: as the hand's, an
- * earlier step's factor warped by the nodes' rotations preconditions CG to the relative residual
- * cg_tolerance, and is the contact response operator, whose columns are kept until the factor is
- * renewed (for large soft bodies in long contact, like a bunny resting on the ground). */
+/* A soft body's solver (HH_SOLVER_AUTO, the table's default, until this is called).
+ * HH_SOLVER_CHOLESKY: its system factored every step, and every contact response solved on that
+ * factor. HH_SOLVER_REUSED_CHOLESKY: as the hand's, an earlier step's factor warped by the nodes'
+ * rotations preconditions CG to the relative residual cg_tolerance, and is the contact response
+ * operator, whose columns are kept until the factor is renewed (for large soft bodies in long
+ * contact, like a bunny resting on the ground). */
 int hh_world_set_body_solver(hh_world* world, int body, int solver, double cg_tolerance, int cg_max_iterations);
 /* Kinematic: the pose and velocity at the end of the next step. Rigid: the current state. Hand:
  * its handle's current state (with hh_world_set_body_nodes, the whole hand's state). */
@@ -415,6 +432,7 @@ typedef struct hh_session_params {
  * position (3) and quaternion (4), proxy position (3) and quaternion (4), feedback force (3, N)
  * and torque (3, N m). */
 #define HH_LOG_COLUMNS 23
+int hh_log_columns(void); /* HH_LOG_COLUMNS, for bindings */
 
 typedef struct hh_session_status {
     int running;             /* 1 while live threads run */

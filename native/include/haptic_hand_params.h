@@ -84,13 +84,20 @@
       "Stiffness damping (beta)", "", "Stiffness-proportional Rayleigh damping: damps deformation only", \
       "about 0.01 s damps the fastest element modes at 30 Hz")
 
+/* The stiffest device coupling the haptic loop is tested stable at (N/m): a session refuses a
+ * stiffer one (hh_session_params_check), and the coupling stiffness's slider ends there. */
+#define HH_HAPTIC_MAX_COUPLING_STIFFNESS 3e4
+#define HH_STR_(x) #x
+#define HH_STR(x) HH_STR_(x)
+
 /* The virtual coupling between the device and the handle (Fig. 2): one-directional without the
  * haptic loop, two-way between the device and the proxy with it (hh_params, hh_session_params). */
 #define HH_COUPLING_ROWS(X)                                                                            \
     X(coupling_stiffness, HH_KIND_DOUBLE, 1, "coupling.stiffness", "N/m", HH_V(2e3), 0, HH_INF,        \
-      HH_UI_SCENE, 0, 3e4, "Coupling stiffness", "",                                                   \
+      HH_UI_SCENE, 0, HH_HAPTIC_MAX_COUPLING_STIFFNESS, "Coupling stiffness", "",                      \
       "Virtual coupling between the device and the handle (the proxy, with the haptic loop on)",       \
-      "a desktop haptic device renders about 1e3 to 3e3 N/m; the haptic loop is tested up to 3e4")     \
+      "a desktop haptic device renders about 1e3 to 3e3 N/m; the haptic loop is tested up to "         \
+      HH_STR(HH_HAPTIC_MAX_COUPLING_STIFFNESS))                                                        \
     X(coupling_damping, HH_KIND_DOUBLE, 1, "coupling.damping", "N s/m", HH_V(20), 0, HH_INF,           \
       HH_UI_SCENE, 0, 500, "Coupling damping", "", "Damping of the virtual coupling",                  \
       "above stiffness x haptic period / 2 keeps the coupling passive (Colgate)")                      \
@@ -267,7 +274,7 @@
       "The box mesh's edge lengths (mesh \"box\")", "positive lengths")                                \
     X(cells, HH_KIND_INT, 3, "bodies[].cells", "", HH_V3(4, 4, 4), 1, 1000,                            \
       HH_UI_DERIVED | HH_FOR_MESHES, 1, 50, "Box cells", "",                                           \
-      "The box mesh's cells along each edge (mesh \"box\"; 5 tets a cell)", "whole numbers of at least 1") \
+      "The box mesh's cells along each edge (mesh \"box\"; 6 tets a cell)", "whole numbers of at least 1") \
     X(tets, HH_KIND_PATH, 0, "bodies[].tets", "", HH_V(0), 0, 0,                                  \
       HH_NULLABLE | HH_UI_DERIVED | HH_FOR_SOFT, 0, 0, "Tets", "null",                                 \
       "An .npz (nodes, tets) for a soft body; null: the shape's own tets, or pytetwild's",             \

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from haptic_hand.engine import native, native_session, scene as scenes, session, simulate
+from haptic_hand.engine import native, native_session, params, scene as scenes, session, simulate
 
 SAMPLES = Path(simulate.__file__).parent / "sample_scenes"
 
@@ -117,7 +117,7 @@ def wall_push(linearized: bool, k_vc: float) -> dict:
 
 
 def test_stiffest_coupling_on_a_wall_stays_stable_with_linearization_and_not_without():
-    k_max = 3e4  # docs/haptics.md: the stiffest coupling the haptic loop is tested stable at (refused above, natively)
+    k_max = params.by_json("coupling.stiffness").soft_max  # the stiffest coupling a session takes
     lin = wall_push(True, k_max)
     per_second = [slice(i * 1000, (i + 1) * 1000) for i in range(5)]
     energy = [lin["coupling_energy"][s].max() for s in per_second]
@@ -285,6 +285,14 @@ def test_a_fifty_metre_jump_of_a_playback_device_is_reported_with_its_frame(tmp_
     assert f"tore at frame {torn}" in text and f"strayed from the handle at frame {strayed}" in text
     stored = np.load(simulate.write(result, tmp_path / "r.npz"))
     assert int(stored["strayed_frame"]) == strayed and len(stored["warnings"]) == 2
+
+
+def test_a_coupling_stiffer_than_the_haptic_loop_is_tested_at_is_refused_with_the_fix():
+    k_max = params.by_json("coupling.stiffness").soft_max  # HH_HAPTIC_MAX_COUPLING_STIFFNESS
+    assert k_max == 3e4  # docs/haptics.md: the stiffest coupling the wall test holds stable
+    native_session.check_params(coupling_stiffness=k_max)
+    with pytest.raises(native.InvalidInput, match=r"coupling.stiffness = 30300.* at most 3e4 N/m, the stiffest"):
+        native_session.check_params(coupling_stiffness=1.01 * k_max)
 
 
 def test_a_virtual_coupling_that_is_not_passive_is_refused_with_the_fix():

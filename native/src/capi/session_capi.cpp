@@ -31,8 +31,6 @@ hh::Keyframes keyframes(const double* times, const double* positions, const doub
     require(times && positions && n >= 1, "a device trajectory needs at least one timed pose");
     return hh::Keyframes(times, positions, quaternions, n);
 }
-// The stiffest device coupling the haptic loop is tested stable at (N/m).
-constexpr double kMaxHapticCouplingStiffness = 3e4;
 // fail_at: a time from the table's range, or +inf for a device that never fails.
 void require_fail_at(double fail_at) {
     if (fail_at != HUGE_VAL) hh::params::check("haptics.fail_at", fail_at);
@@ -40,10 +38,11 @@ void require_fail_at(double fail_at) {
 // Every field against the table, then what holds between fields: the haptic loop's stability.
 void validate_session_params(const hh_session_params& p) {
     hh::params::validate(HH_STRUCT_SESSION_PARAMS, &p);
-    require(p.coupling_stiffness <= kMaxHapticCouplingStiffness,
+    require(p.coupling_stiffness <= HH_HAPTIC_MAX_COUPLING_STIFFNESS,
             "coupling.stiffness = " + std::to_string(p.coupling_stiffness) +
-                " N/m is invalid with the haptic loop on: it must be at most 3e4 N/m, the stiffest coupling the "
-                "haptic loop is tested stable at; lower it (1e3 to 3e3 N/m suits a desktop device)");
+                " N/m is invalid with the haptic loop on: it must be at most " HH_STR(HH_HAPTIC_MAX_COUPLING_STIFFNESS)
+                " N/m, the stiffest coupling the haptic loop is tested stable at; lower it (1e3 to 3e3 N/m suits a "
+                "desktop device)");
     const hh::SessionParams s(p);
     hh::check_passive(s.coupling, s.haptic_rate);
 }
@@ -51,6 +50,11 @@ void put_pose(const double* in, double* out) { std::memcpy(out, in, 7 * sizeof(d
 }  // namespace
 
 extern "C" {
+
+int hh_log_columns(void) {
+    static_assert(hh::kLogColumns == HH_LOG_COLUMNS, "the haptic log's rows are HH_LOG_COLUMNS wide");
+    return HH_LOG_COLUMNS;
+}
 
 int hh_session_params_check(const hh_session_params* params) {
     return guard([&] {

@@ -164,7 +164,12 @@ int struct_size(int structure) {
         case HH_STRUCT_SESSION_PARAMS: return sizeof(hh_session_params);
         case HH_STRUCT_SKELETON_DESC: return sizeof(hh_skeleton_desc);
         case HH_STRUCT_BONE_INFO: return sizeof(hh_bone_info);
-        default: throw InvalidArgument("unknown parameter struct " + std::to_string(structure));
+        case HH_STRUCT_MODEL_INFO: return sizeof(hh_model_info);
+        case HH_STRUCT_STEP_STATS: return sizeof(hh_step_stats);
+        case HH_STRUCT_WORLD_STATS: return sizeof(hh_world_stats);
+        case HH_STRUCT_SESSION_STATUS: return sizeof(hh_session_status);
+        case HH_STRUCT_SESSION_FRAME: return sizeof(hh_session_frame);
+        default: throw InvalidArgument("unknown struct " + std::to_string(structure) + " (HH_STRUCT_*)");
     }
 }
 

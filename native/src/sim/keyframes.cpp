@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <sstream>
 
 #include "rigid/quaternion.h"
 
@@ -13,11 +14,18 @@ Keyframes::Keyframes(const double* times, const double* positions, const double*
         const Vec3 p(positions[3 * k], positions[3 * k + 1], positions[3 * k + 2]);
         Vec4 q(0, 0, 0, 1);
         if (quaternions) q = Vec4(quaternions[4 * k], quaternions[4 * k + 1], quaternions[4 * k + 2], quaternions[4 * k + 3]);
-        if (!std::isfinite(times[k]) || !p.allFinite() || !q.allFinite() || q.norm() < 1e-12)
+        if (!std::isfinite(times[k]) || !p.allFinite() || !q.allFinite())
             throw InvalidArgument("trajectory pose " + std::to_string(k) +
-                                  " has a NaN or infinite value or a zero quaternion: fix the trajectory");
-        if (k > 0 && !(times[k] > times[k - 1]))
-            throw InvalidArgument("trajectory times must be strictly increasing (pose " + std::to_string(k) + ")");
+                                  " has a NaN or infinite time, position or quaternion: give finite numbers");
+        if (q.norm() < 1e-12)
+            throw InvalidArgument("trajectory pose " + std::to_string(k) +
+                                  " has a zero quaternion: use (x, y, z, s) with s = 1 for no rotation");
+        if (k > 0 && !(times[k] > times[k - 1])) {
+            std::ostringstream msg;
+            msg << "trajectory pose " << k << " has t = " << times[k] << " s after " << times[k - 1]
+                << " s: times must increase strictly; give each pose a later time than the one before";
+            throw InvalidArgument(msg.str());
+        }
         if (k > 0 && q.dot(quaternions_.back()) < 0) q = -q;  // shortest arc between poses
         times_.push_back(times[k]);
         positions_.push_back(p);
