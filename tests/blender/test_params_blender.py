@@ -50,6 +50,17 @@ def test_every_property_has_a_tooltip(addon):
                 assert prop.description.strip(), f"{settings.bl_rna.identifier}.{prop.identifier} has no tooltip"
 
 
+def test_every_operator_and_its_properties_have_a_tooltip(addon):
+    names = dir(bpy.ops.haptic_hand)
+    assert {"mark_body", "import_scene", "tetrahedralize", "bake"} <= set(names), "the check reads the add-on's"
+    for name in names:
+        rna = getattr(bpy.ops.haptic_hand, name).get_rna_type()
+        assert rna.description.strip(), f"haptic_hand.{name} has no tooltip"
+        for prop in rna.properties:
+            if prop.identifier != "rna_type":
+                assert prop.description.strip(), f"haptic_hand.{name}'s '{prop.identifier}' has no tooltip"
+
+
 def build_hand(context, scale: float = 1.0):
     """The procedural hand with its stored tets and a seed at its palm, in a scene whose Blender
     unit is `scale` metres, all settings at their defaults; 30 fps, 60 frames."""
