@@ -1,7 +1,7 @@
 """The sidebar panels draw without errors against a recording layout: every property they
 show exists and every button names a registered operator (a typo there would only show up as
-a broken panel in a real Blender window); and docs/blender.md names only controls the panel
-draws."""
+a broken panel in a real Blender window); every row of the parameter table kept in Blender is
+drawn; and docs/blender.md names only controls the panel draws."""
 
 import re
 from pathlib import Path
@@ -10,7 +10,8 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from haptic_hand.blender import live, ops_bake, panel, runtime
+from haptic_hand.blender import live, ops_bake, panel, param_props, runtime, scene_export
+from haptic_hand.engine import params
 
 from blender_helpers import FakeSession, draw_panels, labels, open_copy, operators, props
 
@@ -47,6 +48,43 @@ def test_panels_draw_empty_and_rigged_scenes(addon, built_scenes, tmp_path):
     s.bake_frame_end = 3
     assert bpy.ops.haptic_hand.bake() == {"FINISHED"}
     assert "haptic_hand.free_bake" in operators(draw_panels(context))
+
+
+def drawn_settings(context) -> set:
+    """(the owner's address, property) of every setting the panels draw now."""
+    return {(data.id_data.as_pointer(), name) for kind, name, data in draw_panels(context) if kind == "prop"}
+
+
+def shown(owner, rows) -> set:
+    """What drawing these rows of `owner` (an ID) means: each row's property, and the switch of
+    a nullable number."""
+    out = set()
+    for p in rows:
+        out.add((owner.as_pointer(), p.name))
+        if p.nullable and p.kind in params.NUMERIC_KINDS:
+            out.add((owner.as_pointer(), f"use_{p.name}"))
+    return out
+
+
+def test_the_panel_draws_every_row_of_the_parameter_table(addon, built_scenes, tmp_path):
+    """Rows reach the panel from the table (a new row needs no panel edit): every scene row, the
+    hand's rows with the hand active, each body type's rows with such a body active."""
+    context = open_copy(built_scenes("bunny_press"), tmp_path)
+    scene, hand = context.scene, context.scene.haptic_hand.hand
+    scene_rows = param_props.rows(params.UI_SCENE)
+    assert {"drive_frequency", "drive_damping_ratio", "external_timeout", "cg_tolerance"} <= \
+        {p.name for p in scene_rows}, "the check reads the table"
+    context.view_layer.objects.active = hand
+    expected = shown(scene, scene_rows) | shown(hand, param_props.selected(params.UI_OBJECT, prefix="hand."))
+    missing = expected - drawn_settings(context)
+    for role in ("SOFT", "RIGID", "MOVING", "STATIC", "PLANE"):
+        bpy.ops.mesh.primitive_cube_add(size=0.02, location=(0.3, 0.3, 0.3))
+        body = context.active_object
+        body.haptic_hand.role = role
+        rows = list(param_props.selected(params.UI_OBJECT, scene_export.BODY_TYPES[role]))
+        assert rows, role
+        missing |= shown(body, rows) - drawn_settings(context)
+    assert not missing, f"rows the panel does not draw: {sorted(n for _, n in missing)}"
 
 
 def drawn_names(context) -> set:
