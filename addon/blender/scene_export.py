@@ -50,6 +50,8 @@ def device_from_scene(s, name: str) -> None:
     s.device = {v: k for k, v in DEVICE_NAMES.items()}[kind]
     if kind == "playback":
         s.device_file = arg
+    elif kind == "hid":
+        s.hid_path = arg
 
 
 class ExportError(ValueError):
