@@ -1,7 +1,7 @@
 """The sidebar panels draw without errors against a recording layout: every property they
 show exists and every button names a registered operator (a typo there would only show up as
 a broken panel in a real Blender window); every row of the parameter table kept in Blender is
-drawn; and docs/blender.md names only controls the panel draws."""
+drawn; and docs/blender.md names every control the panel draws, and no other."""
 
 import re
 from pathlib import Path
@@ -87,23 +87,27 @@ def test_the_panel_draws_every_row_of_the_parameter_table(addon, built_scenes, t
     assert not missing, f"rows the panel does not draw: {sorted(n for _, n in missing)}"
 
 
-def drawn_names(context) -> set:
-    """Every name the panel shows, in the states it can be in: settings' and buttons' labels,
-    the sections' titles."""
-    names = {cls.bl_label for cls in panel.classes}
+def drawn_names(context) -> tuple[set, set]:
+    """The names the panel shows, in the states it can be in: (its controls: the settings' and
+    buttons' names and the sections' titles, all of which the docs must name; everything it
+    shows: those, the menus' items and the labels)."""
+    controls = {cls.bl_label for cls in panel.classes}
+    shown = set(controls)
+    switches = {f"use_{p.name}" for p in params.table() if p.nullable}  # drawn unlabelled before their value
 
     def collect():
         for kind, what, extra in draw_panels(context):
             if kind == "prop":
                 rna = extra.bl_rna.properties[what]
-                names.add(rna.name)
+                if what not in switches:
+                    controls.add(rna.name)
                 if rna.type == "ENUM":  # its menu's items
-                    names.update(item.name for item in rna.enum_items)
+                    shown.update(item.name for item in rna.enum_items)
             elif kind == "operator":
                 module, name = what.split(".")
-                names.add(extra or getattr(getattr(bpy.ops, module), name).get_rna_type().name)
+                controls.add(extra or getattr(getattr(bpy.ops, module), name).get_rna_type().name)
             elif kind == "label":
-                names.add(what)
+                shown.add(what)
 
     s = context.scene.haptic_hand
     collect()
@@ -136,27 +140,31 @@ def drawn_names(context) -> set:
     s.bake_frame_end = 3
     assert bpy.ops.haptic_hand.bake() == {"FINISHED"}
     collect()
-    return names
+    return controls, shown | controls
 
 
 def doc_names() -> set:
-    """The names docs/blender.md puts in bold (buttons, sections) or italics (settings), code
-    left out."""
+    """The names docs/blender.md puts in bold (buttons, sections) or italics (settings), and the
+    sections its table of the panel lists; code left out."""
     text = re.sub(r"```.*?```", "", DOC.read_text(), flags=re.S)
     text = re.sub(r"`[^`]*`", "", text)
     bold = re.findall(r"\*\*([^*]+?)\*\*", text)
     italic = re.findall(r"(?<![*\w])\*([^*\s][^*]*?)\*(?![*\w])", re.sub(r"\*\*[^*]+?\*\*", "", text))
-    return {" ".join(n.split()) for n in bold + italic}
+    sections = re.findall(r"^\| ([^|*]+?) \|", text, flags=re.M)  # the first column of the panel's table
+    return {" ".join(n.split()) for n in bold + italic + sections} - {"section"}
 
 
-def test_docs_name_only_what_the_panel_draws(addon, built_scenes, tmp_path):
+def test_docs_name_what_the_panel_draws_and_nothing_else(addon, built_scenes, tmp_path):
     context = open_copy(built_scenes("bunny_press"), tmp_path)
-    drawn = drawn_names(context)
+    controls, shown = drawn_names(context)
     named = doc_names()
     assert {"Tetrahedralize", "Haptic loop", "Bake Recording", "Record", "Confirm above"} <= named, \
         "the check reads the docs' names"
-    missing = sorted(n for n in named - BLENDER_NAMES if n not in drawn)
+    assert {"Bone drive frequency", "External timeout", "Check Rig"} <= controls, "the check reads the panel's"
+    missing = sorted(n for n in named - BLENDER_NAMES if n not in shown)
     assert not missing, f"docs/blender.md names controls the panel does not draw: {missing}"
+    unnamed = sorted(controls - named)
+    assert not unnamed, f"the panel draws controls docs/blender.md does not name: {unnamed}"
     # and the docs' table of the panel has a row for every section of the tab
     for cls in panel.classes:
         if getattr(cls, "bl_parent_id", "") == "HAPTIC_HAND_PT_main":
