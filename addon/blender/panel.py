@@ -239,7 +239,7 @@ class HAPTIC_HAND_PT_bake(_Panel, bpy.types.Panel):
             layout.label(text=f"Baked {s.baked_range} ({s.baked_format.lower()})", icon="CHECKMARK")
             for name, path in bake_store.missing_caches(context.scene):
                 layout.label(text=f"{name}: point cache {path} is missing", icon="ERROR")
-                layout.label(text=f"Copy the folder {bake_store.cache_dir().name} beside the .blend, or bake again")
+                layout.label(text=f"Copy the folder {bake_store.bake_root().name} beside the .blend, or bake again")
             if s.bake_log:
                 layout.label(text=f"Log: {s.bake_log}")
             layout.operator("haptic_hand.free_bake", icon="TRASH")
@@ -259,9 +259,9 @@ def draw_bake_size(layout, scene) -> None:
                           f"({frames} frames, {vertices} vertices)", icon="INFO")
         layout.label(text=f"PC2 keeps it beside the .blend instead ({mib(bake_store.pc2_size(meshes, frames))})")
     else:
+        root = bake_store.bake_root().name if bpy.data.filepath else "<blend name>_haptic"
         layout.label(text=f"Point caches: {mib(bake_store.pc2_size(meshes, frames))} in "
-                          f"{bake_store.cache_dir().name if bpy.data.filepath else '<blend name>_haptic'}/",
-                     icon="INFO")
+                          f"{root}/{bake_store.cache_dir(scene).name}/", icon="INFO")
 
 
 classes = (HAPTIC_HAND_PT_main, HAPTIC_HAND_PT_rig, HAPTIC_HAND_PT_material, HAPTIC_HAND_PT_advanced,

@@ -188,6 +188,9 @@ class HapticSceneSettings(bpy.types.PropertyGroup):
     baked_range: StringProperty(default="", description="The stored bake's frames")
     bake_log: StringProperty(name="Haptic log", default="",
                              description="Where the last bake saved its haptic log (relative to the .blend)")
+    baked_files: StringProperty(default="", options={"HIDDEN"},
+                                description="The stored bake's files, one a line (relative to the .blend): the next "
+                                            "bake and Free Bake remove them")
 
 
 def _add_table_properties() -> None:
