@@ -1,8 +1,10 @@
 """The sidebar panels draw without errors against a recording layout: every property they
 show exists and every button names a registered operator (a typo there would only show up as
 a broken panel in a real Blender window); every row of the parameter table kept in Blender is
-drawn; and docs/blender.md names every control the panel draws, and no other."""
+drawn; docs/blender.md names every control the panel draws, and no other; and its picture of
+the panel shows what the panel draws now."""
 
+import importlib.util
 import re
 from pathlib import Path
 
@@ -15,7 +17,8 @@ from haptic_hand.engine import params
 
 from blender_helpers import FakeSession, draw_panels, labels, open_copy, operators, props
 
-DOC = Path(__file__).resolve().parents[2] / "docs" / "blender.md"
+ROOT = Path(__file__).resolve().parents[2]
+DOC = ROOT / "docs" / "blender.md"
 # emphasised words in docs/blender.md that are Blender's own, not the add-on panel's
 BLENDER_NAMES = {"Mesh Cache", "Graph Editor", "Get Extensions", "Install from Disk...", "Shape Keys",
                  "Object Data", "Custom Properties", "File > Import > Haptic Hand Scene (.json)",
@@ -169,3 +172,19 @@ def test_docs_name_what_the_panel_draws_and_nothing_else(addon, built_scenes, tm
     for cls in panel.classes:
         if getattr(cls, "bl_parent_id", "") == "HAPTIC_HAND_PT_main":
             assert f"| {cls.bl_label} |" in DOC.read_text(), cls.bl_label
+
+
+def test_the_panel_picture_shows_what_the_panel_draws_now(addon, built_scenes, tmp_path):
+    """blender_scenes/docs_images.py saves the rows it drew beside docs/images/blender_panel.png;
+    the panel drawn the same way now (the bunny scene, the bunny selected) must give that list."""
+    spec = importlib.util.spec_from_file_location("docs_images", ROOT / "blender_scenes" / "docs_images.py")
+    docs_images = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(docs_images)
+    context = open_copy(built_scenes("bunny_press"), tmp_path)
+    context.view_layer.objects.active = bpy.data.objects["bunny"]
+    now = docs_images.listing(docs_images.draw_sections(context))
+    assert "External timeout" in now and "Bone drive frequency" in now, "the listing reads the panel"
+    saved = (ROOT / "docs" / "images" / "blender_panel.txt").read_text()
+    assert now == saved, ("docs/images/blender_panel.png is stale: `.venv/bin/python blender_scenes/docs_images.py "
+                          "--only panel` draws it again")
+
