@@ -58,7 +58,7 @@ demo: native venv
 	$(PY) -m haptic_hand demo --out $(OUT)/demo
 	$(PY) blender_scenes/demo.py --out $(OUT)/demo
 
-# The Blender extension zip (out/haptic_hand-<version>.zip, about 41 MB with its wheels;
+# The Blender extension zip (out/haptic_hand-<version>.zip, about 43 MB with its wheels;
 # `$(PY) scripts/build_addon.py --no-wheels` makes a small one without them).
 addon: native venv
 	$(PY) scripts/build_addon.py --out $(OUT)

@@ -3,7 +3,7 @@ a contact frame with Workbench and plot the feedback force over time.
 
     .venv/bin/python blender_scenes/demo.py --out out/demo [--frames N]
 
-Leaves in the output folder: bunny.blend (baked, shape keys), bunny_haptic/haptic_log.npz,
+Leaves in the output folder: bunny.blend (baked, shape keys), bunny_haptic/bunny/haptic_log.npz,
 bunny_contact.png (the render) and bunny_force.png (the plot).
 """
 

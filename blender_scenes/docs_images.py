@@ -7,13 +7,17 @@ seed; blender_bake.png: frames of a bake of the bunny scene side by side (the ha
 pressing, stroking). Each is a render of the .blend the scripts build, not a mock-up.
 blender_panel.png: the Haptic Hand tab as its own draw code lays it out for the bunny scene with
 the bunny selected (headless Blender draws no UI, so the panels draw into a recording layout
-and matplotlib paints what they drew).
+and matplotlib paints what they drew); blender_panel.txt beside it lists what it shows, so a
+test (tests/blender/test_panel.py) finds the picture stale when the panel draws otherwise.
+
+    .venv/bin/python blender_scenes/docs_images.py --only panel     # that picture alone
 """
 
 from __future__ import annotations
 
 import argparse
 import pathlib
+import re
 import sys
 import tempfile
 
@@ -114,7 +118,10 @@ class PanelRecorder:
             shown = f"{value:.4g}" + (" m" if rna.unit == "LENGTH" else "")
         else:
             shown = str(value) if value != "" else "-"
-        self.rows.append((self.depth, "prop", rna.name if text is None else text, shown))
+        if self.rows and self.rows[-1][1] == "switch":  # an unlabelled switch before its value, on one row
+            shown = f"{self.rows.pop()[3]} {shown}"
+        kind = "switch" if text == "" and rna.type == "BOOLEAN" else "prop"
+        self.rows.append((self.depth, kind, rna.name if text is None else text, shown))
 
     def operator(self, idname, text=None, **kwargs):
         import bpy
@@ -137,6 +144,32 @@ class PanelRecorder:
         pass
 
 
+def draw_sections(context) -> list[tuple[str, str, list]]:
+    """What each panel of the tab draws now: (title, parent panel, rows)."""
+    from haptic_hand.blender import panel
+
+    sections = []
+    for cls in panel.classes:
+        rows = []
+
+        class Fake:
+            layout = PanelRecorder(rows)
+        cls.draw(Fake(), context)
+        sections.append((cls.bl_label, getattr(cls, "bl_parent_id", ""), rows))
+    return sections
+
+
+def listing(sections) -> str:
+    """The picture's sections and rows as text, numbers masked (the bunny's tets, and so some
+    counts, differ from build to build)."""
+    lines = []
+    for title, _, rows in sections:
+        lines.append(title)
+        lines += [f"{'  ' * (depth + 1)}{kind}: {re.sub(r'[0-9]+([.][0-9]+)?', '#', label)}"
+                  for depth, kind, label, _ in rows]
+    return "\n".join(lines) + "\n"
+
+
 def panel_picture(out: pathlib.Path, work: pathlib.Path) -> None:
     import bpy
     import matplotlib
@@ -144,24 +177,17 @@ def panel_picture(out: pathlib.Path, work: pathlib.Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from haptic_hand.blender import panel
-
     objects = common.build("bunny", work / "panel.blend")
     bpy.context.view_layer.objects.active = objects["bunny"]
-    sections = []
-    for cls in panel.classes:
-        rows = []
-
-        class Fake:
-            layout = PanelRecorder(rows)
-        cls.draw(Fake(), bpy.context)
-        sections.append((cls.bl_label, getattr(cls, "bl_parent_id", ""), rows))
-    height = sum(len(rows) + 1.4 for _, _, rows in sections) * 0.2
-    fig = plt.figure(figsize=(4.6, height), dpi=110)
+    sections = draw_sections(bpy.context)
+    (out / "blender_panel.txt").write_text(listing(sections))
+    # in rows of the picture: a first margin, then each section's title (1.4), rows (1 each), gap (0.4)
+    units = 1.0 + sum(len(rows) + 1.8 for _, _, rows in sections)
+    fig = plt.figure(figsize=(4.6, units * 0.2), dpi=110)
     fig.patch.set_facecolor("#303030")
     ax = fig.add_axes([0, 0, 1, 1])
     ax.set_xlim(0, 46)
-    ax.set_ylim(-height * 5, 0)
+    ax.set_ylim(-units, 0)
     ax.axis("off")
     y = -1.0
     text = dict(color="#e6e6e6", fontsize=7.5, va="center", family="DejaVu Sans")
@@ -188,9 +214,13 @@ def panel_picture(out: pathlib.Path, work: pathlib.Path) -> None:
     print(f"wrote {out / 'blender_panel.png'}")
 
 
+PICTURES = {"rig": rig_picture, "bake": bake_picture, "panel": panel_picture}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default=str(common.ROOT / "docs" / "images"))
+    parser.add_argument("--only", choices=sorted(PICTURES), action="append", help="these pictures alone")
     args = parser.parse_args(argv)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -198,9 +228,8 @@ def main(argv=None) -> int:
     haptic_hand.register()
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            rig_picture(out, pathlib.Path(tmp))
-            bake_picture(out, pathlib.Path(tmp))
-            panel_picture(out, pathlib.Path(tmp))
+            for name in args.only or PICTURES:
+                PICTURES[name](out, pathlib.Path(tmp))
     finally:
         haptic_hand.unregister()
     return 0

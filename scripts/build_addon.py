@@ -30,6 +30,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 BUNDLED = ("scipy", "pytetwild", "hidapi")  # pinned in requirements.txt; their only dependency is numpy
 BLENDER_HAS = ("numpy",)
+# Bundled versions other than the venv's: each wheel must import on the numpy of every Blender
+# the manifest names. Blender 4.2 LTS ships numpy 1.24.3; scipy 1.16 and newer need numpy 1.25 or
+# newer (scipy 1.17.1, the venv's, fails at `from numpy.exceptions import AxisError`), while
+# scipy 1.15.3 imports and runs the engine on numpy 1.24.3 and on 1.26.4 (Blender 4.4 to 5.0).
+BUNDLE_PINS = {"scipy": "1.15.3"}
 PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64", "linux_x86_64")
 
 
@@ -38,7 +43,8 @@ def pins() -> list[str]:
     for line in (ROOT / "requirements.txt").read_text().splitlines():
         m = re.match(r"^([A-Za-z0-9_.-]+)==([^\s#]+)", line.strip())
         if m and m.group(1).lower() in BUNDLED + BLENDER_HAS:
-            wanted[m.group(1).lower()] = f"{m.group(1)}=={m.group(2)}"
+            name = m.group(1).lower()
+            wanted[name] = f"{m.group(1)}=={BUNDLE_PINS.get(name, m.group(2))}"
     missing = [p for p in BUNDLED if p not in wanted]
     if missing:
         sys.exit(f"requirements.txt pins no version of {', '.join(missing)}: pin them (name==version)")
@@ -52,12 +58,14 @@ def download_wheels(cache: Path) -> list[Path]:
     for p in PLATFORMS:
         cmd += ["--platform", p]
     subprocess.run(cmd + pins(), check=True)
-    # only the newest file of each distribution, numpy left to Blender
+    # the pinned file of each distribution (a cache filled by an older build may hold others),
+    # numpy left to Blender
+    pinned = {pin.lower().replace("==", "-") for pin in pins()}
     chosen = {}
     for whl in sorted(cache.glob("*.whl")):
-        dist = whl.name.split("-")[0].lower().replace("-", "_")
-        if dist in BUNDLED:  # a cache filled by an older build may hold others
-            chosen[dist] = whl
+        dist, version = whl.name.split("-")[:2]
+        if dist.lower() in BUNDLED and f"{dist.lower()}-{version}" in pinned:
+            chosen[dist.lower()] = whl
     return sorted(chosen.values())
 
 

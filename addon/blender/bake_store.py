@@ -5,11 +5,15 @@ What a bake stores, from the engine's result (haptic_hand.engine.simulate.run):
 - the hand and each soft body that moves: one shape key per frame that differs from the rest
   mesh, its value keyed 1 on its frame and 0 on its neighbours (the last key stays at 1, so
   the last frame holds, as a point cache does); or, in PC2 format, a .pc2 file in
-  <blend name>_haptic/ played by a Mesh Cache modifier with a relative path;
+  <blend name>_haptic/<scene name>/ played by a Mesh Cache modifier with a relative path;
 - each rigid body that moves: keyed location and rotation;
 - the hand: the force and torque on the handle, and (with the haptic loop) the force felt at
   the device, as keyed custom properties (the Graph Editor shows them);
-- the haptic log, <blend name>_haptic/haptic_log.npz, for analysis.
+- the haptic log, <blend name>_haptic/<scene name>/haptic_log.npz, for analysis.
+Each scene has its own folder, so two scenes of one .blend never share a file, and the scene
+keeps the list of its bake's files (Scene.haptic_hand.baked_files): the next bake and Free
+Bake remove them, the caches of objects deleted or unmarked since included, but not a file
+another scene's bake uses (a scene copied with its bake shares its files).
 
 A new bake is written aside and swapped in whole, so a failure at any point leaves the
 previous bake, and the report "the previous bake is unchanged", true:
@@ -66,10 +70,15 @@ class BakeSwapError(RuntimeError):
     only removes, renames and assigns); the message says what to do."""
 
 
-def cache_dir() -> Path:
-    """<blend folder>/<blend name>_haptic: where the haptic log and point caches go."""
+def bake_root() -> Path:
+    """<blend folder>/<blend name>_haptic: the .blend's bakes (copy it along with the .blend)."""
     blend = Path(bpy.data.filepath)
     return blend.parent / f"{blend.stem}_haptic"
+
+
+def cache_dir(scene=None) -> Path:
+    """bake_root()/<scene name>: where a scene's haptic log and point caches go."""
+    return bake_root() / scene_export._safe((scene or bpy.context.scene).name)
 
 
 # --------------------------------------------------------------------------------------------
@@ -323,7 +332,7 @@ def write(context, export: scene_export.Export, result: dict, fmt: str) -> str:
     """Replaces the previous bake by the engine's result; returns a summary for the report.
     BakeWriteError (the previous bake unchanged) when anything cannot be written."""
     p = plan(export, result, fmt)
-    folder = cache_dir()
+    folder = cache_dir(context.scene)
     clean_stale_staging(folder)
     files = StagedFiles(folder)
     staged = Staged()
@@ -345,7 +354,7 @@ def write(context, export: scene_export.Export, result: dict, fmt: str) -> str:
     except Exception as e:
         raise BakeSwapError(f"the new bake was only partly swapped in ({type(e).__name__}: {e}): press Free Bake, "
                             "then bake again") from None
-    for path in previous_files - set(files.files):
+    for path in unused(context.scene, previous_files - set(files.files)):
         path.unlink(missing_ok=True)
     files.discard()
     context.view_layer.update()
@@ -454,6 +463,7 @@ def swap(context, p: Plan, staged: Staged, export: scene_export.Export) -> None:
         o.bake_made_basis = d.obj.name in made_basis
     s.baked, s.baked_format, s.baked_range = True, p.fmt, f"{export.frame_start}-{export.frame_end}"
     s.bake_log = bpy.path.relpath(str(staged.log_path))
+    s.baked_files = "\n".join(bpy.path.relpath(str(path)) for path in [staged.log_path, *staged.caches.values()])
 
 
 def _add_mesh_cache(obj, path: Path, frame_start: int) -> None:
@@ -475,9 +485,10 @@ def _add_mesh_cache(obj, path: Path, frame_start: int) -> None:
 
 
 def bake_files(scene) -> set[Path]:
-    """The files the stored bake uses: its haptic log and point caches."""
-    out = set()
+    """The files the stored bake wrote (its haptic log and point caches, even those of objects
+    deleted since), and those its objects' Mesh Cache modifiers play."""
     s = scene.haptic_hand
+    out = {Path(bpy.path.abspath(line)) for line in s.baked_files.splitlines() if line}
     if s.bake_log:
         out.add(Path(bpy.path.abspath(s.bake_log)))
     for obj in scene.objects:
@@ -485,6 +496,14 @@ def bake_files(scene) -> set[Path]:
         if mod is not None and mod.filepath:
             out.add(Path(bpy.path.abspath(mod.filepath)))
     return out
+
+
+def unused(scene, paths: set[Path]) -> set[Path]:
+    """The paths no other scene's bake uses (a scene copied with its bake shares its files)."""
+    for other in bpy.data.scenes:
+        if other != scene and getattr(other, "haptic_hand", None) is not None:
+            paths = paths - bake_files(other)
+    return paths
 
 
 def missing_caches(scene) -> list[tuple[str, str]]:
@@ -515,7 +534,7 @@ def free(context, keep_files: bool = False, keep_staged: bool = False) -> int:
     import mathutils
 
     scene = context.scene
-    files = set() if keep_files else bake_files(scene)
+    files = set() if keep_files else unused(scene, bake_files(scene))
     count = 0
     for obj in scene.objects:
         o = obj.haptic_hand
@@ -542,14 +561,14 @@ def free(context, keep_files: bool = False, keep_staged: bool = False) -> int:
         o.baked, o.bake_made_basis, o.bake_keyed_transform = False, False, False
         o.previous_action = o.previous_key_action = None
     s = scene.haptic_hand
-    s.baked, s.baked_format, s.baked_range, s.bake_log = False, "", "", ""
+    s.baked, s.baked_format, s.baked_range, s.bake_log, s.baked_files = False, "", "", "", ""
     for path in files:
         path.unlink(missing_ok=True)
     if not keep_files:
-        folder = cache_dir()
-        clean_stale_staging(folder)
-        try:
-            folder.rmdir()  # only when empty: other files of the user's stay
-        except OSError:
-            pass
+        for folder in sorted({path.parent for path in files} | {cache_dir(scene)}) + [bake_root()]:
+            clean_stale_staging(folder)
+            try:
+                folder.rmdir()  # only when empty: other scenes' bakes and the user's files stay
+            except OSError:
+                pass
     return count

@@ -79,6 +79,9 @@ def start(context, session_factory=None) -> LiveState:
     if s.device == "TARGET" and s.target is None:
         raise LiveError("The viewport-target device needs a target empty: pick one in Haptic Hand > Device > Target")
     device = device_name(s)
+    if s.live_record and s.live_recording.startswith("//") and not bpy.data.filepath:
+        raise LiveError(f"Save the .blend file first (File > Save): the session records to {s.live_recording}, "
+                        "beside it; or give Live Session > Recording file a full path, or turn Record off")
     export = scene_export.export(context, bscene.frame_start, max(bscene.frame_end, bscene.frame_start + 1))
     try:
         return _start(context, export, device, session_factory or LiveSession)

@@ -23,7 +23,8 @@ class HAPTIC_HAND_OT_mark_body(bpy.types.Operator):
     bl_label = "Mark Selected"
     bl_options = {"REGISTER", "UNDO"}
 
-    role: bpy.props.EnumProperty(name="Role", items=MARKABLE, default="SOFT")
+    role: bpy.props.EnumProperty(name="Role", items=MARKABLE, default="SOFT",
+                                 description="What the selected objects become in the simulation")
 
     @classmethod
     def poll(cls, context):

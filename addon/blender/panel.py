@@ -56,15 +56,13 @@ class HAPTIC_HAND_PT_rig(_Panel, bpy.types.Panel):
         row = layout.row(align=True)
         row.prop(s, "hand")
         row.operator("haptic_hand.use_as_hand", text="", icon="EYEDROPPER")
+        if s.hand is not None:
+            draw_rows(layout, s.hand.haptic_hand, object_rows(None))
         box = layout.box()
         box.label(text="Tetrahedralize (active mesh)")
         obj = context.active_object
         if obj is not None and obj.type == "MESH" and not obj.haptic_hand.is_tet_mesh:
-            o = obj.haptic_hand
-            row = box.row(align=True)
-            row.prop(o, "edge_length_fac")
-            row.prop(o, "epsilon")
-            box.prop(o, "coarsen")
+            draw_rows(box, obj.haptic_hand, object_rows(None, tetrahedralize=True))
             if len(obj.data.polygons):
                 estimate = ops_rig.tet_estimate(obj, context.scene)
                 over = s.tet_confirm_limit and estimate > s.tet_confirm_limit
@@ -90,13 +88,44 @@ class HAPTIC_HAND_PT_rig(_Panel, bpy.types.Panel):
         layout.operator("haptic_hand.check_rig", icon="CHECKMARK")
 
 
-def draw_rows(layout, settings, sections: tuple, advanced: bool, body_type: str | None = None,
-              skip: tuple = ("handle_radius",)) -> None:
-    """The parameter table's rows of these top-level sections (scene file keys), as kept on
-    `settings`; advanced=True draws the rows marked advanced instead of the others."""
-    for p in param_props.selected(params.UI_SCENE if body_type is None else params.UI_OBJECT, body_type):
-        if p.keys[0] not in sections or bool(p.flags & params.UI_ADVANCED) != advanced or p.name in skip:
+# Where the panel draws the parameter table's rows, so a new row shows up without a panel edit:
+# the scene's rows by the first key of their scene-file path (these sections in Device, every
+# other in Material and Contact), the advanced ones in Advanced; an object's tetrahedralize rows
+# in Rig (for the active mesh), its other rows in Bodies (a body) or Rig (the hand).
+DEVICE_SECTIONS = ("haptics", "device")
+DRAWN_APART = ("handle_radius",)  # Rig draws it beside the palm seed and the captured count
+
+
+def is_tetrahedralize(p: params.Param) -> bool:
+    return "tetrahedralize" in p.keys
+
+
+def scene_groups(advanced: bool, device: bool = False) -> list[list[params.Param]]:
+    """The scene's rows a section draws, grouped by their scene-file section in the table's
+    order: the advanced ones (all of them), else those of the Device section or of the others."""
+    groups = {}
+    for p in param_props.selected(params.UI_SCENE):
+        if p.name in DRAWN_APART or bool(p.flags & params.UI_ADVANCED) != advanced:
             continue
+        if advanced or (p.keys[0] in DEVICE_SECTIONS) == device:
+            groups.setdefault(p.keys[0], []).append(p)
+    return list(groups.values())
+
+
+def object_rows(body_type: str | None, tetrahedralize: bool = False) -> list[params.Param]:
+    """An object's rows: a body's of this type (None: the hand's), the tetrahedralize ones or the
+    others; the plain ones before the advanced ones."""
+    if tetrahedralize:  # each mesh's own settings, whatever its role (one name per setting)
+        return [p for p in param_props.rows(params.UI_OBJECT) if is_tetrahedralize(p)]
+    chosen = [p for p in param_props.selected(params.UI_OBJECT, body_type, prefix=None if body_type else "hand.")
+              if not is_tetrahedralize(p)]
+    return sorted(chosen, key=lambda p: bool(p.flags & params.UI_ADVANCED))
+
+
+def draw_rows(layout, settings, rows: list[params.Param]) -> None:
+    """Each row as its property on `settings`; a nullable number with the switch that gives it a
+    value of its own."""
+    for p in rows:
         if p.nullable and p.kind in params.NUMERIC_KINDS:
             row = layout.row(align=True)
             row.prop(settings, f"use_{p.name}", text="")
@@ -107,7 +136,10 @@ def draw_rows(layout, settings, sections: tuple, advanced: bool, body_type: str 
             layout.prop(settings, p.name)
 
 
-SCENE_SECTIONS = ("material", "springs", "coupling", "contact", "hand", "solver")
+def draw_groups(layout, settings, groups: list[list[params.Param]]) -> None:
+    for rows in groups:
+        draw_rows(layout, settings, rows)
+        layout.separator()
 
 
 class HAPTIC_HAND_PT_material(_Panel, bpy.types.Panel):
@@ -117,10 +149,7 @@ class HAPTIC_HAND_PT_material(_Panel, bpy.types.Panel):
 
     def draw(self, context):
         s = context.scene.haptic_hand
-        col = self.layout.column(align=True)
-        for section in SCENE_SECTIONS:
-            draw_rows(col, s, (section,), advanced=False)
-            col.separator()
+        draw_groups(self.layout.column(align=True), s, scene_groups(advanced=False))
 
 
 class HAPTIC_HAND_PT_advanced(_Panel, bpy.types.Panel):
@@ -130,10 +159,7 @@ class HAPTIC_HAND_PT_advanced(_Panel, bpy.types.Panel):
 
     def draw(self, context):
         s = context.scene.haptic_hand
-        col = self.layout.column(align=True)
-        for section in SCENE_SECTIONS + ("haptics",):
-            draw_rows(col, s, (section,), advanced=True)
-            col.separator()
+        draw_groups(self.layout.column(align=True), s, scene_groups(advanced=True))
 
 
 class HAPTIC_HAND_PT_bodies(_Panel, bpy.types.Panel):
@@ -151,10 +177,7 @@ class HAPTIC_HAND_PT_bodies(_Panel, bpy.types.Panel):
             o = obj.haptic_hand
             box = layout.box()
             box.label(text=f"{obj.name}: {o.role.lower()}")
-            body_type = scene_export.BODY_TYPES[o.role]
-            sections = ("material", "density", "friction", "kinetic_friction", "fixed", "solver")
-            draw_rows(box, o, sections, advanced=False, body_type=body_type)
-            draw_rows(box, o, sections, advanced=True, body_type=body_type)
+            draw_rows(box, o, object_rows(scene_export.BODY_TYPES[o.role]))
             if o.role == "SOFT" and not meshdata.has_tets(o.tet_object):
                 box.label(text="Needs tets: Rig > Tetrahedralize", icon="ERROR")
         marked = [o for o in context.scene.objects if o.haptic_hand.role not in ("NONE", "HAND")]
@@ -175,7 +198,8 @@ class HAPTIC_HAND_PT_device(_Panel, bpy.types.Panel):
         elif s.device == "HID":
             layout.prop(s, "hid_device")
         layout.prop(s, "target")
-        draw_rows(layout, s, ("haptics", "device"), advanced=False)
+        for rows in scene_groups(advanced=False, device=True):
+            draw_rows(layout, s, rows)
 
 
 class HAPTIC_HAND_PT_live(_Panel, bpy.types.Panel):
@@ -215,7 +239,7 @@ class HAPTIC_HAND_PT_bake(_Panel, bpy.types.Panel):
             layout.label(text=f"Baked {s.baked_range} ({s.baked_format.lower()})", icon="CHECKMARK")
             for name, path in bake_store.missing_caches(context.scene):
                 layout.label(text=f"{name}: point cache {path} is missing", icon="ERROR")
-                layout.label(text=f"Copy the folder {bake_store.cache_dir().name} beside the .blend, or bake again")
+                layout.label(text=f"Copy the folder {bake_store.bake_root().name} beside the .blend, or bake again")
             if s.bake_log:
                 layout.label(text=f"Log: {s.bake_log}")
             layout.operator("haptic_hand.free_bake", icon="TRASH")
@@ -235,9 +259,9 @@ def draw_bake_size(layout, scene) -> None:
                           f"({frames} frames, {vertices} vertices)", icon="INFO")
         layout.label(text=f"PC2 keeps it beside the .blend instead ({mib(bake_store.pc2_size(meshes, frames))})")
     else:
+        root = bake_store.bake_root().name if bpy.data.filepath else "<blend name>_haptic"
         layout.label(text=f"Point caches: {mib(bake_store.pc2_size(meshes, frames))} in "
-                          f"{bake_store.cache_dir().name if bpy.data.filepath else '<blend name>_haptic'}/",
-                     icon="INFO")
+                          f"{root}/{bake_store.cache_dir(scene).name}/", icon="INFO")
 
 
 classes = (HAPTIC_HAND_PT_main, HAPTIC_HAND_PT_rig, HAPTIC_HAND_PT_material, HAPTIC_HAND_PT_advanced,

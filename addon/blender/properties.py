@@ -42,22 +42,34 @@ BAKE_FORMATS = [
 
 
 def _hid_items(self, context):
-    """6-DoF HID devices present now (the engine's hidapi discovery), for the device menu.
+    """6-DoF HID devices present now (the engine's hidapi discovery), and the chosen one when it
+    is not plugged in (so a scene file's hid:<path> survives an import), for the device menu.
     Never raises."""
-    items = [("NONE", "No HID device found", "Plug in a 3Dconnexion SpaceMouse")]
+    found = []
     try:
         from ..engine import devices
 
-        found = []
         for d in devices.hid_devices():
             path = d["path"].decode(errors="replace") if isinstance(d["path"], bytes) else str(d["path"])
             found.append((path, d["product"], f"{d['product']} at {path} (input only, no force feedback)"))
-        if found:
-            items = found
     except Exception:
         pass
+    if self.hid_path and self.hid_path not in [f[0] for f in found]:
+        found.append((self.hid_path, f"{self.hid_path} (not connected)", "The chosen HID device, not plugged in now"))
+    items = found or [("NONE", "No HID device found", "Plug in a 3Dconnexion SpaceMouse")]
+    items = [item + (i,) for i, item in enumerate(items)]
     _hid_items.cache = items  # Blender needs the strings kept alive
     return items
+
+
+def _get_hid(self) -> int:
+    """The menu shows the chosen device (hid_path), else the first one found."""
+    return next((i for path, _, _, i in _hid_items(self, None) if path == self.hid_path), 0)
+
+
+def _set_hid(self, value: int) -> None:
+    path = next(path for path, _, _, i in _hid_items(self, None) if i == value)
+    self.hid_path = "" if path == "NONE" else path
 
 
 def _is_mesh(self, obj):
@@ -142,7 +154,10 @@ class HapticSceneSettings(bpy.types.PropertyGroup):
     device_file: StringProperty(name="Recording", subtype="FILE_PATH", options=param_props.PATH_OPTIONS,
                                 description="Haptic log (.npz) or CSV of device poses to play back (// is the "
                                             ".blend's folder)")
-    hid_device: EnumProperty(name="HID device", items=_hid_items,
+    hid_path: StringProperty(name="HID device path", options={"HIDDEN"},
+                             description="The chosen HID device (scene file: haptics.device = \"hid:<path>\"); kept "
+                                         "while it is unplugged")
+    hid_device: EnumProperty(name="HID device", items=_hid_items, get=_get_hid, set=_set_hid,
                              description="Which 6-DoF HID device drives the hand")
     target: PointerProperty(name="Target", type=bpy.types.Object, poll=_is_empty,
                             description="Empty that stands for the device: its motion since the first "
@@ -173,6 +188,9 @@ class HapticSceneSettings(bpy.types.PropertyGroup):
     baked_range: StringProperty(default="", description="The stored bake's frames")
     bake_log: StringProperty(name="Haptic log", default="",
                              description="Where the last bake saved its haptic log (relative to the .blend)")
+    baked_files: StringProperty(default="", options={"HIDDEN"},
+                                description="The stored bake's files, one a line (relative to the .blend): the next "
+                                            "bake and Free Bake remove them")
 
 
 def _add_table_properties() -> None:

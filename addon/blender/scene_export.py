@@ -13,6 +13,7 @@ The export is also written as a standalone scene folder (scene.json, one .obj pe
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import tempfile
 from dataclasses import dataclass, field
@@ -50,6 +51,8 @@ def device_from_scene(s, name: str) -> None:
     s.device = {v: k for k, v in DEVICE_NAMES.items()}[kind]
     if kind == "playback":
         s.device_file = arg
+    elif kind == "hid":
+        s.hid_path = arg
 
 
 class ExportError(ValueError):
@@ -205,8 +208,6 @@ def export(context, frame_start: int | None = None, frame_end: int | None = None
     if f1 <= f0:
         raise ExportError(f"The frame range {f0}-{f1} is empty: set End after Start in Haptic Hand > Bake")
     rate = fps(bscene)
-    if 1.0 / rate > 0.1:
-        raise ExportError(f"The frame rate {rate:g} fps gives steps longer than 0.1 s: raise the scene's frame rate")
     scale = meshdata.unit_scale(bscene)
     hand, tet_obj, seed_obj = check_hand(bscene)
     if hand.data.shape_keys is not None and not hand.haptic_hand.baked:
@@ -314,12 +315,26 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
     try:
         engine_scene = scenes.from_dict(data, folder)
     except scenes.SceneError as e:
-        raise ExportError(str(e)) from None
+        raise ExportError(in_blender_terms(str(e))) from None
     engine_scene.surface_vertices, engine_scene.surface_faces = surface, faces
     engine_scene.warnings += [scale_warning] if scale_warning else []
     engine_scene.nodes, engine_scene.tets = nodes, tets
     return Export(engine_scene, hand, meshdata.matrix(hand), links, scale, f0, f1, rate, folder,
                   target_rest=target_rest)
+
+
+def in_blender_terms(message: str) -> str:
+    """A scene file's message about a field Blender derives from the scene itself (dt from the
+    frame rate, gravity, ...), with where that value comes from in Blender, as the field's row of
+    the parameter table says: the engine checks the value, the user fixes it in Blender."""
+    path = re.sub(r"\[\d+\]", "[]", message.split(" = ", 1)[0])
+    try:
+        p = params.by_json(path)
+    except KeyError:
+        return message
+    if not p.flags & params.UI_DERIVED or "in Blender, " not in p.description:
+        return message
+    return f"{message} (in Blender, {p.description.split('in Blender, ', 1)[1]})"
 
 
 def handle_com(export: Export) -> np.ndarray:

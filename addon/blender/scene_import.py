@@ -155,8 +155,10 @@ class HAPTIC_HAND_OT_import_scene(bpy.types.Operator):
     bl_label = "Import Haptic Hand Scene"
     bl_options = {"REGISTER", "UNDO"}
 
-    filepath: bpy.props.StringProperty(subtype="FILE_PATH")
-    filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"})
+    filepath: bpy.props.StringProperty(subtype="FILE_PATH",
+                                       description="The scene file (.json, docs/scene_format.md) to bring in")
+    filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"},
+                                          description="The file browser lists scene files (.json) only")
 
     def invoke(self, context, event):
         context.window_manager.fileselect_add(self)

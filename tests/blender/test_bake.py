@@ -230,7 +230,7 @@ def test_pc2_cancel_rebake_and_free(addon, built_scenes, tmp_path):
     s = context.scene.haptic_hand
     hand = s.hand
     rest = evaluated_world(context, hand, 1)
-    folder = tmp_path / "bunny_press_haptic"
+    folder = tmp_path / "bunny_press_haptic" / "Scene"  # the .blend's bake folder, the scene's own
     # a short point-cache bake, from the child process, with progress along the way
     s.bake_frame_start, s.bake_frame_end, s.bake_format = 1, 9, "PC2"
     reference = engine_surfaces(reference_run(context), "hand")
@@ -242,7 +242,8 @@ def test_pc2_cancel_rebake_and_free(addon, built_scenes, tmp_path):
     pc2 = folder / "Hand.pc2"
     cached, start, rate = bake_formats.read_pc2(pc2)
     assert (start, rate, cached.shape) == (1.0, 1.0, reference.shape)
-    assert hand.modifiers[0].type == "MESH_CACHE" and hand.modifiers[0].filepath == "//bunny_press_haptic/Hand.pc2"
+    assert hand.modifiers[0].type == "MESH_CACHE" and hand.modifiers[0].filepath == \
+        "//bunny_press_haptic/Scene/Hand.pc2"
     shown = np.array([evaluated_world(context, hand, f) for f in range(1, 10)])
     assert np.abs(shown - reference).max() < 1e-6
     assert np.abs(evaluated_world(context, hand, 20) - reference[-1]).max() < 1e-6, "holds its last frame"
@@ -279,7 +280,7 @@ def test_pc2_cancel_rebake_and_free(addon, built_scenes, tmp_path):
     assert hand.data.shape_keys is None and bpy.data.objects["bunny"].data.shape_keys is None
     assert not hand.modifiers and "hh_force" not in hand.keys()
     assert not [a for a in bpy.data.actions if a.name.startswith(ops_bake.ACTION_PREFIX)]
-    assert not folder.exists(), cache_files(folder)
+    assert not folder.parent.exists(), cache_files(folder.parent)
     assert not s.baked
     np.testing.assert_array_equal(evaluated_world(context, hand, 4), rest)
 

@@ -1,7 +1,8 @@
 """Live session: the per-frame update writes the session's frames into the meshes and every
 body's pose into its object, Esc/stop puts the scene back; a real session with a falling
 rigid body and a moving collider, as the engine moves them; a recorded session (to a
-blend-relative file) baked through the Playback device to the same motion."""
+blend-relative file) baked through the Playback device to the same motion; none to // in a
+file never saved."""
 
 import time
 
@@ -10,10 +11,10 @@ import pytest
 bpy = pytest.importorskip("bpy")
 import numpy as np
 
-from haptic_hand.blender import draw, live, meshdata, ops_bake, scene_export
+from haptic_hand.blender import draw, live, meshdata, ops_bake, runtime, scene_export
 from haptic_hand.engine import quaternion
 
-from blender_helpers import FakeFrame, FakeSession, open_copy
+from blender_helpers import SAMPLES, FakeFrame, FakeSession, open_copy
 
 
 def world_vertices(context, obj):
@@ -220,3 +221,30 @@ def test_blend_relative_paths_work_everywhere(addon, built_scenes, tmp_path):
         job.release()
     assert data["haptics"]["device"] == f"playback:{tmp_path / 'down.npz'}"
     assert bpy.ops.haptic_hand.bake() == {"FINISHED"}
+
+
+def test_an_unsaved_file_records_nowhere_but_where_asked(addon, tmp_path, monkeypatch):
+    """In a file never saved, // has no folder: a recording to //haptic_recording.npz is refused
+    (as Bake is) rather than written to the working directory; a full path or Record off runs."""
+    from haptic_hand.blender import scene_import
+
+    monkeypatch.chdir(tmp_path)
+    context = addon
+    scene_import.build(context, SAMPLES / "hand_wave.json")
+    s = context.scene.haptic_hand
+    assert s.live_record and s.live_recording == "//haptic_recording.npz" and not bpy.data.filepath
+    with pytest.raises(live.LiveError, match=r"Save the .blend file first .*//haptic_recording.npz"):
+        live.start(context, session_factory=FakeSession)
+    assert not runtime.state.busy() and not list(tmp_path.iterdir()), "nothing runs, nothing written"
+
+    s.live_recording = str(tmp_path / "take.npz")  # a full path is where it says
+    state = live.start(context, session_factory=FakeSession)
+    state.session.frames.append(FakeFrame(0.0, {"hand": world_vertices(context, s.hand)}))
+    assert live.update(context, state)
+    live.stop(context, state)
+    assert state.recorded == tmp_path / "take.npz" and state.recorded.is_file()
+    s.live_record = False  # and without recording, nothing is written at all
+    state = live.start(context, session_factory=FakeSession)
+    live.stop(context, state)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["take.npz"]
+

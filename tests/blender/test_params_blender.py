@@ -50,6 +50,17 @@ def test_every_property_has_a_tooltip(addon):
                 assert prop.description.strip(), f"{settings.bl_rna.identifier}.{prop.identifier} has no tooltip"
 
 
+def test_every_operator_and_its_properties_have_a_tooltip(addon):
+    names = dir(bpy.ops.haptic_hand)
+    assert {"mark_body", "import_scene", "tetrahedralize", "bake"} <= set(names), "the check reads the add-on's"
+    for name in names:
+        rna = getattr(bpy.ops.haptic_hand, name).get_rna_type()
+        assert rna.description.strip(), f"haptic_hand.{name} has no tooltip"
+        for prop in rna.properties:
+            if prop.identifier != "rna_type":
+                assert prop.description.strip(), f"haptic_hand.{name}'s '{prop.identifier}' has no tooltip"
+
+
 def build_hand(context, scale: float = 1.0):
     """The procedural hand with its stored tets and a seed at its palm, in a scene whose Blender
     unit is `scale` metres, all settings at their defaults; 30 fps, 60 frames."""
@@ -135,7 +146,22 @@ def table_values(path) -> dict:
     return out
 
 
-def test_blender_json_blender_json_keeps_every_parameter(addon, tmp_path):
+def key_motion(obj, frames, locations, angles):
+    """Keys obj's location and Z rotation at these frames."""
+    for f, at, angle in zip(frames, locations, angles):
+        obj.location, obj.rotation_euler = at, (0.0, 0.0, angle)
+        obj.keyframe_insert("location", frame=f)
+        obj.keyframe_insert("rotation_euler", frame=f)
+
+
+HID_PATH = "/dev/hidraw7"
+
+
+@pytest.mark.parametrize("device", ["PLAYBACK", "HID"])
+def test_blender_json_blender_json_keeps_every_parameter(addon, tmp_path, monkeypatch, device):
+    from haptic_hand.engine import devices
+
+    monkeypatch.setattr(devices, "hid_devices", lambda: [{"path": HID_PATH.encode(), "product": "SpaceMouse"}])
     context = addon
     hand = build_hand(context)
     s = context.scene.haptic_hand
@@ -146,14 +172,22 @@ def test_blender_json_blender_json_keeps_every_parameter(addon, tmp_path):
     nodes, tets = meshing.structured_box([0.04, 0.04, 0.04], [2, 2, 2])
     faces = meshing.tet_boundary_faces(tets)
     for name, role, at in (("soft", "SOFT", (0, 0.2, -0.2)), ("rigid", "RIGID", (0.2, 0, -0.2)),
-                           ("wall", "STATIC", (-0.2, 0, -0.2)), ("ground", "PLANE", (0, 0, -0.3))):
+                           ("wall", "STATIC", (-0.2, 0, -0.2)), ("ground", "PLANE", (0, 0, -0.3)),
+                           ("slider", "MOVING", (0.2, 0.2, -0.2))):
         obj = add_body(context, name, role, nodes, faces, at)
         body_type = scene_export.BODY_TYPES[role]
         set_all(obj.haptic_hand, [p for p in param_props.selected(params.UI_OBJECT, body_type)])
         obj.haptic_hand.use_kinetic_friction, obj.haptic_hand.kinetic_friction = True, 0.05
         if role == "SOFT":
             ops_rig.make_tet_object(context, obj, nodes, tets)
-    s.device, s.device_file = "PLAYBACK", str(tmp_path / "recording.npz")
+        if role == "MOVING":  # slides 5 cm and turns a quarter turn over the first second
+            key_motion(obj, (1, 31, 61), [at, (0.25, 0.2, -0.2), (0.25, 0.2, -0.2)], (0.0, math.pi / 2, math.pi / 2))
+    if device == "PLAYBACK":
+        s.device, s.device_file = "PLAYBACK", str(tmp_path / "recording.npz")
+        device_json = f"playback:{tmp_path / 'recording.npz'}"
+    else:  # the SpaceMouse picked from the menu
+        s.device, s.hid_device = "HID", HID_PATH
+        device_json = f"hid:{HID_PATH}"
     first = scene_export.export(context)
     folder = tmp_path / "first"
     shutil.copytree(first.folder, folder)
@@ -161,10 +195,18 @@ def test_blender_json_blender_json_keeps_every_parameter(addon, tmp_path):
     json1 = json.loads((folder / "scene.json").read_text())
     # what was set in Blender reached the file
     assert json1["coupling"]["damping"] == non_default(params.by_json("coupling.damping"))
-    assert json1["haptics"]["device"] == f"playback:{tmp_path / 'recording.npz'}"
+    assert json1["haptics"]["device"] == device_json
     assert next(b for b in json1["bodies"] if b["name"] == "soft")["solver"]["name"] == \
         non_default(params.by_json("bodies[].solver.name"))
+    slider = next(b for b in json1["bodies"] if b["name"] == "slider")
+    assert slider["type"] == "kinematic"
+    # at frame 31 its centre (the box's middle, off its origin) has slid 5 cm and swung about the origin
+    offset = (nodes.min(axis=0) + nodes.max(axis=0)) / 2
+    quarter_turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(slider["trajectory"][30]["position"],
+                               np.array([0.05, 0.0, 0.0]) + quarter_turn @ offset - offset, atol=1e-6)
 
+    monkeypatch.setattr(devices, "hid_devices", lambda: [])  # imported where the device is unplugged
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene_import.build(bpy.context, folder / "scene.json")
     second = scene_export.export(bpy.context)
@@ -172,14 +214,20 @@ def test_blender_json_blender_json_keeps_every_parameter(addon, tmp_path):
     shutil.copytree(second.folder, folder2)
     second.cleanup()
     v1, v2 = table_values(folder / "scene.json"), table_values(folder2 / "scene.json")
-    # file names in each export's own folder; the trajectory is compared as the motion it gives
-    skip = {"hand.mesh", "hand.tets", "device.trajectory"}
-    skip |= {k for k in v1 if k.endswith((":bodies[].mesh", ":bodies[].tets"))}
-    a, b = (scenes.load(p).trajectory(np.zeros(3)) for p in (folder / "scene.json", folder2 / "scene.json"))
+    # file names in each export's own folder; trajectories are compared as the motion they give
+    skip = {"hand.mesh", "hand.tets", "device.trajectory", "bodies"}  # bodies: field by field below
+    skip |= {k for k in v1 if k.endswith((":bodies[].mesh", ":bodies[].tets", ":bodies[].trajectory"))}
+    scene1, scene2 = scenes.load(folder / "scene.json"), scenes.load(folder2 / "scene.json")
     for t in np.linspace(0, 2.0, 61):
-        np.testing.assert_allclose(np.concatenate(a.pose(t)), np.concatenate(b.pose(t)), atol=1e-6)
+        np.testing.assert_allclose(np.concatenate(scene1.trajectory(np.zeros(3)).pose(t)),
+                                   np.concatenate(scene2.trajectory(np.zeros(3)).pose(t)), atol=1e-6)
+    slider1, slider2 = (next(b for b in sc.bodies if b["name"] == "slider") for sc in (scene1, scene2))
+    for p1, p2 in zip(slider1["trajectory"], slider2["trajectory"], strict=True):
+        np.testing.assert_allclose([p1["t"], *p1["position"], *p1["quaternion"]],
+                                   [p2["t"], *p2["position"], *p2["quaternion"]], atol=1e-6)
     changed = {k: (v1[k], v2.get(k)) for k in v1 if k not in skip and v1[k] != v2.get(k)}
     assert not changed
+    assert v1["haptics.device"] == device_json
     assert len(v1) > 80 and set(v1) == set(v2)
 
 

@@ -1,5 +1,6 @@
 """Blender scene <-> engine scene: a sample scene built in Blender exports back to the same
-engine scene (metres, world space, vertex order kept); moving colliders and rigid bodies."""
+engine scene (metres, world space, vertex order kept); moving colliders and rigid bodies; a
+value the engine refuses is reported in Blender's terms."""
 
 import json
 
@@ -141,3 +142,19 @@ def test_overlay_geometry():
             "proxy_position": np.ones(3)}
     drawn = draw.overlay_lines(data)
     np.testing.assert_allclose(drawn["force"][1], [0.0, 0.0, 0.02])  # 2 N at 1 cm per newton
+
+
+def test_a_frame_rate_too_low_for_the_step_is_refused_in_blender_terms(addon, built_scenes, tmp_path):
+    """The engine checks dt (at most 0.1 s, the table's range); Blender's report says which
+    value and where it comes from in Blender, the frame rate, and nothing is baked."""
+    context = open_copy(built_scenes("hand_wave"), tmp_path)
+    context.scene.render.fps, context.scene.render.fps_base = 5, 1.0  # 0.2 s a frame
+    s = context.scene.haptic_hand
+    s.bake_frame_end = s.bake_frame_start + 2
+    message = r"dt = 0\.2 is invalid.*0\.1.*in Blender, one step per frame at the scene's frame rate"
+    with pytest.raises(RuntimeError, match=message):  # the Bake button's report
+        bpy.ops.haptic_hand.bake()
+    assert not s.baked and s.hand.data.shape_keys is None
+    context.scene.render.fps_base = 0.4  # 12.5 fps: 0.08 s a frame is within the range
+    assert bpy.ops.haptic_hand.bake() == {"FINISHED"}
+
