@@ -27,7 +27,7 @@ from ..engine.session import LiveSession
 from ..engine import scene as scenes
 from . import draw, meshdata, runtime, scene_export
 
-DEVICES = {"SIMULATED": "simulated", "OPENHAPTICS": "openhaptics", "HID": "hid", "TARGET": "external"}
+DEVICES = devices.MENU_NAMES  # PLAYBACK is taken before this lookup
 
 
 class LiveError(RuntimeError):

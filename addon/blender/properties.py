@@ -13,7 +13,7 @@ import bpy
 from bpy.props import (BoolProperty, EnumProperty, FloatVectorProperty, IntProperty, PointerProperty,
                        StringProperty)
 
-from ..engine import params
+from ..engine import devices, params
 from . import param_props
 
 ROLES = [
@@ -26,13 +26,7 @@ ROLES = [
     ("PLANE", "Ground plane", "An infinite plane through the object's origin, normal along its local Z"),
 ]
 
-DEVICES = [
-    ("SIMULATED", "Simulated", "A simulated user's arm follows the target empty's animation"),
-    ("PLAYBACK", "Playback", "Replay a recorded haptic log (.npz)"),
-    ("OPENHAPTICS", "OpenHaptics", "Phantom Omni / Touch through OpenHaptics (libHD), when installed"),
-    ("HID", "HID device", "A 6-DoF HID input device (SpaceMouse) through hidapi"),
-    ("TARGET", "Viewport target", "Move the target empty with the mouse; it stands for the device"),
-]
+DEVICES = [(k.menu_id, k.label, k.description) for k in devices.KINDS]  # one list: engine/devices.py
 
 BAKE_FORMATS = [
     ("KEYS", "Shape keys", "One shape key per frame with keyed values, keyed transforms for rigid bodies"),

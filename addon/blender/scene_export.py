@@ -24,15 +24,14 @@ import numpy as np
 
 from ..engine import mesh as meshing
 from ..engine import native, native_world
-from ..engine import params
+from ..engine import devices, params
 from ..engine import scene as scenes
 from . import meshdata, param_props
 
 # Blender's roles as the scene file's body types
 BODY_TYPES = {"SOFT": "soft", "RIGID": "rigid", "MOVING": "kinematic", "STATIC": "static", "PLANE": "plane"}
 # Blender's device menu as the scene file's haptics.device (PLAYBACK and HID add their source)
-DEVICE_NAMES = {"SIMULATED": "simulated", "PLAYBACK": "playback", "OPENHAPTICS": "openhaptics", "HID": "hid",
-                "TARGET": "external"}
+DEVICE_NAMES = devices.MENU_NAMES
 
 
 def device_to_scene(s) -> str:
