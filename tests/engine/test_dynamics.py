@@ -14,11 +14,14 @@ from shared_data import needs_shared_hand
 G = 9.81
 
 
-# Of E0, per step: the co-rotational force holds each element's rotation at its start-of-step
-# value, so it is not exactly the gradient of the elastic energy and a step can trade a little
-# energy through that (up to 4e-7 of E0 measured on pytetwild's meshes of the procedural hand,
-# which differ from run to run).
-GAIN = 1e-6
+def turn_trade(omega: float, dt: float, elastic: float) -> float:
+    """What a step of a turning, stretched hand may hand back from its stretch to its motion: the
+    co-rotational force holds each element's rotation over the step, so it is not exactly the
+    gradient of the elastic energy, and the difference is second order in the step's turn,
+    (omega dt)^2 of the elastic energy. (A hand spun about an axis that is not a principal one
+    wobbles and its centrifugal stretch follows: measured on 14 of pytetwild's meshes of the
+    procedural hand, a step gave back up to 0.18 of this.)"""
+    return (omega * dt) ** 2 * elastic
 
 
 def make_sim(rig, **params):
@@ -112,8 +115,9 @@ def total_energy(sim):
 
 def test_stiff_coupling_stays_bounded(procedural_rig):
     """k = 1e6 N/m at dt = 1/30 s: far beyond what an explicit step could take (it would need
-    dt < 2 sqrt(m/k), well under a millisecond); the implicit step must not gain energy, but for
-    the co-rotational force's trade (GAIN)."""
+    dt < 2 sqrt(m/k), well under a millisecond); the implicit step must not gain energy. (The
+    handle spins at 3.2 rad/s over flesh moving at random: stepped in a frame turning at the
+    handle's angular velocity, the first step took 105 J to 329 J on one of pytetwild's meshes.)"""
     model, sim = make_sim(procedural_rig, gravity=[0, 0, 0], spring_stiffness=1e6, spring_damping=0.0,
                           rayleigh_beta=0.0, dt=1.0 / 30.0)
     sim.set_device(enabled=False)
@@ -128,7 +132,7 @@ def test_stiff_coupling_stays_bounded(procedural_rig):
         energies.append(total_energy(sim))
     energies = np.array(energies)
     assert np.all(np.isfinite(energies))
-    assert energies.max() <= e0 * (1 + GAIN)
+    assert energies.max() < e0
     # implicit Euler dissipates: the energy at the end is below the start
     assert energies[-1] < e0
 
@@ -179,16 +183,16 @@ def angular_momentum(model, sim):
 def test_a_hand_spinning_freely_keeps_its_energy_and_angular_momentum(procedural_rig):
     """No damping, no gravity, 3 rad/s at dt 1/30: free motion conserves energy and angular
     momentum; the implicit step loses energy (to the stretch its start lacks) and gains none beyond
-    GAIN. A flesh advanced in straight lines while the handle turns gains 65% of the
+    the co-rotational force's trade (turn_trade). A flesh advanced in straight lines while the handle turns gains 65% of the
     kinetic energy in the first step and ends 1 s at E/E0 0.06, |dL|/L 0.75."""
     model, sim = spinning_hand(procedural_rig)
     e0, l0 = total_energy(sim), angular_momentum(model, sim)
-    energies = [e0]
+    energies, elastic = [e0], []
     for _ in range(30):  # 1 s
         sim.step()
         energies.append(total_energy(sim))
-    steps = np.diff(energies)
-    assert steps.max() <= GAIN * e0  # no step gains energy but the co-rotational force's trade
+        elastic.append(sim.energies()["elastic"])
+    assert np.all(np.diff(energies) <= turn_trade(3.0, 1 / 30, max(elastic)))
     assert energies[-1] / e0 >= 0.99
     assert np.linalg.norm(angular_momentum(model, sim) - l0) <= 0.02 * np.linalg.norm(l0)
     # and it did turn: 3 rad, the flesh with its handle
@@ -197,20 +201,22 @@ def test_a_hand_spinning_freely_keeps_its_energy_and_angular_momentum(procedural
 
 
 def spun_energies(procedural_rig, **damping):
-    """The spinning hand's total energy at the start and after each of 30 steps (1 s)."""
+    """The spinning hand's total energy at the start and after each of 30 steps (1 s), and the
+    largest elastic energy it held."""
     _, sim = spinning_hand(procedural_rig, **damping)
-    energies = [total_energy(sim)]
+    energies, elastic = [total_energy(sim)], 0.0
     for _ in range(30):
         sim.step()
         energies.append(total_energy(sim))
-    return np.array(energies)
+        elastic = max(elastic, sim.energies()["elastic"])
+    return np.array(energies), elastic
 
 
 def test_a_damped_spinning_hand_loses_energy_every_step(procedural_rig):
-    """Damping (Rayleigh and the springs') only takes energy: no step gains beyond GAIN (the
-    co-rotational force's trade), and over 1 s it loses."""
-    damped = spun_energies(procedural_rig, rayleigh_beta=0.01, spring_damping=10.0)
-    assert np.diff(damped).max() <= GAIN * damped[0]
+    """Damping (Rayleigh and the springs') only takes energy: no step gains beyond the
+    co-rotational force's trade (turn_trade), and over 1 s it loses."""
+    damped, elastic = spun_energies(procedural_rig, rayleigh_beta=0.01, spring_damping=10.0)
+    assert np.diff(damped).max() <= turn_trade(3.0, 1 / 30, elastic)
     assert damped[-1] < damped[0]
 
 
@@ -237,7 +243,7 @@ def test_a_handle_spun_alone_over_still_flesh_gains_no_energy(held, stiffness):
     for _ in range(10):
         sim.step()
         energies.append(total_energy(sim))
-    assert np.diff(energies).max() <= GAIN * energies[0]
+    assert np.diff(energies).max() <= 0
     assert np.linalg.norm(sim.handle().angular_velocity) < 0.3  # it stopped with its flesh
 
 
