@@ -57,6 +57,10 @@ def library() -> ctypes.CDLL:
         "hh_bone_wrenches": ([vp, vp, i, _pd], i),
         "hh_bone_linear_model": ([vp, vp, i, _pd, _pd], i),
         "hh_bone_response": ([vp, vp, i, _pd, _pd], i),
+        # a skeleton hand in a world (native_world.World's bone methods)
+        "hh_world_bone_velocities": ([vp, i, i, _pd, _pd], i),
+        "hh_world_set_bone_states": ([vp, i, i, _pd, _pd, _pd, _pd], i),
+        "hh_world_bone_coupling_model": ([vp, i, i, _pd, _pd, _pi], i),
     }
     for name, (args, res) in sig.items():
         fn = getattr(lib, name)

@@ -216,8 +216,8 @@ int hh_linear_momentum(const hh_model* model, const hh_data* data, double out[3]
  * (hh_get_state's handle, hh_set_device, hh_coupling_wrench, hh_model_info_get's handle fields)
  * address bone 0, the root. With more than one bone, the palm handle's linearizations
  * (hh_coupling_linear_model, _response, _model: use hh_bone_linear_model, hh_bone_response),
- * hh_world_coupling_model and haptic sessions are refused; a world takes the hand
- * (hh_world_add_hand) and drives its bones with hh_world_set_bone_targets. */
+ * hh_world_coupling_model (use hh_world_bone_coupling_model) and haptic sessions are refused;
+ * a world takes the hand (hh_world_add_hand) and drives its bones with hh_world_set_bone_targets. */
 #define HH_BONE_FREE 0       /* no target: carried by the flesh */
 #define HH_BONE_COUPLED 1    /* follows its target through its virtual coupling */
 #define HH_BONE_PRESCRIBED 2 /* reaches its target pose at the end of the step */
@@ -392,6 +392,20 @@ int hh_world_set_bone_targets(hh_world* world, int hand_body, int n_bones, const
                               const double* velocities, const double* angular_velocities);
 int hh_world_bone_states(const hh_world* world, int hand_body, int n_bones, double* positions,
                          double* quaternions, double* wrenches);
+/* Each bone's velocities[B][3] (of its centre of mass) and angular_velocities[B][3] (any may be
+ * NULL); and all four of a bone's state set at once (NULL: kept), as hh_set_bone_states. */
+int hh_world_bone_velocities(const hh_world* world, int hand_body, int n_bones, double* velocities,
+                             double* angular_velocities);
+int hh_world_set_bone_states(hh_world* world, int hand_body, int n_bones, const double* positions,
+                             const double* quaternions, const double* velocities, const double* angular_velocities);
+/* The handle-space model of the bones with the last step's contacts held (docs/skeleton.md,
+ * Section 6): after hh_world_step with every bone prescribed (HH_BONE_PRESCRIBED), every bone's
+ * springs' wrench wrench0[6B] at the end of the step and its stiffness[6B][6B] (row-major) with
+ * respect to displacements (dx_1, dtheta_1, ..., dx_B, dtheta_B) of the prescribed poses, the
+ * exact derivative of that step; held_rows: the contact rows it holds. One bone:
+ * hh_world_coupling_model's. */
+int hh_world_bone_coupling_model(const hh_world* world, int hand_body, int n_bones, double* wrench0,
+                                 double* stiffness, int* held_rows);
 /* The force (N) the last step's contacts put on each node of the hand or a soft body,
  * out[n_nodes][3] (their sum is hh_world_contact_force's). */
 int hh_world_node_contact_forces(const hh_world* world, int body, double* out, int n_nodes);

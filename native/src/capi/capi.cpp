@@ -270,13 +270,6 @@ std::unique_ptr<hh::Data> driven_copy(const hh::Model& m, const hh::Data& d, con
     return work;
 }
 
-// J_l(phi): d exp(phi + e) = exp(J_l e) exp(phi) to first order in e
-hh::Mat3 left_jacobian(const hh::Vec3& phi) {
-    const double a = phi.norm();
-    const hh::Mat3 k = hh::skew(phi);
-    if (a < 1e-6) return hh::Mat3::Identity() + 0.5 * k + k * k / 6.0;
-    return hh::Mat3::Identity() + (1 - std::cos(a)) / (a * a) * k + (a - std::sin(a)) / (a * a * a) * k * k;
-}
 }  // namespace
 
 int hh_coupling_linear_model(const hh_model* model, const hh_data* data, double wrench0[6], double response[36]) {
@@ -290,7 +283,7 @@ int hh_coupling_linear_model(const hh_model* model, const hh_data* data, double 
         auto w = driven_copy(m, data->d, hh::Vec6::Zero());
         const hh::CouplingModel cm = hh::hand_coupling_model(m, *w, hh::Mat6::Zero());
         hh::Mat6 pose_rate = dt * hh::Mat6::Identity();
-        pose_rate.bottomRightCorner<3, 3>() = dt * left_jacobian(-dt * data->d.h.omega);
+        pose_rate.bottomRightCorner<3, 3>() = dt * hh::left_jacobian(-dt * data->d.h.omega);
         const hh::Mat6 r = cm.stiffness * pose_rate;
         for (int i = 0; i < 6; ++i) {
             wrench0[i] = cm.wrench[i];
