@@ -11,6 +11,13 @@ median of each part of the step (assembly, the A_t solves, the Schur complement)
 16 bones / 1 bone, and the machine. Only the ratio of one run is meant to be compared.
 
     .venv/bin/python bench/bench_skeleton.py [--steps 200] [--tets file.npz]
+
+--haptic instead measures the haptic step of a session on each hand (docs/skeleton.md, Section
+6): offline, an external device (one frame per bone for the 16 bones) pushed along the same
+loop, the cost of every haptic step from the session's log (the step alone: its device read,
+the proxies' step against the model, the feedback), the two sessions alternating frame by frame.
+
+    .venv/bin/python bench/bench_skeleton.py --haptic [--frames 60]
 """
 
 from __future__ import annotations
@@ -44,10 +51,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--tets", type=Path, default=SAMPLE)
+    ap.add_argument("--haptic", action="store_true", help="measure the haptic step instead")
+    ap.add_argument("--frames", type=int, default=60, help="--haptic: visual frames per session")
     args = ap.parse_args()
     stored = np.load(args.tets)
     nodes, tets = stored["nodes"], stored["tets"]
     print_machine(machine_info())
+    if args.haptic:
+        haptic(nodes, tets, args.frames)
+        return
     one = native.HandModel(nodes, tets, palm_seed=mesh.procedural_hand_palm_seed(), handle_radius=0.03)
     many = ns.SkeletonModel(nodes, tets, sk.procedural_hand_skeleton())
     sims = {"1 bone": native.HandSimulation(one), "16 bones": ns.SkeletonSimulation(many)}
@@ -72,6 +84,48 @@ def main() -> None:
         print(f"{name:>14}" + "".join(f"{m[p]:12.3f}" for p in PARTS))
     ratio = medians["16 bones"]["t_total"] / medians["1 bone"]["t_total"]
     print(f"16 bones / 1 bone, whole step: {ratio:.2f}x")
+
+
+def haptic(nodes, tets, frames: int) -> None:
+    """Per-step cost of the haptic loop of a 1-bone and a 16-bone session, alternating frames."""
+    from haptic_hand.engine import native_session as nsess
+    from haptic_hand.engine import native_world as nw
+
+    sessions = {}
+    for name, model in (("1 bone", native.HandModel(nodes, tets, palm_seed=mesh.procedural_hand_palm_seed(),
+                                                    handle_radius=0.03)),
+                        ("16 bones", ns.SkeletonModel(nodes, tets, sk.procedural_hand_skeleton()))):
+        world = nw.World(dt=model.params()["dt"])
+        sn, sw = nw.vertex_surface(len(nodes))
+        hand = world.add_hand(model, sn, sw, mesh.tet_boundary_faces(tets))
+        session = nsess.NativeSession(world, hand)
+        p, q, _ = world.bone_states(hand)
+        if name == "1 bone":
+            session.device_external()
+        else:
+            session.device_external_frames()
+        sessions[name] = (world, session, p, q)
+    costs = {name: [] for name in sessions}
+    for k in range(frames):
+        for name, (world, session, p, q) in sessions.items():
+            t = world.time()
+            offset = LOOP * np.array([np.cos(2 * np.pi * t / PERIOD) - 1.0, np.sin(2 * np.pi * t / PERIOD), 0.0])
+            if name == "1 bone":
+                session.push_device_pose(p[0] + offset, q[0])
+            else:
+                session.push_device_frames(p + offset, q)
+            session.run_offline(1)
+            log = session.read_log()
+            if k >= 3:  # (the first frames fault their pages in)
+                costs[name].extend(log[:, 2])
+    print(f"hand: {len(tets)} tets; haptic steps at 1 kHz, offline, {frames} frames per session, alternating")
+    print(f"{'step cost (us)':>16}{'p50':>10}{'p99':>10}{'max':>10}{'steps':>8}")
+    p50 = {}
+    for name, c in costs.items():
+        c = 1e6 * np.asarray(c)
+        p50[name] = float(np.median(c))
+        print(f"{name:>16}{p50[name]:10.2f}{np.percentile(c, 99):10.2f}{c.max():10.2f}{len(c):8d}")
+    print(f"16 bones / 1 bone: {p50['16 bones'] / p50['1 bone']:.1f}x; per bone {p50['16 bones'] / 16:.2f} us")
 
 
 def many_rest(sim):

@@ -87,7 +87,18 @@ _lib = binding({
     "hh_session_read_log": ([_vp, _pd, _i, _pi], _i),
     "hh_session_frame_pose": ([_vp, _i, _pd], _i),
     "hh_session_coupling_model": ([_vp, _pd, _pd, _pi], _i),
+    # a skeleton hand's session (docs/skeleton.md, Section 6)
+    "hh_session_bone_count": ([_vp, _pi], _i),
+    "hh_session_device_external_frames": ([_vp, _i, _d], _i),
+    "hh_session_push_device_frames": ([_vp, _i, _pd, _pd], _i),
+    "hh_session_device_feedback": ([_vp, _i, _pd, _i, _pd, _pd], _i),
+    "hh_session_device_simulated_glove": ([_vp, _i, _pd, _pd, _pd, _i, _d, _d, _d, _d], _i),
+    "hh_session_set_feedback_groups": ([_vp, _i, _pi, _i], _i),
+    "hh_session_frame_bones": ([_vp, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_session_frame_groups": ([_vp, _i, _pd], _i),
+    "hh_session_bone_coupling_model": ([_vp, _i, _pd, _pd, _pi], _i),
 }, LAYOUTS, _check_log_columns)
+
 
 
 def log_arrays(rows: np.ndarray) -> dict:
@@ -230,3 +241,80 @@ class NativeSession:
         _check(_lib().hh_session_coupling_model(self._handle, _ptr(w), _ptr(k), ctypes.byref(held)))
         return w, k, held.value
 
+    # --- a skeleton hand's session: one proxy and device frame per bone (docs/skeleton.md, Section 6) ---
+    @property
+    def n_bones(self) -> int:
+        out = ctypes.c_int()
+        _check(_lib().hh_session_bone_count(self._handle, ctypes.byref(out)))
+        return out.value
+
+    def device_external_frames(self, timeout=None) -> None:
+        """A glove of one frame per bone whose poses the host pushes (push_device_frames) and
+        whose feedback it reads (device_feedback); timeout as device_external's."""
+        timeout = table.defaults()["haptics"]["external_timeout"] if timeout is None else timeout
+        _check(_lib().hh_session_device_external_frames(self._handle, self.n_bones, float(timeout)))
+
+    def push_device_frames(self, positions, quaternions) -> None:
+        """Every bone's device frame: positions (B, 3), quaternions (B, 4) (x, y, z, w)."""
+        b = self.n_bones
+        _check(_lib().hh_session_push_device_frames(self._handle, b, _ptr(_f64(positions, (b, 3), "frame positions")),
+                                                    _ptr(_f64(quaternions, (b, 4), "frame quaternions"))))
+
+    def device_feedback(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """The external glove's newest feedback: per bone (B, 6) and per group (G, 6) (force N,
+        torque N m), and the haptic time it was commanded at."""
+        b, g = self.n_bones, self._groups
+        bones, groups, t = np.empty((b, 6)), np.empty((g, 6)), ctypes.c_double()
+        _check(_lib().hh_session_device_feedback(self._handle, b, _ptr(bones), g, _ptr(groups) if g else None,
+                                                 ctypes.byref(t)))
+        return bones, groups, t.value
+
+    def device_simulated_glove(self, times, positions, quaternions=None, arm_mass=None, arm_stiffness=None,
+                               arm_damping=None, fail_at=math.inf) -> None:
+        """The simulated glove user: one simulated arm per bone (settings None: the table's
+        haptics.arm.*) following timed poses positions (n, B, 3), quaternions (n, B, 4) or None."""
+        arm = table.defaults()["haptics"]["arm"]
+        b = self.n_bones
+        t = _f64(times, None, "times").reshape(-1)
+        p = _f64(positions, (len(t), b, 3), "glove positions")
+        q = None if quaternions is None else _f64(quaternions, (len(t), b, 4), "glove quaternions")
+        _check(_lib().hh_session_device_simulated_glove(
+            self._handle, b, _ptr(t), _ptr(p), _ptr(q), len(t), float(arm["mass"] if arm_mass is None else arm_mass),
+            float(arm["stiffness"] if arm_stiffness is None else arm_stiffness),
+            float(arm["damping"] if arm_damping is None else arm_damping), float(fail_at)))
+
+    def set_feedback_groups(self, group_of_bone, n_groups: int | None = None) -> None:
+        """Groups of bones whose feedback is summed (each bone's group 0..G-1, or -1 for none;
+        skeleton.Skeleton.feedback_groups gives the wrist and the digits)."""
+        groups = np.ascontiguousarray(group_of_bone, dtype=np.int32).reshape(-1)
+        n = int(groups.max()) + 1 if n_groups is None else int(n_groups)
+        _check(_lib().hh_session_set_feedback_groups(self._handle, len(groups), _ptr(groups, ctypes.c_int), n))
+        self._n_groups = n
+
+    @property
+    def _groups(self) -> int:
+        """How many feedback groups set_feedback_groups set (0: none)."""
+        return getattr(self, "_n_groups", 0)
+
+    def frame_bones(self) -> dict:
+        """The fetched frame's bones: handles, proxies and devices (B, 7) (position, quaternion),
+        feedback (B, 6)."""
+        b = self.n_bones
+        out = {name: np.empty((b, 7)) for name in ("handles", "proxies", "devices")}
+        out["feedback"] = np.empty((b, 6))
+        _check(_lib().hh_session_frame_bones(self._handle, b, *(_ptr(out[k]) for k in ("handles", "proxies", "devices",
+                                                                                      "feedback"))))
+        return out
+
+    def frame_groups(self) -> np.ndarray:
+        """The fetched frame's feedback per group (G, 6)."""
+        out = np.empty((self._groups, 6))
+        _check(_lib().hh_session_frame_groups(self._handle, self._groups, _ptr(out) if self._groups else None))
+        return out
+
+    def bone_coupling_model(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """The fetched frame's bones' model: wrench (6B,), stiffness (6B, 6B), held contact rows."""
+        b = self.n_bones
+        w, k, held = np.empty(6 * b), np.empty((6 * b, 6 * b)), ctypes.c_int()
+        _check(_lib().hh_session_bone_coupling_model(self._handle, b, _ptr(w), _ptr(k), ctypes.byref(held)))
+        return w, k, held.value

@@ -50,6 +50,10 @@ library = binding({
     "hh_bone_wrenches": ([_vp, _vp, _i, _pd], _i),
     "hh_bone_linear_model": ([_vp, _vp, _i, _pd, _pd], _i),
     "hh_bone_response": ([_vp, _vp, _i, _pd, _pd], _i),
+    # a skeleton hand in a world (native_world.World's bone methods)
+    "hh_world_bone_velocities": ([_vp, _i, _i, _pd, _pd], _i),
+    "hh_world_set_bone_states": ([_vp, _i, _i, _pd, _pd, _pd, _pd], _i),
+    "hh_world_bone_coupling_model": ([_vp, _i, _i, _pd, _pd, _pi], _i),
 }, LAYOUTS)
 
 

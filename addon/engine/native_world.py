@@ -235,6 +235,40 @@ class World:
         _check(library().hh_world_bone_states(self._handle, hand, b, _ptr(p), _ptr(q), _ptr(w)))
         return p, q, w
 
+    def bone_velocities(self, hand: int) -> tuple[np.ndarray, np.ndarray]:
+        """(velocities (B, 3) of the bones' centres of mass, angular velocities (B, 3))."""
+        from .native_skeleton import library as skeleton_library
+
+        b = self.n_bones(hand)
+        v, w = np.empty((b, 3)), np.empty((b, 3))
+        _check(skeleton_library().hh_world_bone_velocities(self._handle, hand, b, _ptr(v), _ptr(w)))
+        return v, w
+
+    def set_bone_states(self, hand: int, positions=None, quaternions=None, velocities=None,
+                        angular_velocities=None) -> None:
+        """Every bone's state at once (None keeps that part): positions (B, 3) of the centres of
+        mass, quaternions (B, 4), velocities (B, 3), angular velocities (B, 3)."""
+        from .native_skeleton import library as skeleton_library
+
+        b = self.n_bones(hand)
+        args = [None if a is None else _f64(a, (b, k), name)
+                for a, k, name in ((positions, 3, "bone positions"), (quaternions, 4, "bone quaternions"),
+                                   (velocities, 3, "bone velocities"), (angular_velocities, 3, "bone angular velocities"))]
+        _check(skeleton_library().hh_world_set_bone_states(self._handle, hand, b, *(_ptr(a) for a in args)))
+
+    def bone_coupling_model(self, hand: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """After a step with every bone prescribed: each bone's springs' wrench (6B,) at the end of
+        the step, its stiffness (6B, 6B) with respect to displacements (dx_b, dtheta_b) of the
+        prescribed poses with the step's contacts held (docs/skeleton.md, Section 6), and how
+        many contact rows it holds. One bone: coupling_model's."""
+        from .native_skeleton import library as skeleton_library
+
+        b = self.n_bones(hand)
+        w, k, held = np.empty(6 * b), np.empty((6 * b, 6 * b)), ctypes.c_int()
+        _check(skeleton_library().hh_world_bone_coupling_model(self._handle, hand, b, _ptr(w), _ptr(k),
+                                                               ctypes.byref(held)))
+        return w, k, held.value
+
     def node_contact_forces(self, body: int) -> np.ndarray:
         """(n, 3): the force (N) the last step's contacts put on each node of the hand or a soft body."""
         n = self.body_kind(body)[1]

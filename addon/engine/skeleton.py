@@ -192,6 +192,25 @@ class Skeleton:
             out.append(body)
         return out
 
+    def feedback_groups(self) -> tuple[np.ndarray, list[str]]:
+        """A glove's feedback groups (docs/skeleton.md, Section 6): the roots alone (the wrist's
+        frame), then one group per chain leaving a root (a digit), each holding that chain's
+        bones. Returns each bone's group (B,) and the groups' names (the root's, then each
+        chain's first bone's)."""
+        group = np.full(len(self.bones), -1, dtype=np.int32)
+        names = [self.names[int(np.flatnonzero(self.parents < 0)[0])]]
+        for b in range(len(self.bones)):  # (a tree: walk up to the bone below the root)
+            j = b
+            while self.parents[j] >= 0 and self.parents[self.parents[j]] >= 0:
+                j = self.parents[j]
+            if self.parents[j] < 0:
+                group[b] = 0
+                continue
+            if self.names[j] not in names:
+                names.append(self.names[j])
+            group[b] = names.index(self.names[j])
+        return group, names
+
 
 def _rest_nodes(rest) -> np.ndarray:
     rest = np.asarray(rest, dtype=float)

@@ -231,9 +231,10 @@ int hh_linear_momentum(const hh_model* model, const hh_data* data, double out[3]
  * (x, y, z, s). A one-bone model behaves exactly as today's, and the handle functions above
  * (hh_get_state's handle, hh_set_device, hh_coupling_wrench, hh_model_info_get's handle fields)
  * address bone 0, the root. With more than one bone, the palm handle's linearizations
- * (hh_coupling_linear_model, _response, _model: use hh_bone_linear_model, hh_bone_response),
- * hh_world_coupling_model and haptic sessions are refused; a world takes the hand
- * (hh_world_add_hand) and drives its bones with hh_world_set_bone_targets. */
+ * (hh_coupling_linear_model, _response, _model: use hh_bone_linear_model, hh_bone_response) and
+ * hh_world_coupling_model are refused (use hh_world_bone_coupling_model); a world takes the hand
+ * (hh_world_add_hand) and drives its bones with hh_world_set_bone_targets, a haptic session
+ * with one device frame per bone (hh_session_device_external_frames, _simulated_glove). */
 #define HH_BONE_FREE 0       /* no target: carried by the flesh */
 #define HH_BONE_COUPLED 1    /* follows its target through its virtual coupling */
 #define HH_BONE_PRESCRIBED 2 /* reaches its target pose at the end of the step */
@@ -409,6 +410,20 @@ int hh_world_set_bone_targets(hh_world* world, int hand_body, int n_bones, const
                               const double* velocities, const double* angular_velocities);
 int hh_world_bone_states(const hh_world* world, int hand_body, int n_bones, double* positions,
                          double* quaternions, double* wrenches);
+/* Each bone's velocities[B][3] (of its centre of mass) and angular_velocities[B][3] (any may be
+ * NULL); and all four of a bone's state set at once (NULL: kept), as hh_set_bone_states. */
+int hh_world_bone_velocities(const hh_world* world, int hand_body, int n_bones, double* velocities,
+                             double* angular_velocities);
+int hh_world_set_bone_states(hh_world* world, int hand_body, int n_bones, const double* positions,
+                             const double* quaternions, const double* velocities, const double* angular_velocities);
+/* The handle-space model of the bones with the last step's contacts held (docs/skeleton.md,
+ * Section 6): after hh_world_step with every bone prescribed (HH_BONE_PRESCRIBED), every bone's
+ * springs' wrench wrench0[6B] at the end of the step and its stiffness[6B][6B] (row-major) with
+ * respect to displacements (dx_1, dtheta_1, ..., dx_B, dtheta_B) of the prescribed poses, the
+ * exact derivative of that step; held_rows: the contact rows it holds. One bone:
+ * hh_world_coupling_model's. */
+int hh_world_bone_coupling_model(const hh_world* world, int hand_body, int n_bones, double* wrench0,
+                                 double* stiffness, int* held_rows);
 /* The force (N) the last step's contacts put on each node of the hand or a soft body,
  * out[n_nodes][3] (their sum is hh_world_contact_force's). */
 int hh_world_node_contact_forces(const hh_world* world, int body, double* out, int n_nodes);
@@ -499,6 +514,46 @@ int hh_session_read_log(hh_session* session, double* out, int capacity, int* out
 /* The coupling model of the fetched frame: wrench0 (6) and stiffness (36, row-major,
  * d wrench / d (dx, dtheta)), and how many contact rows it holds. */
 int hh_session_coupling_model(hh_session* session, double wrench0[6], double stiffness[36], int* held_rows);
+
+/* --- a session on a skeleton hand of B > 1 bones (docs/skeleton.md, Section 6) ---
+ * The visual loop drives every bone to its proxy (prescribed) and publishes the bones' model
+ * with contacts held (hh_world_bone_coupling_model); the haptic loop steps one proxy per bone,
+ * each held by its own virtual coupling (the session's gains) to its own device frame, against
+ * that 6B x 6B model, and commands a wrench per bone and per group of bones. Its device has one
+ * frame per bone: an external glove or the simulated glove user (a one-frame device is refused;
+ * and a glove on a one-handle hand's session). The log and the palm fields of hh_session_frame
+ * hold the root bone's. Arrays are bones in skeleton order, poses (position, quaternion
+ * (x, y, z, s)), wrenches (force N, torque N m). */
+int hh_session_bone_count(hh_session* session, int* out);
+/* A glove whose frames the host pushes (one pose per bone, hh_session_push_device_frames) and
+ * whose feedback it reads (hh_session_device_feedback). Until the first push the frames hold the
+ * bones' poses; none within timeout (s) of the first haptic step fails the session. */
+int hh_session_device_external_frames(hh_session* session, int n_bones, double timeout);
+int hh_session_push_device_frames(hh_session* session, int n_bones, const double* positions,
+                                  const double* quaternions);
+/* The feedback the haptic loop commanded last: bones[B][6], groups[G][6] (G as set by
+ * hh_session_set_feedback_groups, 0 without), and its haptic time (any output may be NULL). */
+int hh_session_device_feedback(hh_session* session, int n_bones, double* bones, int n_groups, double* groups,
+                               double* time);
+/* The simulated glove user: one simulated arm (as hh_session_device_simulated's, with these
+ * settings) per bone, following its timed poses positions[n][B][3], quaternions[n][B][4] (NULL:
+ * identity) and pushed by its bone's feedback force. */
+int hh_session_device_simulated_glove(hh_session* session, int n_bones, const double* times, const double* positions,
+                                      const double* quaternions, int n, double arm_mass, double arm_stiffness,
+                                      double arm_damping, double fail_at);
+/* Groups of bones whose feedback is summed (a glove's actuators: e.g. the wrist and each digit):
+ * group_of_bone[B] in 0 .. n_groups-1, or -1 for none; every group holds a bone. A group's force
+ * is its bones' sum, its torque their torques plus each bone's force's moment about the device
+ * frame of the group's first bone. Set while stopped. */
+int hh_session_set_feedback_groups(hh_session* session, int n_bones, const int* group_of_bone, int n_groups);
+/* The fetched frame's bones (hh_session_fetch_frame first): handles, proxies and device frames
+ * [B][7], feedback [B][6]; its groups' feedback [G][6]; and the bones' model of its visual step,
+ * wrench0[6B] and stiffness[6B][6B] (row-major), held_rows. Any output may be NULL. */
+int hh_session_frame_bones(hh_session* session, int n_bones, double* handles, double* proxies, double* devices,
+                           double* feedback);
+int hh_session_frame_groups(hh_session* session, int n_groups, double* feedback);
+int hh_session_bone_coupling_model(hh_session* session, int n_bones, double* wrench0, double* stiffness,
+                                   int* held_rows);
 
 /* A kinematic body moved by the world itself along timed poses (absolute, world frame). */
 int hh_world_set_script(hh_world* world, int body, const double* times, const double* positions,

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <cstdlib>
 #include <new>
@@ -17,6 +18,7 @@
 #include "check.h"
 #include "device/openhaptics.h"
 #include "device/simulated_arm.h"
+#include "device/simulated_glove.h"
 #include "haptic_hand.h"
 #include "haptics/haptic_log.h"
 #include "haptics/session.h"
@@ -52,6 +54,16 @@ constexpr bool kSanitized = false;
 
 namespace {
 void sleep_s(double s) { std::this_thread::sleep_for(std::chrono::duration<double>(s)); }
+
+// 1000 haptic steps of the session (offline, after its first models) allocate nothing
+void check_steps_allocate_nothing(hh::Session& session) {
+    const long before = g_allocations.load();
+    bool ok = true;
+    for (int i = 1; i <= 1000; ++i) ok = ok && session.haptic_step(0.1 + 1e-3 * i);
+    const long during = g_allocations.load() - before;
+    CHECK(ok);
+    CHECK(!kCountsAllocations || during == 0);
+}
 
 // A world with the box hand (its top face as collision surface) and a session on it.
 struct LiveRig {
@@ -363,12 +375,7 @@ TEST(haptic_step_never_allocates) {
                          nullptr, 2);
     session.set_device(std::make_unique<hh::SimulatedArm>(target, hh::ArmParams{}));
     session.run_offline(2);  // a valid coupling model is published
-    const long before = g_allocations.load();
-    bool ok = true;
-    for (int i = 1; i <= 1000; ++i) ok = ok && session.haptic_step(0.1 + 1e-3 * i);
-    const long during = g_allocations.load() - before;
-    CHECK(ok);
-    CHECK(!kCountsAllocations || during == 0);
+    check_steps_allocate_nothing(session);
 }
 
 TEST(simulated_arm_follows_a_jump_as_fast_as_an_arm_can_and_a_slow_script_exactly) {
@@ -407,4 +414,137 @@ TEST(simulated_arm_follows_a_jump_as_fast_as_an_arm_can_and_a_slow_script_exactl
     const hh::Pose goal = slow.at(0.5);
     CHECK_LT((now.quaternion - goal.quaternion).norm(), 1e-15);
     CHECK_LT((now.angular_velocity - goal.angular_velocity).norm(), 1e-15);
+}
+
+// --- a skeleton hand's session: one proxy and device frame per bone (docs/skeleton.md, Section 6) ---
+namespace {
+// A 6 x 2 x 2 cm bar of three bones on its axis, in a world (every node a surface vertex) over a
+// plane 1 mm below it, with a session.
+struct BoneRig {
+    static constexpr int kBones = 3;
+    BoxMesh box = make_box(6, 2, 2, 0.01);
+    hh_model* model = nullptr;
+    hh_world* world = nullptr;
+    hh_session* session = nullptr;
+    int hand = -1;
+    BoneRig() {
+        hh_params p;
+        hh_default_params(&p);
+        const int parents[kBones] = {-1, 0, 1};
+        const double heads[3 * kBones] = {0, 0.01, 0.01, 0.025, 0.01, 0.01, 0.05, 0.01, 0.01};
+        const double tails[3 * kBones] = {0.01, 0.01, 0.01, 0.035, 0.01, 0.01, 0.06, 0.01, 0.01};
+        const double radii[kBones] = {0.0145, 0.0145, 0.0145};
+        const hh_skeleton_desc s{static_cast<int>(sizeof(hh_skeleton_desc)), kBones, parents, heads, tails, radii,
+                                 nullptr, nullptr, nullptr, nullptr};
+        CHECK(hh_model_create_skeleton(box.nodes.data(), box.n_nodes(), box.tets.data(), box.n_tets(), &p, &s, &model) ==
+              HH_OK);
+        hh_world_params wp;
+        hh_default_world_params(&wp);
+        CHECK(hh_world_create(&wp, &world) == HH_OK);
+        std::vector<int> nodes(4 * box.n_nodes(), 0);
+        std::vector<double> weights(4 * box.n_nodes(), 0.0);
+        for (int i = 0; i < box.n_nodes(); ++i) {
+            nodes[4 * i] = i;
+            weights[4 * i] = 1;
+        }
+        const int faces[3] = {0, 1, 7};
+        CHECK(hh_world_add_hand(world, model, nodes.data(), weights.data(), box.n_nodes(), faces, 1, 0.5, 0, &hand) == HH_OK);
+        const double ground[3] = {0, 0, -0.001}, up[3] = {0, 0, 1};
+        int plane = -1;
+        CHECK(hh_world_add_plane(world, ground, up, 0.5, &plane) == HH_OK);
+        hh_session_params sp;
+        hh_default_session_params(&sp);
+        CHECK(hh_session_create(world, hand, &sp, &session) == HH_OK);
+    }
+    // every bone's rest pose moved by dz over 0.2 s, then held
+    std::vector<double> frames(double dz) const {
+        std::vector<double> p(3 * kBones);
+        CHECK(hh_world_bone_states(world, hand, kBones, p.data(), nullptr, nullptr) == HH_OK);
+        std::vector<double> out(p);
+        out.insert(out.end(), p.begin(), p.end());
+        for (int b = 0; b < kBones; ++b) out[3 * kBones + 3 * b + 2] += dz;
+        return out;
+    }
+    ~BoneRig() {
+        hh_session_free(session);
+        hh_world_free(world);
+        hh_model_free(model);
+    }
+};
+}  // namespace
+
+TEST(bone_session_takes_a_device_of_one_frame_per_bone) {
+    BoneRig rig;
+    int n = 0;
+    CHECK(hh_session_bone_count(rig.session, &n) == HH_OK && n == BoneRig::kBones);
+    CHECK(hh_session_device_external(rig.session, 5.0) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("has 3 bones: give it a device of one frame per bone") != std::string::npos);
+    LiveRig palm;
+    CHECK(hh_session_device_external_frames(palm.session, 1, 5.0) == HH_ERR_INVALID_ARGUMENT);
+    const int groups[3] = {0, 1, 3};
+    CHECK(hh_session_set_feedback_groups(rig.session, 3, groups, 2) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("bone 2 is in group 3: give each bone a group from 0 to 1") != std::string::npos);
+}
+
+TEST(bone_haptic_step_never_allocates) {
+    BoneRig rig;
+    hh::SessionParams p;
+    hh::Session session(rig.world->w, rig.hand, p);
+    const std::vector<double> x = rig.frames(-0.004);
+    const double t[2] = {0.0, 0.2};
+    std::vector<hh::SimulatedArm> arms;
+    for (int b = 0; b < BoneRig::kBones; ++b) {
+        const double pb[6] = {x[3 * b], x[3 * b + 1], x[3 * b + 2], x[9 + 3 * b], x[9 + 3 * b + 1], x[9 + 3 * b + 2]};
+        arms.emplace_back(hh::Keyframes(t, pb, nullptr, 2), hh::ArmParams{});
+    }
+    session.set_device(std::make_unique<hh::SimulatedGlove>(std::move(arms)));
+    session.set_feedback_groups(hh::FeedbackGroups({0, 1, 1}, 2));
+    session.run_offline(10);  // the bar pressed on the ground: valid models are published
+    CHECK(session.fetch_frame() && session.frame().bone_stiffness[0] != 0);
+    check_steps_allocate_nothing(session);
+}
+
+TEST(live_bone_session_with_an_external_glove) {
+    BoneRig rig;
+    CHECK(hh_session_device_external_frames(rig.session, BoneRig::kBones, 5.0) == HH_OK);
+    const int groups[3] = {0, 1, 1};
+    CHECK(hh_session_set_feedback_groups(rig.session, 3, groups, 2) == HH_OK);
+    const std::vector<double> x = rig.frames(-0.003);
+    const double q[4 * BoneRig::kBones] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1};
+    CHECK(hh_session_start(rig.session) == HH_OK);
+    // the host's thread pushes the glove's frames and reads its feedback while the loops run
+    std::atomic<bool> done{false};
+    std::atomic<int> pushes{0};
+    std::thread host([&] {
+        double bones[6 * BoneRig::kBones], sums[12], time = 0;
+        while (!done.load()) {
+            CHECK(hh_session_push_device_frames(rig.session, BoneRig::kBones, x.data() + 3 * BoneRig::kBones, q) == HH_OK);
+            CHECK(hh_session_device_feedback(rig.session, BoneRig::kBones, bones, 2, sums, &time) == HH_OK);
+            pushes.fetch_add(1);
+            sleep_s(0.002);
+        }
+    });
+    const auto t0 = std::chrono::steady_clock::now();
+    int frames = 0;
+    hh_session_frame f;
+    while (std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(400) ||
+           (frames < 3 && std::chrono::steady_clock::now() - t0 < std::chrono::seconds(30))) {
+        int fresh = 0;
+        CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK);
+        frames += fresh;
+        sleep_s(0.005);
+    }
+    done.store(true);
+    host.join();
+    CHECK(hh_session_stop(rig.session) == HH_OK);
+    hh_session_status st;
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK);
+    CHECK(st.failed == 0 && st.haptic_steps > 20 && pushes.load() > 5);
+    // the last commanded feedback: each group the sum of its bones' forces
+    double bones[6 * BoneRig::kBones], sums[12];
+    CHECK(hh_session_device_feedback(rig.session, BoneRig::kBones, bones, 2, sums, nullptr) == HH_OK);
+    for (int d = 0; d < 3; ++d) {
+        CHECK(std::abs(sums[d] - bones[d]) <= 1e-12 * (1 + std::abs(bones[d])));
+        CHECK(std::abs(sums[6 + d] - bones[6 + d] - bones[12 + d]) <= 1e-12 * (1 + std::abs(sums[6 + d])));
+    }
 }

@@ -80,18 +80,14 @@ def test_pressed_on_the_ground_the_bones_carry_weight_and_push(rig, threads):
     assert np.abs(per_node[nodes[:, 2] > floor + 0.02]).max() == 0.0  # only the fingertips touch
 
 
-def test_haptic_session_and_world_model_refuse_a_skeleton_hand_with_the_fix(rig):
-    from haptic_hand.engine import native_session
-
+def test_the_palm_handles_model_refuses_a_skeleton_hand_naming_the_bones_model(rig):
     w, hand = world_with(rig)
-    with pytest.raises(native.InvalidInput, match="this hand has 16 bones .a skeleton.: drive its bones with "
-                                                  "hh_world_set_bone_targets"):
-        native_session.NativeSession(w, hand)
     w.set_bone_targets(hand, np.full(16, ns.PRESCRIBED))
     w.step()
-    with pytest.raises(native.InvalidInput, match="this hand has 16 bones .a skeleton.: its model with contacts held "
-                                                  "is not built yet"):
+    with pytest.raises(native.InvalidInput, match="this hand has 16 bones .a skeleton.: take the bones' model, "
+                                                  "hh_world_bone_coupling_model"):
         w.coupling_model(hand)
+    assert w.bone_coupling_model(hand)[1].shape == (96, 96)
 
 
 def test_bone_targets_are_checked_naming_the_fix(rig):

@@ -1,6 +1,7 @@
-// The bones' targets from the C arrays of hh_set_bone_targets and hh_world_set_bone_targets
-// (docs/skeleton.md, Section 7), checked whole before any is written.
+// The bones' targets and states from the C arrays of hh_set_bone_targets, hh_set_bone_states and
+// their world forms (docs/skeleton.md, Section 7), checked whole before any is written.
 #pragma once
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -26,6 +27,36 @@ inline std::vector<DeviceFrame> bone_targets(const Data& data, int n_bones, cons
                                     angular_velocities ? angular_velocities + 3 * b : zero.data());
     }
     return targets;
+}
+
+inline void require_finite(const double* p, int count, const char* what) {
+    for (int i = 0; i < count; ++i)
+        require(std::isfinite(p[i]), std::string(what) + " contains NaN or infinite values: check the bone poses");
+}
+
+inline Vec4 unit_quaternion(const double* q, const char* what) {
+    const Vec4 out(q[0], q[1], q[2], q[3]);
+    require(out.allFinite() && out.norm() > 1e-12, std::string(what) + ": a zero or non-finite quaternion");
+    return out.normalized();
+}
+
+// Every bone's state with the given arrays' values (NULL: kept)
+inline std::vector<HandleState> bone_states(const Data& data, int n_bones, const double* positions,
+                                            const double* quaternions, const double* velocities,
+                                            const double* angular_velocities) {
+    if (positions) require_finite(positions, 3 * n_bones, "bone positions");
+    if (velocities) require_finite(velocities, 3 * n_bones, "bone velocities");
+    if (angular_velocities) require_finite(angular_velocities, 3 * n_bones, "bone angular velocities");
+    std::vector<HandleState> states(n_bones);
+    for (int b = 0; b < n_bones; ++b) {
+        HandleState h = bone_state(data, b);
+        if (positions) h.x_com = vec3(positions + 3 * b);
+        if (quaternions) h.q = unit_quaternion(quaternions + 4 * b, "bone quaternions");
+        if (velocities) h.v_com = vec3(velocities + 3 * b);
+        if (angular_velocities) h.omega = vec3(angular_velocities + 3 * b);
+        states[b] = h;
+    }
+    return states;
 }
 
 }  // namespace hh::capi

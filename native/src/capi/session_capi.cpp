@@ -3,38 +3,19 @@
 #include <cstring>
 #include <memory>
 
-#include "capi/guard.h"
-#include "params/table.h"
+#include "capi/session_handle.h"
 #include "device/openhaptics.h"
 #include "device/playback.h"
 #include "device/simulated_arm.h"
-#include "haptics/session.h"
-
-struct hh_session {
-    hh_session(hh_world* w, int hand, const hh::SessionParams& p) : world(w), s(w->w, hand, p) {}
-    hh_world* world;
-    hh::Session s;
-};
 
 using hh::capi::guard;
+using hh::capi::keyframes;
 using hh::capi::require;
+using hh::capi::require_fail_at;
+using hh::capi::require_stopped;
+using hh::capi::session_of;
 
 namespace {
-hh_session& session_of(hh_session* session) {
-    require(session != nullptr, "null session");
-    return *session;
-}
-void require_stopped(hh_session& s) {
-    require(!s.s.running(), "the session is running live: stop it first");
-}
-hh::Keyframes keyframes(const double* times, const double* positions, const double* quaternions, int n) {
-    require(times && positions && n >= 1, "a device trajectory needs at least one timed pose");
-    return hh::Keyframes(times, positions, quaternions, n);
-}
-// fail_at: a time from the table's range, or +inf for a device that never fails.
-void require_fail_at(double fail_at) {
-    if (fail_at != HUGE_VAL) hh::params::check("haptics.fail_at", fail_at);
-}
 // Every field against the table, then what holds between fields: the haptic loop's stability.
 void validate_session_params(const hh_session_params& p) {
     hh::params::validate(HH_STRUCT_SESSION_PARAMS, &p);

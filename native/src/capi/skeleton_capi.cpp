@@ -54,17 +54,6 @@ void require_bones(const hh_model* model, int n_bones, const char* what) {
     require_size(n_bones, model->m.n_bones(), what);
 }
 
-void require_finite(const double* p, int count, const char* what) {
-    for (int i = 0; i < count; ++i)
-        require(std::isfinite(p[i]), std::string(what) + " contains NaN or infinite values: check the bone poses");
-}
-
-hh::Vec4 unit_quaternion(const double* q, const char* what) {
-    const hh::Vec4 out(q[0], q[1], q[2], q[3]);
-    require(out.allFinite() && out.norm() > 1e-12, std::string(what) + ": a zero or non-finite quaternion");
-    return out.normalized();
-}
-
 }  // namespace
 
 extern "C" {
@@ -168,18 +157,8 @@ int hh_set_bone_states(const hh_model* model, hh_data* data, int n_bones, const 
     return guard([&] {
         require_bones(model, n_bones, "bone states");
         require(data != nullptr, "hh_set_bone_states: null data");
-        if (positions) require_finite(positions, 3 * n_bones, "bone positions");
-        if (velocities) require_finite(velocities, 3 * n_bones, "bone velocities");
-        if (angular_velocities) require_finite(angular_velocities, 3 * n_bones, "bone angular velocities");
-        std::vector<hh::HandleState> states(n_bones);  // checked whole before any is written
-        for (int b = 0; b < n_bones; ++b) {
-            hh::HandleState h = hh::bone_state(data->d, b);
-            if (positions) h.x_com = vec3(positions + 3 * b);
-            if (quaternions) h.q = unit_quaternion(quaternions + 4 * b, "bone quaternions");
-            if (velocities) h.v_com = vec3(velocities + 3 * b);
-            if (angular_velocities) h.omega = vec3(angular_velocities + 3 * b);
-            states[b] = h;
-        }
+        const std::vector<hh::HandleState> states =
+            hh::capi::bone_states(data->d, n_bones, positions, quaternions, velocities, angular_velocities);
         for (int b = 0; b < n_bones; ++b) hh::bone_state(data->d, b) = states[b];
         return HH_OK;
     });

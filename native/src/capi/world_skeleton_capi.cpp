@@ -1,12 +1,14 @@
 // The C ABI of a skeleton hand in a world (docs/skeleton.md, Section 7): its bones' targets and
-// states, and where the last step's contact forces acted on its nodes (a finger's share of a
-// pinch). Same rules as world_capi.cpp: guard() around every body.
+// states, where the last step's contact forces acted on its nodes (a finger's share of a pinch),
+// and the bones' handle-space model with contacts held (Section 6). Same rules as
+// world_capi.cpp: guard() around every body.
 #include <cstring>
 #include <string>
 #include <vector>
 
 #include "capi/bone_targets.h"
 #include "capi/guard.h"
+#include "haptics/bone_coupling_model.h"
 #include "sim/skeleton_step.h"
 
 using hh::capi::guard;
@@ -79,6 +81,54 @@ int hh_world_bone_states(const hh_world* world, int hand_body, int n_bones, doub
             const std::vector<hh::Vec6> w = hh::bone_wrenches(*b.hand_model, *b.hand);
             for (int i = 0; i < n_bones; ++i) std::memcpy(wrenches + 6 * i, w[i].data(), 6 * sizeof(double));
         }
+        return HH_OK;
+    });
+}
+
+int hh_world_bone_velocities(const hh_world* world, int hand_body, int n_bones, double* velocities,
+                             double* angular_velocities) {
+    return guard([&] {
+        const hh::Body& b = hand_at(const_cast<hh_world*>(world), hand_body, n_bones);
+        for (int i = 0; i < n_bones; ++i) {
+            const hh::HandleState& h = hh::bone_state(*b.hand, i);
+            hh::capi::put3(h.v_com, velocities ? velocities + 3 * i : nullptr);
+            hh::capi::put3(h.omega, angular_velocities ? angular_velocities + 3 * i : nullptr);
+        }
+        return HH_OK;
+    });
+}
+
+int hh_world_set_bone_states(hh_world* world, int hand_body, int n_bones, const double* positions,
+                             const double* quaternions, const double* velocities, const double* angular_velocities) {
+    return guard([&] {
+        hh::Body& b = hand_at(world, hand_body, n_bones);
+        const std::vector<hh::HandleState> states =
+            hh::capi::bone_states(*b.hand, n_bones, positions, quaternions, velocities, angular_velocities);
+        for (int i = 0; i < n_bones; ++i) hh::bone_state(*b.hand, i) = states[i];
+        b.carried_impulse.resize(0);  // (the last step's impulses were on another state)
+        return HH_OK;
+    });
+}
+
+int hh_world_bone_coupling_model(const hh_world* world, int hand_body, int n_bones, double* wrench0,
+                                 double* stiffness, int* held_rows) {
+    return guard([&] {
+        const hh::Body& b = hand_at(const_cast<hh_world*>(world), hand_body, n_bones);
+        require(wrench0 && stiffness, "hh_world_bone_coupling_model: null output");
+        const int nh = 6 * n_bones;
+        if (!b.skeleton()) {  // one bone: the palm handle's model, exactly
+            const hh::CouplingModel m = hh::linearize_coupling(world->w, hand_body);
+            std::memcpy(wrench0, m.wrench.data(), 6 * sizeof(double));
+            Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>> out(stiffness);
+            out = m.stiffness;
+            if (held_rows) *held_rows = m.held_rows;
+            return HH_OK;
+        }
+        const hh::BoneCouplingModel m = hh::linearize_bone_coupling(world->w, hand_body);
+        std::memcpy(wrench0, m.wrench.data(), nh * sizeof(double));
+        Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> out(stiffness, nh, nh);
+        out = m.stiffness;
+        if (held_rows) *held_rows = m.held_rows;
         return HH_OK;
     });
 }

@@ -10,13 +10,14 @@
 #include <cstdio>
 
 #include "device/device.h"
+#include "device/pushed_pose.h"
 #include "common/triple_buffer.h"
 
 namespace hh {
 
 class ExternalDevice : public Device {
 public:
-    ExternalDevice(const Pose& start, double timeout) : buffer_(start), pose_(start), timeout_(timeout) {}
+    ExternalDevice(const Pose& start, double timeout) : buffer_(start), timeout_(timeout) { pose_.pose = start; }
     const char* name() const override { return "external"; }
     bool outputs_force() const override { return false; }
     void push(const Pose& p) {  // host thread
@@ -26,25 +27,17 @@ public:
     bool read(double t, Pose& out) noexcept override {
         if (t_first_ < 0) t_first_ = t;
         if (buffer_.fetch()) {
-            take(buffer_.front(), t);
-        } else if (!seen_ && t - t_first_ > timeout_) {
+            pose_.take(buffer_.front(), t);
+        } else if (!pose_.seen && t - t_first_ > timeout_) {
             return never_connected(t);
-        } else if (t - t_last_ > 0.1) {
-            pose_.velocity.setZero();  // no news for a while: the target is at rest
+        } else {
+            pose_.rest_if_stale(t);  // no news for a while: the target is at rest
         }
-        out = pose_;
+        out = pose_.pose;
         return true;
     }
 
 private:
-    void take(const Pose& p, double t) noexcept {
-        const double dt = t - t_last_;
-        if (dt > 0 && seen_) pose_.velocity = (p.position - pose_.position) / dt;
-        pose_.position = p.position;
-        pose_.quaternion = p.quaternion;
-        t_last_ = t;
-        seen_ = true;
-    }
     bool never_connected(double t) noexcept {
         char what[200];
         std::snprintf(what, sizeof what,
@@ -57,11 +50,9 @@ private:
     }
 
     TripleBuffer<Pose> buffer_;
-    Pose pose_;
+    PushedPose pose_;
     double timeout_;
     double t_first_ = -1;
-    double t_last_ = 0;
-    bool seen_ = false;
 };
 
 }  // namespace hh

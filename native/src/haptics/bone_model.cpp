@@ -7,14 +7,6 @@
 namespace hh {
 
 namespace {
-// J_l(phi): d exp(phi + e) = exp(J_l e) exp(phi) to first order in e
-Mat3 left_jacobian(const Vec3& phi) {
-    const double a = phi.norm();
-    const Mat3 k = skew(phi);
-    if (a < 1e-6) return Mat3::Identity() + 0.5 * k + k * k / 6.0;
-    return Mat3::Identity() + (1 - std::cos(a)) / (a * a) * k + (a - std::sin(a)) / (a * a * a) * k * k;
-}
-
 VecX stacked(const std::vector<Vec6>& w) {
     VecX out(6 * w.size());
     for (size_t b = 0; b < w.size(); ++b) out.segment<6>(6 * b) = w[b];

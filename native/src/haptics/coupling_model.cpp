@@ -3,38 +3,35 @@
 #include <algorithm>
 #include <cmath>
 
+#include "haptics/held_contacts.h"
 #include "rigid/quaternion.h"
 #include "sim/world.h"
 
 namespace hh {
 
-Vec6 CouplingModel::displacement(double t, const Vec3& x, const Vec4& q) const {
-    const double tau = std::min(std::max(t - time, 0.0), horizon);
-    const Vec3 x_ref = x_h + tau * v_h + 0.5 * tau * tau * a_h;
-    const Vec4 q_ref = quat_multiply(quat_from_rotation_vector(tau * omega_h + 0.5 * tau * tau * alpha_h), q_h);
+Vec6 motion_displacement(double tau, const HandleState& ref, const Vec3& a, const Vec3& alpha, const Vec3& x,
+                         const Vec4& q) {
+    const Vec3 x_ref = ref.x_com + tau * ref.v_com + 0.5 * tau * tau * a;
+    const Vec4 q_ref = quat_multiply(quat_from_rotation_vector(tau * ref.omega + 0.5 * tau * tau * alpha), ref.q);
     Vec6 d;
     d.head<3>() = x - x_ref;
     d.tail<3>() = quat_to_rotation_vector(quat_multiply(q, quat_conjugate(q_ref)));
     return d;
 }
 
+Vec6 CouplingModel::displacement(double t, const Vec3& x, const Vec4& q) const {
+    const double tau = std::min(std::max(t - time, 0.0), horizon);
+    HandleState ref;
+    ref.x_com = x_h;
+    ref.q = q_h;
+    ref.v_com = v_h;
+    ref.omega = omega_h;
+    return motion_displacement(tau, ref, a_h, alpha_h, x, q);
+}
+
 Vec6 CouplingModel::evaluate(double t, const Vec3& x, const Vec4& q) const {
     return wrench + stiffness * displacement(t, x, q);
 }
-
-namespace {
-
-// J_l(phi)^-1: the derivative of log(exp(d) exp(phi)) with respect to d at d = 0 (rotation
-// vectors), so that a turn d of the end pose changes the step's relative turn phi by J_l^-1 d.
-Mat3 left_jacobian_inverse(const Vec3& phi) {
-    const double a = phi.norm();
-    const Mat3 k = skew(phi);
-    // 1/a^2 - (1 + cos a) / (2 a sin a), by its series below 1e-4 rad
-    const double c = a < 1e-4 ? 1.0 / 12.0 + a * a / 720.0 : 1.0 / (a * a) - (1 + std::cos(a)) / (2 * a * std::sin(a));
-    return Mat3::Identity() - 0.5 * k + c * k * k;
-}
-
-}  // namespace
 
 CouplingModel hand_coupling_model(const Model& m, const Data& d, const Mat6& held) {
     if (!d.device.prescribed || d.end_aht.size() != m.handle.nodes.size())
@@ -79,34 +76,13 @@ CouplingModel hand_coupling_model(const Model& m, const Data& d, const Mat6& hel
 
 namespace {
 
-// What the contacts held change in the flesh part of the model (H_l M^-1 N H_r, docs/haptics.md):
-// the rows of the hand's group's contacts that pushed, their impulses' change dlambda as the
-// handle's end velocity changes, seen through Aht at the end pose. Sticking contacts keep
-// their tangential velocity zero; sliding ones keep lambda_t = -mu lambda_n u_t/|u_t|, with
-// mu = |lambda_t| / lambda_n, so their friction follows the normal impulse and turns with the
-// sliding velocity.
+// What the contacts held change in the flesh part of the model (H_l M^-1 N H_r,
+// haptics/held_contacts.h): the held rows' impulses' change as the handle's end velocity
+// changes, seen through Aht at the end pose.
 Mat6 held_contacts(const World& world, int hand, int& held_rows) {
     held_rows = 0;
-    const int nc = static_cast<int>(world.contact_lambda.size() / 3);
-    if (nc == 0 || !world.contact_bodies.count(hand)) return Mat6::Zero();
-    const VecX& lambda = world.contact_lambda;
-    const VecX& u = world.contact_velocity;
-    // the contacts of the hand's groups
-    std::vector<char> group(world.contact_groups.size(), 0);
-    for (int row : world.contact_bodies.at(hand).rows) group[world.contact_group_of[row / 3]] = 1;
-    double scale = 0;
-    for (int c = 0; c < nc; ++c) scale = std::max(scale, lambda[3 * c]);
-    // a contact slides when its tangential velocity is well above the sweeps' tolerance
-    const double slip = 10 * world.settings.tolerance;
-    std::vector<int> rows;     // 3 per held contact
-    std::vector<char> slides;  // per held contact
-    for (int c = 0; c < nc; ++c) {
-        if (!group[world.contact_group_of[c]] || !(lambda[3 * c] > 1e-9 * scale)) continue;
-        // (a frictionless contact slides whatever its velocity: it holds no tangential impulse)
-        slides.push_back(std::hypot(u[3 * c + 1], u[3 * c + 2]) > slip || world.contact_friction[c] == 0);
-        for (int k = 0; k < 3; ++k) rows.push_back(3 * c + k);
-    }
-    const int nr = static_cast<int>(rows.size());
+    const HeldContacts held = held_contacts_of(world, hand);
+    const int nr = held.n_rows();
     if (nr == 0) return Mat6::Zero();
     MatX hr = MatX::Zero(nr, 6), hl = MatX::Zero(6, nr);
     bool touches_hand = false;
@@ -115,38 +91,14 @@ Mat6 held_contacts(const World& world, int hand, int& held_rows) {
         // the handle is prescribed) through Ath^T and Aht; the world forms both from At's
         // symmetry without those rows (World::contact_handle_terms)
         Vec6 hr_row, aht_col;
-        if (!world.contact_handle_terms(hand, rows[r], hr_row, aht_col)) continue;
+        if (!world.contact_handle_terms(hand, held.rows[r], hr_row, aht_col)) continue;
         touches_hand = true;
         hr.row(r) = hr_row.transpose();  // J A_t^-1 Ath: the row's free velocity is -that dv_h
         hl.col(r) = aht_col;             // Aht A_t^-1 J^T e_r
     }
     if (!touches_hand) return Mat6::Zero();
-    // M dlambda = N H_r dv_h: normal and sticking rows keep their velocity (W dlambda = H_r dv_h);
-    // a sliding contact's tangent rows, with s = mu lambda_n / |u_t| and P the projection off
-    // u_t: dlambda_t + mu u^ dlambda_n + s P (W dlambda - H_r dv_h)_t = 0
-    const MatX w = world.contact_delassus(rows);  // the step's W on those rows (unsymmetrized)
-    MatX mat = w, rhs_map = MatX::Identity(nr, nr);
-    // Redundant contacts make W singular; a compliance of 1e-9 of its largest diagonal entry
-    // picks the least-norm impulses without changing the response.
-    const double reg = 1e-9 * w.diagonal().cwiseAbs().maxCoeff() + 1e-300;
-    for (int a = 0; a < nr; ++a) mat(a, a) += reg;
-    for (int h = 0; h < nr / 3; ++h) {
-        if (!slides[h]) continue;
-        const int c = rows[3 * h] / 3, n = 3 * h;
-        const Eigen::Vector2d ut(u[3 * c + 1], u[3 * c + 2]);
-        const double speed = ut.norm();
-        const Eigen::Vector2d dir = speed > 0 ? Eigen::Vector2d(ut / speed) : Eigen::Vector2d::Zero();
-        const double mu = std::hypot(lambda[3 * c + 1], lambda[3 * c + 2]) / lambda[3 * c];
-        const double s = speed > 0 ? mu * lambda[3 * c] / speed : 0.0;
-        const Eigen::Matrix2d p = Eigen::Matrix2d::Identity() - dir * dir.transpose();
-        mat.middleRows<2>(n + 1) = s * p * w.middleRows<2>(n + 1);
-        mat.block<2, 2>(n + 1, n + 1) += Eigen::Matrix2d::Identity();
-        mat.block<2, 1>(n + 1, n) += mu * dir;
-        rhs_map.block<2, 2>(n + 1, n + 1) = s * p;
-    }
-    // (rows that carry impulse: the normal ones, the tangents of contacts with friction)
-    for (int h = 0; h < nr / 3; ++h) held_rows += world.contact_friction[rows[3 * h] / 3] == 0 ? 1 : 3;
-    return hl * mat.partialPivLu().solve(rhs_map * hr);
+    held_rows = carrying_rows(world, held);
+    return held_contact_term(world, held, hr, hl);
 }
 
 }  // namespace
@@ -158,7 +110,7 @@ CouplingModel linearize_coupling(const World& world, int hand) {
     if (b.skeleton())
         throw InvalidArgument("the handle-space model with contacts held takes a hand with one handle; this hand has " +
                               std::to_string(b.hand_model->n_bones()) +
-                              " bones (a skeleton): its model with contacts held is not built yet");
+                              " bones (a skeleton): take the bones' model, hh_world_bone_coupling_model");
     if (!b.hand->device.prescribed)
         throw InvalidArgument("the coupling model needs the handle driven to a prescribed pose (the proxy)");
     int held_rows = 0;

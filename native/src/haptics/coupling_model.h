@@ -5,6 +5,7 @@
 // stuck). The haptic loop evaluates it at 1 kHz for the proxy handle.
 #pragma once
 #include "common/types.h"
+#include "coupling/springs.h"
 
 namespace hh {
 
@@ -35,6 +36,12 @@ struct CouplingModel {
     // (dx, dtheta) of the pose (x, q) from that continued handle motion at time t.
     Vec6 displacement(double t, const Vec3& x, const Vec4& q) const;
 };
+
+// (dx, dtheta) of the pose (x, q) from the reference pose `ref` moved on for tau with its
+// velocity (v_com, omega) and the acceleration (a, alpha): CouplingModel::displacement's rule,
+// one bone's of BoneCouplingModel's (haptics/bone_coupling_model.h).
+Vec6 motion_displacement(double tau, const HandleState& ref, const Vec3& a, const Vec3& alpha, const Vec3& x,
+                         const Vec4& q);
 
 // The model after the world's last step for its hand body `hand`, whose handle must have
 // been prescribed (DeviceFrame::prescribed): the exact derivative of that step's end-of-step

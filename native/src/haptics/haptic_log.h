@@ -9,7 +9,15 @@
 #include <cstdint>
 #include <vector>
 
+#include "common/types.h"
+
 namespace hh {
+
+// A pose into 7 doubles: position, quaternion (x, y, z, s)
+inline void put_pose(double* out, const Vec3& p, const Vec4& q) {
+    for (int i = 0; i < 3; ++i) out[i] = p[i];
+    for (int i = 0; i < 4; ++i) out[3 + i] = q[i];
+}
 
 // Columns of a row: time (s), period since the previous step (s), the step's own cost (s),
 // device position (3) and quaternion (4), proxy position (3) and quaternion (4), feedback

@@ -8,29 +8,19 @@
 #include <cmath>
 #include <cstring>
 
+#include "common/clock.h"
 #include "haptics/realtime.h"
+#include "haptics/session_bones.h"
 #include "sim/world.h"
 
 namespace hh {
 
 namespace {
-double wall_now() {
-    using namespace std::chrono;
-    return duration<double>(steady_clock::now().time_since_epoch()).count();
-}
-
-void put_pose(double* out, const Vec3& p, const Vec4& q) {
-    for (int i = 0; i < 3; ++i) out[i] = p[i];
-    for (int i = 0; i < 4; ++i) out[3 + i] = q[i];
-}
+double wall_now() { return wall_seconds(); }
 
 Body& hand_body(World& world, int hand) {
     if (hand < 0 || hand >= static_cast<int>(world.bodies.size()) || world.bodies[hand]->kind != BodyKind::Hand)
         throw InvalidArgument("a haptic session needs the hand's body index");
-    if (world.bodies[hand]->skeleton())
-        throw InvalidArgument("a haptic session drives a hand with one handle; this hand has " +
-                              std::to_string(world.bodies[hand]->hand_model->n_bones()) +
-                              " bones (a skeleton): drive its bones with hh_world_set_bone_targets and step the world");
     return *world.bodies[hand];
 }
 
@@ -51,13 +41,19 @@ ProxySample first_sample(World& world, int hand) {
     return s;
 }
 
-Frame empty_frame(const World& world) {
+Frame empty_frame(World& world, int hand) {
     Frame f;
     std::size_t vertices = 0;
     for (const auto& b : world.bodies)
         if (b->has_surface) vertices += b->surface.n_vertices();
     f.surfaces.assign(3 * vertices, 0.0);
     f.poses.assign(7 * world.bodies.size(), 0.0);
+    if (hand_body(world, hand).skeleton()) {
+        const std::size_t nb = hand_body(world, hand).hand_model->n_bones();
+        for (std::vector<double>* v : {&f.bone_handles, &f.bone_proxies, &f.bone_devices}) v->assign(7 * nb, 0.0);
+        for (std::vector<double>* v : {&f.bone_feedback, &f.group_feedback, &f.bone_wrench}) v->assign(6 * nb, 0.0);
+        f.bone_stiffness.assign(36 * nb * nb, 0.0);
+    }
     return f;
 }
 
@@ -83,7 +79,7 @@ Session::Session(World& world, int hand, const SessionParams& params)
       p_((check_params(params), params)),
       models_(resting_model(world, hand)),
       samples_(first_sample(world, hand)),
-      frames_(empty_frame(world)),
+      frames_(empty_frame(world, hand)),
       log_(params.log_capacity) {
     Body& b = hand_body(world, hand);
     proxy_.mass = b.hand_model->handle.mass;
@@ -102,6 +98,7 @@ Session::Session(World& world, int hand, const SessionParams& params)
         surface_offset_.push_back(body->has_surface ? offset : -1);
         if (body->has_surface) offset += body->surface.n_vertices();
     }
+    if (b.skeleton()) bones_ = std::make_unique<Bones>(*b.hand_model, *b.hand, p_.coupling, 1.0 / p_.haptic_rate);
     t_haptic_ = world.time;
     set_clock_rate(p_.haptic_rate);
     publish_frame();
@@ -114,6 +111,7 @@ void Session::set_clock_rate(double rate) {
     dt_haptic_ = 1.0 / rate;
     clock_origin_ = t_haptic_;
     clock_steps_ = 0;
+    if (bones_) bones_->publish_model(dt_haptic_);  // (the proxies' step matrix is the period's)
 }
 
 double Session::advance_clock() {
@@ -125,8 +123,16 @@ double Session::advance_clock() {
 
 void Session::set_device(std::unique_ptr<Device> device) {
     if (running()) throw InvalidArgument("stop the session before changing its device");
+    if (device && device->frames() != n_bones())
+        throw InvalidArgument(bones_ ? "this session's hand has " + std::to_string(n_bones()) +
+                                           " bones: give it a device of one frame per bone (an external glove or "
+                                           "the simulated glove)"
+                                     : std::string("this session's hand has one handle: a glove of ") +
+                                           std::to_string(device->frames()) +
+                                           " frames drives a skeleton hand's session; give it a one-frame device");
     device_ = std::move(device);
     external_ = dynamic_cast<ExternalDevice*>(device_.get());
+    external_frames_ = dynamic_cast<ExternalFrames*>(device_.get());
 }
 
 Pose Session::handle_pose() const {
@@ -147,6 +153,7 @@ void Session::fail(const char* message) noexcept {
 
 bool Session::haptic_step(double t) noexcept {
     const double start = wall_now();
+    if (bones_) return bones_haptic_step(t, start);
     models_.fetch();
     const CouplingModel& model = models_.front();
     Pose dev;
@@ -155,15 +162,7 @@ bool Session::haptic_step(double t) noexcept {
         return false;
     }
     Feedback fb = proxy_.step(dt_haptic_, t - dt_haptic_, model, p_.linearized, dev, p_.coupling);
-    const double f_max = std::min(p_.max_force, device_->max_force);
-    const double t_max = std::min(p_.max_torque, device_->max_torque);
-    const double fn = fb.force.norm(), tn = fb.torque.norm();
-    if (!(std::isfinite(fn) && std::isfinite(tn))) {
-        fail("the haptic step produced a non-finite force: lower the virtual coupling stiffness or check the device");
-        return false;
-    }
-    if (fn > f_max) fb.force *= f_max / fn;
-    if (tn > t_max) fb.torque *= t_max / tn;
+    if (!limit_feedback(fb)) return false;
     device_->command(fb);
 
     ProxySample& s = samples_.back();
@@ -173,11 +172,29 @@ bool Session::haptic_step(double t) noexcept {
     s.feedback = fb;
     samples_.publish();
 
+    log_step(t, start, dev, proxy_.state, fb);
+    return true;
+}
+
+bool Session::limit_feedback(Feedback& fb) noexcept {
+    const double f_max = std::min(p_.max_force, device_->max_force);
+    const double t_max = std::min(p_.max_torque, device_->max_torque);
+    const double fn = fb.force.norm(), tn = fb.torque.norm();
+    if (!(std::isfinite(fn) && std::isfinite(tn))) {
+        fail("the haptic step produced a non-finite force: lower the virtual coupling stiffness or check the device");
+        return false;
+    }
+    if (fn > f_max) fb.force *= f_max / fn;
+    if (tn > t_max) fb.torque *= t_max / tn;
+    return true;
+}
+
+void Session::log_step(double t, double start, const Pose& dev, const HandleState& proxy, const Feedback& fb) noexcept {
     LogRow row;
     row.v[0] = t;
     row.v[1] = live_ ? (last_tick_wall_ < 0 ? dt_haptic_ : start - last_tick_wall_) : dt_haptic_;
     put_pose(row.v + 3, dev.position, dev.quaternion);
-    put_pose(row.v + 10, proxy_.state.x_com, proxy_.state.q);
+    put_pose(row.v + 10, proxy.x_com, proxy.q);
     for (int i = 0; i < 3; ++i) {
         row.v[17 + i] = fb.force[i];
         row.v[20 + i] = fb.torque[i];
@@ -186,10 +203,13 @@ bool Session::haptic_step(double t) noexcept {
     row.v[2] = wall_now() - start;
     log_.push(row);
     haptic_steps_.fetch_add(1, std::memory_order_release);
-    return true;
 }
 
 void Session::visual_step() {
+    if (bones_) {
+        bones_visual_step();
+        return;
+    }
     if (samples_.fetch()) sample_ = samples_.front();
     Body& b = *world_.bodies[hand_];
     DeviceFrame& d = b.hand->device;
@@ -274,6 +294,7 @@ void Session::publish_frame() {
     }
     f.held_rows = m.held_rows;
     f.contacts = world_.stats.contacts;
+    if (bones_) bones_publish_frame(f);
     frames_.publish();
 }
 

@@ -16,6 +16,8 @@
 #include "haptic_hand.h"
 #include "device/device.h"
 #include "device/external.h"
+#include "device/external_frames.h"
+#include "haptics/bone_proxies.h"
 #include "haptics/coupling_model.h"
 #include "haptics/haptic_log.h"
 #include "haptics/proxy.h"
@@ -63,6 +65,12 @@ struct Frame {
     double stiffness[36] = {0};              // its dF_c/d(dx, dtheta), row-major
     int contacts = 0;
     int held_rows = 0;
+    // A skeleton hand's session (haptics/session_bones.cpp), else empty: per bone its pose,
+    // proxy and device frame (7 each: position, quaternion) and its feedback (6); per group
+    // (up to one per bone) its feedback (6); the bones' model (wrench 6B, stiffness 6B x 6B
+    // row-major). The root's are also in the palm fields above.
+    std::vector<double> bone_handles, bone_proxies, bone_devices, bone_feedback, group_feedback;
+    std::vector<double> bone_wrench, bone_stiffness;
 };
 
 class Session {
@@ -75,8 +83,16 @@ public:
     Session(const Session&) = delete;
     Session& operator=(const Session&) = delete;
 
+    // Throws InvalidArgument unless the device has one frame per bone (one: the palm handle).
     void set_device(std::unique_ptr<Device> device);
+    // A skeleton hand's session: its bones (1 for the palm handle's), and the groups its feedback
+    // is summed in (FeedbackGroups; set while stopped).
+    int n_bones() const;
+    std::vector<Pose> bone_poses() const;  // every bone's pose now (a stopped session)
+    void set_feedback_groups(const FeedbackGroups& groups);
+    int n_groups() const;
     ExternalDevice* external_device() { return external_; }
+    ExternalFrames* external_frames() { return external_frames_; }
     // The handle's pose now (a stopped session): where a device that has not spoken yet holds it.
     Pose handle_pose() const;
 
@@ -114,6 +130,17 @@ public:
     void servo_step() noexcept;
 
 private:
+    // A skeleton hand's loops (haptics/session_bones.cpp): the visual step drives every bone to
+    // its proxy and publishes the bones' model; the haptic step moves the B proxies
+    struct Bones;
+    std::unique_ptr<Bones> bones_;
+    bool bones_haptic_step(double t, double start) noexcept;
+    // the feedback clamped to the session's and the device's limits (false, the session failed:
+    // not finite), and the step's log row (the root's device frame, proxy and feedback)
+    bool limit_feedback(Feedback& fb) noexcept;
+    void log_step(double t, double start, const Pose& dev, const HandleState& proxy, const Feedback& fb) noexcept;
+    void bones_visual_step();
+    void bones_publish_frame(Frame& f);
     void visual_step();
     void publish_frame();
     void fail(const char* message) noexcept;
@@ -132,6 +159,7 @@ private:
     double advance_clock();            // the next step's time
     std::unique_ptr<Device> device_;
     ExternalDevice* external_ = nullptr;
+    ExternalFrames* external_frames_ = nullptr;
 
     // haptic side
     ProxyHandle proxy_;

@@ -80,4 +80,19 @@ Mat34 rotated_point_jacobian(const Vec4& q, const Vec3& r_body) {
     return d.topRows<3>();
 }
 
+Mat3 left_jacobian(const Vec3& phi) {
+    const double a = phi.norm();
+    const Mat3 k = skew(phi);
+    if (a < 1e-6) return Mat3::Identity() + 0.5 * k + k * k / 6.0;
+    return Mat3::Identity() + (1 - std::cos(a)) / (a * a) * k + (a - std::sin(a)) / (a * a * a) * k * k;
+}
+
+Mat3 left_jacobian_inverse(const Vec3& phi) {
+    const double a = phi.norm();
+    const Mat3 k = skew(phi);
+    // 1/a^2 - (1 + cos a) / (2 a sin a), by its series below 1e-4 rad
+    const double c = a < 1e-4 ? 1.0 / 12.0 + a * a / 720.0 : 1.0 / (a * a) - (1 + std::cos(a)) / (2 * a * std::sin(a));
+    return Mat3::Identity() - 0.5 * k + c * k * k;
+}
+
 }  // namespace hh

@@ -27,4 +27,10 @@ Mat43 quat_rate_matrix(const Vec4& q);
 // (The paper prints Q from q alone and C = diag(-1, 1, 1, 1); see docs/maths.md.)
 Mat34 rotated_point_jacobian(const Vec4& q, const Vec3& r_body);
 
+// The left Jacobian of SO(3), J_l(phi): exp(phi + e) = exp(J_l(phi) e) exp(phi) to first order
+// in e; and its inverse, the derivative of log(exp(d) exp(phi)) with respect to d at d = 0, so
+// that a turn d of an end pose changes the turn phi that reaches it by J_l^-1 d.
+Mat3 left_jacobian(const Vec3& phi);
+Mat3 left_jacobian_inverse(const Vec3& phi);
+
 }  // namespace hh

@@ -50,6 +50,9 @@ struct Data : FleshState {
     std::vector<HandleState> carried;
     std::vector<CouplingBlocks> bone_coupling;
     SkeletonSystem skeleton{tool};
+    // Whether the last step of B > 1 bones had every bone prescribed: the step the B-bone
+    // coupling model differentiates (haptics/bone_coupling_model.h)
+    bool bones_prescribed = false;
 };
 
 // Bone b's state and target (bone 0: h and device).

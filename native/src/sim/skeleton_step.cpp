@@ -81,7 +81,9 @@ void formulate_skeleton_end(const Model& model, Data& data) {
         bt.segment<3>(3 * i) += relative_momentum(f, model.masses[i], data.x.segment<3>(3 * i), Vec3::Zero()) -
                                 dt * p.rayleigh_alpha * model.masses[i] * f.v.segment<3>(3 * i);
     data.bone_coupling.resize(nb);
+    data.bones_prescribed = true;
     for (int b = 0; b < nb; ++b) {
+        data.bones_prescribed = data.bones_prescribed && bone_target(data, b).prescribed;
         const HandleModel& bone = model.skeleton.bones[b];
         CouplingBlocks& cb = data.bone_coupling[b];
         assemble_coupling(p.spring_stiffness, p.spring_damping, dt, bone.nodes, bone.r_body, f.x, f.v, data.carried[b],

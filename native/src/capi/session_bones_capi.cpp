@@ -1,0 +1,166 @@
+// C entry points of a haptic session on a skeleton hand (docs/skeleton.md, Section 6; see
+// haptic_hand.h): its gloves (external frames, the simulated glove user), the feedback groups,
+// and the fetched frame's bones, groups and model.
+#include <cstring>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "capi/session_handle.h"
+#include "device/simulated_glove.h"
+#include "haptics/session_bones.h"
+
+using hh::capi::guard;
+using hh::capi::require;
+using hh::capi::require_fail_at;
+using hh::capi::require_size;
+using hh::capi::require_stopped;
+using hh::capi::session_of;
+
+namespace {
+hh_session& bones_session(hh_session* session, int n_bones, const char* what) {
+    hh_session& s = session_of(session);
+    require_size(n_bones, s.s.n_bones(), what);
+    return s;
+}
+
+void put_wrench(const hh::Feedback& fb, double* out) {
+    std::memcpy(out, fb.force.data(), 3 * sizeof(double));
+    std::memcpy(out + 3, fb.torque.data(), 3 * sizeof(double));
+}
+}  // namespace
+
+extern "C" {
+
+int hh_session_bone_count(hh_session* session, int* out) {
+    return guard([&] {
+        require(out != nullptr, "hh_session_bone_count: null output");
+        *out = session_of(session).s.n_bones();
+        return HH_OK;
+    });
+}
+
+int hh_session_device_external_frames(hh_session* session, int n_bones, double timeout) {
+    return guard([&] {
+        hh_session& s = bones_session(session, n_bones, "the external glove's frames (one per bone)");
+        require_stopped(s);
+        require(n_bones > 1, "the hand has one handle: give it the one-frame external device (hh_session_device_external)");
+        hh::params::check("haptics.external_timeout", timeout);
+        s.s.set_device(std::make_unique<hh::ExternalFrames>(s.s.bone_poses(), n_bones, timeout));
+        return HH_OK;
+    });
+}
+
+int hh_session_push_device_frames(hh_session* session, int n_bones, const double* positions, const double* quaternions) {
+    return guard([&] {
+        hh_session& s = bones_session(session, n_bones, "the glove's frames (one per bone)");
+        require(positions && quaternions, "hh_session_push_device_frames: null pointer");
+        require(s.s.external_frames() != nullptr,
+                "this session's device is not an external glove (hh_session_device_external_frames): it reads its own poses");
+        std::vector<hh::Pose> poses(n_bones);
+        for (int b = 0; b < n_bones; ++b) {
+            poses[b].position = hh::capi::vec3(positions + 3 * b);
+            poses[b].quaternion = Eigen::Map<const hh::Vec4>(quaternions + 4 * b);
+            require(poses[b].position.allFinite() && poses[b].quaternion.allFinite() && poses[b].quaternion.norm() > 1e-12,
+                    "frame " + std::to_string(b) + " has NaN or infinite values or a zero quaternion");
+            poses[b].quaternion.normalize();
+        }
+        s.s.external_frames()->push(poses.data(), n_bones);
+        return HH_OK;
+    });
+}
+
+int hh_session_device_feedback(hh_session* session, int n_bones, double* bones, int n_groups, double* groups,
+                               double* time) {
+    return guard([&] {
+        hh_session& s = bones_session(session, n_bones, "the glove's feedback (one wrench per bone)");
+        hh::ExternalFrames* device = s.s.external_frames();
+        require(device != nullptr, "this session's device is not an external glove (hh_session_device_external_frames)");
+        require_size(n_groups, s.s.n_groups(), "the feedback groups");
+        device->fetch_feedback();
+        const hh::FramesFeedback& f = device->feedback();
+        for (int b = 0; bones && b < n_bones; ++b) put_wrench(f.bones[b], bones + 6 * b);
+        for (int g = 0; groups && g < n_groups; ++g) put_wrench(f.groups[g], groups + 6 * g);
+        if (time) *time = f.time;
+        return HH_OK;
+    });
+}
+
+int hh_session_device_simulated_glove(hh_session* session, int n_bones, const double* times, const double* positions,
+                                      const double* quaternions, int n, double arm_mass, double arm_stiffness,
+                                      double arm_damping, double fail_at) {
+    return guard([&] {
+        hh_session& s = bones_session(session, n_bones, "the simulated glove's fingers (one per bone)");
+        require_stopped(s);
+        require(n_bones > 1, "the hand has one handle: give it the simulated arm (hh_session_device_simulated)");
+        require(times && positions && n >= 1, "a glove trajectory needs at least one timed pose per bone");
+        hh::params::check("haptics.arm.mass", arm_mass);
+        hh::params::check("haptics.arm.stiffness", arm_stiffness);
+        hh::params::check("haptics.arm.damping", arm_damping);
+        require_fail_at(fail_at);
+        std::vector<hh::SimulatedArm> arms;
+        std::vector<double> p(3 * n), q(4 * n);
+        for (int b = 0; b < n_bones; ++b) {  // bone b's poses, out of the [n][B][.] arrays
+            for (int k = 0; k < n; ++k) {
+                std::memcpy(&p[3 * k], positions + 3 * (k * n_bones + b), 3 * sizeof(double));
+                if (quaternions) std::memcpy(&q[4 * k], quaternions + 4 * (k * n_bones + b), 4 * sizeof(double));
+            }
+            arms.emplace_back(hh::capi::keyframes(times, p.data(), quaternions ? q.data() : nullptr, n),
+                              hh::ArmParams{arm_mass, arm_stiffness, arm_damping, fail_at});
+        }
+        s.s.set_device(std::make_unique<hh::SimulatedGlove>(std::move(arms)));
+        return HH_OK;
+    });
+}
+
+int hh_session_set_feedback_groups(hh_session* session, int n_bones, const int* group_of_bone, int n_groups) {
+    return guard([&] {
+        hh_session& s = bones_session(session, n_bones, "the feedback groups (one group or -1 per bone)");
+        require_stopped(s);
+        require(group_of_bone != nullptr && n_groups >= 0 && n_groups <= n_bones,
+                "hh_session_set_feedback_groups: null groups, or a group count below 0 or above the bones'");
+        s.s.set_feedback_groups(hh::FeedbackGroups(std::vector<int>(group_of_bone, group_of_bone + n_bones), n_groups));
+        return HH_OK;
+    });
+}
+
+int hh_session_frame_bones(hh_session* session, int n_bones, double* handles, double* proxies, double* devices,
+                           double* feedback) {
+    return guard([&] {
+        hh_session& s = bones_session(session, n_bones, "the frame's bones");
+        require(n_bones > 1, "the hand has one handle: its frame is hh_session_fetch_frame's");
+        const hh::Frame& f = s.s.frame();
+        const auto copy = [](const std::vector<double>& from, double* to) {
+            if (to) std::memcpy(to, from.data(), from.size() * sizeof(double));
+        };
+        copy(f.bone_handles, handles);
+        copy(f.bone_proxies, proxies);
+        copy(f.bone_devices, devices);
+        copy(f.bone_feedback, feedback);
+        return HH_OK;
+    });
+}
+
+int hh_session_frame_groups(hh_session* session, int n_groups, double* feedback) {
+    return guard([&] {
+        hh_session& s = session_of(session);
+        require_size(n_groups, s.s.n_groups(), "the feedback groups");
+        require(feedback != nullptr || n_groups == 0, "hh_session_frame_groups: null output");
+        if (n_groups) std::memcpy(feedback, s.s.frame().group_feedback.data(), 6 * n_groups * sizeof(double));
+        return HH_OK;
+    });
+}
+
+int hh_session_bone_coupling_model(hh_session* session, int n_bones, double* wrench0, double* stiffness, int* held_rows) {
+    return guard([&] {
+        hh_session& s = bones_session(session, n_bones, "the bones' model");
+        require(n_bones > 1, "the hand has one handle: its model is hh_session_coupling_model's");
+        const hh::Frame& f = s.s.frame();
+        if (wrench0) std::memcpy(wrench0, f.bone_wrench.data(), f.bone_wrench.size() * sizeof(double));
+        if (stiffness) std::memcpy(stiffness, f.bone_stiffness.data(), f.bone_stiffness.size() * sizeof(double));
+        if (held_rows) *held_rows = f.held_rows;
+        return HH_OK;
+    });
+}
+
+}  // extern "C"
