@@ -118,7 +118,6 @@ class Rig:
     dt: float = 1.0 / 30.0
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     bone_nodes: list = field(default_factory=list)  # one node index list per bone
-    polar: str = "svd"  # or "stopped": the native engine's cold-start rotations (polar_rotations_stopped)
     bones: list = field(default_factory=list, init=False)
 
     def __post_init__(self):
@@ -194,36 +193,9 @@ def polar_rotations(rig: Rig, x: np.ndarray) -> np.ndarray:
     return u @ vt
 
 
-def polar_rotations_stopped(rig: Rig, x: np.ndarray, step_tolerance: float = 1e-9) -> np.ndarray:
-    """The polar rotations as the native engine leaves them on a cold start: Newton ascent on
-    trace(R^T F) over R <- exp(omega) R from the identity (Mueller et al. 2016; the Hessian
-    trace(F R^T) I - sym(F R^T), a scaled gradient step where it is not positive definite),
-    stopped once the next step is below step_tolerance rad, that step not taken. So R is off the
-    exact polar rotation by up to about step_tolerance (docs/skeleton.md, "The reference")."""
-    p = x[rig.tets]
-    f_all = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2) @ rig.bm
-    out = np.empty_like(f_all)
-    for e, f in enumerate(f_all):
-        q = np.array([0.0, 0.0, 0.0, 1.0])
-        r = np.eye(3)
-        for _ in range(50):
-            torque = np.cross(r.T, f.T).sum(axis=0)
-            m = f @ r.T
-            h = np.trace(m) * np.eye(3) - 0.5 * (m + m.T)
-            positive = h[0, 0] > 0 and np.linalg.det(h[:2, :2]) > 0 and np.linalg.det(h) > 0
-            omega = np.linalg.solve(h, torque) if positive else torque / (abs(np.trace(m)) + 1e-300)
-            if not omega @ omega > step_tolerance ** 2:
-                break
-            q = quat_multiply(quat_exp(omega), q)
-            q /= np.linalg.norm(q)
-            r = quat_matrix(q)
-        out[e] = r
-    return out
-
-
 def elastic(rig: Rig, x: np.ndarray):
     """Elastic forces (n, 3) and the warped element stiffnesses R K_e R^T (m, 12, 12)."""
-    r = polar_rotations(rig, x) if rig.polar == "svd" else polar_rotations_stopped(rig, x)
+    r = polar_rotations(rig, x)
     big = np.zeros((len(rig.tets), 12, 12))
     for a in range(4):
         big[:, 3 * a:3 * a + 3, 3 * a:3 * a + 3] = r

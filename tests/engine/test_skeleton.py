@@ -400,17 +400,16 @@ def one_bone_rig(**params):
     return model, rig, gains
 
 
-def native_and_reference_steps(mode, polar):
+def native_and_reference_steps(mode):
     """One step of today's native single-handle model (Schur, Cholesky) and of the reference's
     one-bone rig from the same state, where every term of Eq. 7 is active."""
     model, rig, gains = one_bone_rig()
-    rig.polar = polar
     assert np.allclose(rig.masses, model.lumped_masses(), rtol=1e-13, atol=0)
     rng = np.random.default_rng(7)
     state = perturbed(rig, rng)
     drive = coupled_drive(state, rng, gains)
     drive.mode[:] = mode
-    # The native step advances the hand by its handle's turn at the start-of-step angular
+    # The native step advances the hand by its own turn at the start-of-step angular
     # velocity and linearizes Eq. 7 about the state and velocities that turn gives (docs/maths.md,
     # "Rotation-consistent integration"); the reference takes the paper's step, linearized at the
     # start state. From a still hand (deformed, turned, driven) the two steps are the same.
@@ -438,21 +437,12 @@ def step_differences(sim, state, after) -> dict:
 
 @pytest.mark.parametrize("mode", [ref.FREE, ref.COUPLED, ref.PRESCRIBED])
 def test_reference_one_bone_matches_native_step(mode):
-    """With the element rotations the native engine's polar iteration leaves (its stopping rule,
-    reference_skeleton.polar_rotations_stopped), the reference's one-bone step is today's
-    native step to round-off: every other convention agrees."""
-    diff = step_differences(*native_and_reference_steps(mode, "stopped"))
+    """With exact polar rotations (numpy's SVD), the reference's one-bone step is today's native
+    step to round-off: every convention agrees, and the native polar iteration takes its last
+    step (left out, each rotation was up to ~1e-9 rad off and a free handle's angular velocity
+    differed by 8e-10 relative)."""
+    diff = step_differences(*native_and_reference_steps(mode))
     assert max(diff.values()) < 1e-12, diff
-
-
-@pytest.mark.parametrize("mode", [ref.FREE, ref.COUPLED])
-def test_reference_with_exact_rotations_differs_only_by_the_polar_tolerance(mode):
-    """With exact polar rotations (SVD), the native step differs by what its polar iteration's
-    stopping rule leaves: each element's rotation is up to ~1e-9 rad off (a step below 1e-9 rad
-    is not taken), which moves the forces by ~1e-9 relative and, on a free handle of tiny
-    inertia, its angular velocity most (docs/skeleton.md, "The reference")."""
-    diff = step_differences(*native_and_reference_steps(mode, "svd"))
-    assert max(diff.values()) < 1e-8, diff
 
 
 def test_reference_sixteen_bones_schur_equals_monolithic(sample_hand):

@@ -174,7 +174,7 @@ def sixteen_bone_rig(sample_hand, **params):
     rig = ref.Rig(nodes, tets, young=base["young_modulus"], poisson=base["poisson_ratio"], density=base["density"],
                   alpha=base["rayleigh_alpha"], beta=base["rayleigh_beta"], k=base["spring_stiffness"],
                   d=base["spring_damping"], dt=base["dt"], gravity=np.array(base["gravity"]),
-                  bone_nodes=[np.flatnonzero(owner == b) for b in range(16)], polar="stopped")
+                  bone_nodes=[np.flatnonzero(owner == b) for b in range(16)])
     return model, rig
 
 

@@ -141,7 +141,6 @@ Mat3 polar_rotation(const Mat3& f, Vec4& q) {
                                 c01 * torque[0] + c11 * torque[1] + c12 * torque[2],
                                 c02 * torque[0] + c12 * torque[1] + c22 * torque[2]) / det;
         const double angle2 = omega.squaredNorm();
-        if (angle2 <= kPolarConverged) return r;  // step below 1e-9 rad: quadratic convergence leaves ~1e-18
         Vec4 dq;  // exp(omega) as a quaternion; a series for the small steps of a warm start
         if (angle2 < 1e-4) {
             const double s = 0.5 - angle2 / 48.0 + angle2 * angle2 / 3840.0;
@@ -153,6 +152,9 @@ Mat3 polar_rotation(const Mat3& f, Vec4& q) {
         q = quat_multiply(dq, q);
         q.normalize();
         r = rotation_of(q);
+        // A step below 1e-9 rad is the last: taken, quadratic convergence leaves ~1e-18, so the
+        // rotation does not depend on where the warm start began (left out, it would by ~1e-9).
+        if (angle2 <= kPolarConverged) return r;
     }
     return polar_rotation_svd(f, q);  // not converged at a maximum within the steps allowed
 }

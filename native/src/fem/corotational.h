@@ -59,7 +59,7 @@ Mat3 polar_rotation(const Mat3& f, Vec4& q);
 Mat3 polar_rotation_svd(const Mat3& f, Vec4& q);
 // Newton steps polar_rotation allows before the SVD: a warm start converges in one or two.
 constexpr int kPolarNewtonSteps = 8;
-// Converged when the Newton step's squared angle is below this (a step under 1e-9 rad).
+// Converged when the Newton step's squared angle is below this (a step under 1e-9 rad, then taken).
 constexpr double kPolarConverged = 1e-18;
 
 // Adds the elastic forces of all elements to f and returns the elastic energy. rotations,

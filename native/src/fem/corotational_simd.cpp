@@ -109,7 +109,6 @@ __attribute__((always_inline)) inline void element_batch(const TetMesh& mesh, co
         omega[1] = (c01 * torque[0] + c11 * torque[1] + c12 * torque[2]) / safe_det;
         omega[2] = (c02 * torque[0] + c12 * torque[1] + c22 * torque[2]) / safe_det;
         const V angle2 = omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2];
-        active = active & (angle2 > kPolarConverged);
         if (!any<L>(active)) break;
         // exp(omega) as a quaternion: the series for small steps, sin/cos per lane otherwise
         const V s = 0.5 - angle2 / 48.0 + angle2 * angle2 / 3840.0;
@@ -132,6 +131,7 @@ __attribute__((always_inline)) inline void element_batch(const TetMesh& mesh, co
         rotation_of(q, rn);
         for (int i = 0; i < 3; ++i)
             for (int j = 0; j < 3; ++j) r[i][j] = active ? rn[i][j] : r[i][j];
+        active = active & (angle2 > kPolarConverged);  // a step below 1e-9 rad is the last, taken (corotational.cpp)
     }
     to_svd = to_svd | active;  // still moving after the steps allowed
     for (int l = 0; l < L; ++l) {
