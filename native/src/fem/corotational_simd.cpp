@@ -124,9 +124,15 @@ __attribute__((always_inline)) inline void element_batch(const TetMesh& mesh, co
         qn[1] = dq[3] * q[1] + q[3] * dq[1] + (dq[2] * q[0] - dq[0] * q[2]);
         qn[2] = dq[3] * q[2] + q[3] * dq[2] + (dq[0] * q[1] - dq[1] * q[0]);
         qn[3] = dq[3] * q[3] - (dq[0] * q[0] + dq[1] * q[1] + dq[2] * q[2]);
-        V norm = qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3];
-        for (int l = 0; l < L; ++l) norm[l] = norm[l] > 0 ? std::sqrt(norm[l]) : 1.0;
-        for (int k = 0; k < 4; ++k) q[k] = active ? qn[k] / norm : q[k];
+        // 1/|qn|: a product of unit quaternions is unit to ~1e-16, where 1.5 - |qn|^2 / 2 is
+        // 1/|qn| to ~1e-32 (no sqrt per lane); a lane further off takes the square root
+        const V norm2 = qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3];
+        V inverse = 1.5 - 0.5 * norm2;
+        const M off = (norm2 > 1 + 1e-6) | (norm2 < 1 - 1e-6);
+        if (any<L>(off))
+            for (int l = 0; l < L; ++l)
+                if (off[l]) inverse[l] = norm2[l] > 0 ? 1.0 / std::sqrt(norm2[l]) : 1.0;
+        for (int k = 0; k < 4; ++k) q[k] = active ? qn[k] * inverse : q[k];
         V rn[3][3];
         rotation_of(q, rn);
         for (int i = 0; i < 3; ++i)
