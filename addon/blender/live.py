@@ -51,6 +51,10 @@ class LiveState:
         self.record_error = None
         self.shown = []         # (time, handle pose, device pose) of every frame written
 
+    def end(self, context) -> None:
+        """stop(context, self): what the runtime calls when a file is opened."""
+        stop(context, self)
+
 
 def device_name(s) -> str:
     """haptics.device for the session; a playback recording is read here, so a bad one is

@@ -45,9 +45,7 @@ class Runtime:
             tet.release()
         state, self.live = self.live, None
         if state is not None:
-            from . import live
-
-            live.stop(bpy.context, state)
+            state.end(bpy.context)
         self.live_stop = False
 
 
