@@ -47,16 +47,19 @@ def random_rotation(rng) -> np.ndarray:
                      [2 * (x * z - s * y), 2 * (y * z + s * x), 1 - 2 * (x * x + y * y)]]), np.array([x, y, z, s])
 
 
-def test_elastic_forces_after_a_jump_to_a_rotated_noisy_state_match_numpy():
+def force_probe():
+    """The sample scenes' hand set up so that one step reads its elastic forces (module docstring):
+    rest nodes, tets, the simulation, the lumped masses and the handle's centre."""
     sc = scenes.load(SAMPLES / "hand_wave.json")
     scenes.load_hand_geometry(sc)
-    rest, tets = sc.nodes, sc.tets
-    model = native.HandModel(rest, tets, palm_seed=sc.palm_seed(), handle_radius=0.03, young_modulus=E,
+    model = native.HandModel(sc.nodes, sc.tets, palm_seed=sc.palm_seed(), handle_radius=0.03, young_modulus=E,
                              poisson_ratio=NU, density=RHO, rayleigh_alpha=0.0, rayleigh_beta=0.0,
                              gravity=[0.0, 0.0, 0.0], dt=DT, spring_stiffness=1e-9, spring_damping=0.0)
-    sim = native.HandSimulation(model)
-    masses = model.lumped_masses()
-    com = np.array(model.info()["handle_com"])
+    return sc.nodes, sc.tets, native.HandSimulation(model), model.lumped_masses(), np.array(model.info()["handle_com"])
+
+
+def test_elastic_forces_after_a_jump_to_a_rotated_noisy_state_match_numpy():
+    rest, tets, sim, masses, com = force_probe()
     rng = np.random.default_rng(37)
     inverted = 0
     for trial in range(16):
@@ -88,15 +91,7 @@ def test_elastic_forces_under_large_deformations_match_numpy():
     """Thousands of elements in large deformations, stretched and squashed up to 3x and 5x in
     random directions, turned anywhere, a third of them inverted: 48 states of the 2468-tet hand,
     each a random deformation of the whole hand with 1 mm of noise, warm-started from the last."""
-    sc = scenes.load(SAMPLES / "hand_wave.json")
-    scenes.load_hand_geometry(sc)
-    rest, tets = sc.nodes, sc.tets
-    model = native.HandModel(rest, tets, palm_seed=sc.palm_seed(), handle_radius=0.03, young_modulus=E,
-                             poisson_ratio=NU, density=RHO, rayleigh_alpha=0.0, rayleigh_beta=0.0,
-                             gravity=[0.0, 0.0, 0.0], dt=DT, spring_stiffness=1e-9, spring_damping=0.0)
-    sim = native.HandSimulation(model)
-    masses = model.lumped_masses()
-    com = np.array(model.info()["handle_com"])
+    rest, tets, sim, masses, com = force_probe()
     rng = np.random.default_rng(2)
     inverted = elements = 0
     for trial in range(48):
