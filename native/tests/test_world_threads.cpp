@@ -288,7 +288,7 @@ TEST(a_failing_body_solve_comes_back_as_a_status_on_either_thread) {
         CHECK(hh_world_step(stack.world, &st) == HH_OK);
         for (int body : {stack.lower, stack.upper}) {
             Stack again(threads);
-            again.world->w.bodies[body]->state.v[0] = std::nan("");
+            again.world->w.bodies[body]->soft.state.v[0] = std::nan("");
             const int status = hh_world_step(again.world, &st);
             CHECK(status == HH_ERR_NUMERICAL);
             CHECK(std::strstr(hh_last_error(), "non-finite") != nullptr);

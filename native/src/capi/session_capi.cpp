@@ -282,7 +282,7 @@ int hh_world_set_script(hh_world* world, int body, const double* times, const do
         require(body >= 0 && body < static_cast<int>(world->w.bodies.size()), "no such body");
         hh::Body& b = *world->w.bodies[body];
         require(b.kind == hh::BodyKind::Kinematic, "only kinematic bodies follow a script");
-        b.script = keyframes(times, positions, quaternions, n);
+        b.mesh.script = keyframes(times, positions, quaternions, n);
         return HH_OK;
     });
 }

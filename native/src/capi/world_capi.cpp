@@ -119,7 +119,7 @@ int hh_world_add_soft_body(hh_world* world, const double* nodes, int n_nodes, co
             hh::Material{material->young_modulus, material->poisson_ratio, material->density}));
         b->soft.alpha = material->rayleigh_alpha;
         b->soft.beta = material->rayleigh_beta;
-        hh::reset_flesh(*b->soft.flesh, b->state);
+        hh::reset_flesh(*b->soft.flesh, b->soft.state);
         b->soft.tool = std::make_unique<hh::DeformableSystem>();
         b->soft.tool->configure(soft_solver(static_cast<int>(hh::params::row("bodies[].solver.name").default_value[0]),
                                             n_tets),
@@ -180,8 +180,8 @@ int hh_world_add_mesh_body(hh_world* world, int kind, const double* vertices, in
             for (const auto& p : x) com += p;
             com /= n_vertices;
         }
-        b->rigid.x_com = com;
-        b->target = b->rigid;
+        b->mesh.state.x_com = com;
+        b->mesh.target = b->mesh.state;
         b->mesh.local.resize(n_vertices);
         for (int v = 0; v < n_vertices; ++v) b->mesh.local[v] = x[v] - com;
         b->surface.triangles = tris;
@@ -208,8 +208,8 @@ int hh_world_add_plane(hh_world* world, const double point[3], const double norm
         b->kind = hh::BodyKind::Plane;
         b->friction = friction;
         b->kinetic_friction = friction;
-        b->plane_point = vec3(point);
-        b->plane_normal = n.normalized();
+        b->plane.point = vec3(point);
+        b->plane.normal = n.normalized();
         require_idle(world);
         *out_body = world->w.add(std::move(b));
         return HH_OK;
@@ -256,7 +256,7 @@ int hh_world_set_pose(hh_world* world, int body, const double position[3], const
         hh::Body& b = body_at(world, body);
         require(b.kind == hh::BodyKind::Kinematic || b.kind == hh::BodyKind::Rigid || b.kind == hh::BodyKind::Hand,
                 "only kinematic and free rigid bodies and the hand's handle have a pose to set");
-        hh::RigidState& s = b.kind == hh::BodyKind::Kinematic ? b.target : b.kind == hh::BodyKind::Hand ? b.hand->h : b.rigid;
+        hh::RigidState& s = b.kind == hh::BodyKind::Kinematic ? b.mesh.target : b.kind == hh::BodyKind::Hand ? b.hand->h : b.mesh.state;
         hh::RigidState n = s;
         if (position) n.x_com = vec3(position);
         if (quaternion) n.q = hh::Vec4(quaternion[0], quaternion[1], quaternion[2], quaternion[3]);
@@ -277,7 +277,7 @@ int hh_world_get_pose(const hh_world* world, int body, double position[3], doubl
         require(b.kind == hh::BodyKind::Kinematic || b.kind == hh::BodyKind::Rigid || b.kind == hh::BodyKind::Static ||
                     b.kind == hh::BodyKind::Hand,
                 "only mesh bodies and the hand's handle have a pose");
-        const hh::RigidState& s = b.kind == hh::BodyKind::Hand ? b.hand->h : b.rigid;
+        const hh::RigidState& s = b.kind == hh::BodyKind::Hand ? b.hand->h : b.mesh.state;
         put3(s.x_com, position);
         if (quaternion) std::memcpy(quaternion, s.q.data(), 4 * sizeof(double));
         put3(s.v_com, velocity);
@@ -341,7 +341,7 @@ int hh_world_body_nodes(const hh_world* world, int body, double* x, double* v, i
     return guard([&] {
         const hh::Body& b = body_at(world, body);
         require(b.kind == hh::BodyKind::Hand || b.kind == hh::BodyKind::Soft, "only hand and soft bodies have nodes");
-        const hh::FleshState& s = b.kind == hh::BodyKind::Hand ? static_cast<const hh::FleshState&>(*b.hand) : b.state;
+        const hh::FleshState& s = b.kind == hh::BodyKind::Hand ? static_cast<const hh::FleshState&>(*b.hand) : b.soft.state;
         require_size(n_nodes, static_cast<int>(s.x.size() / 3), "body nodes");
         if (x) std::copy(s.x.data(), s.x.data() + s.x.size(), x);
         if (v) std::copy(s.v.data(), s.v.data() + s.v.size(), v);
@@ -353,7 +353,7 @@ int hh_world_set_body_nodes(hh_world* world, int body, const double* x, const do
     return guard([&] {
         hh::Body& b = body_at(world, body);
         require(b.kind == hh::BodyKind::Hand || b.kind == hh::BodyKind::Soft, "only hand and soft bodies have nodes");
-        hh::FleshState& s = b.kind == hh::BodyKind::Hand ? static_cast<hh::FleshState&>(*b.hand) : b.state;
+        hh::FleshState& s = b.kind == hh::BodyKind::Hand ? static_cast<hh::FleshState&>(*b.hand) : b.soft.state;
         require_size(n_nodes, static_cast<int>(s.x.size() / 3), "body nodes");
         const Eigen::Map<const hh::VecX> nx(x ? x : s.x.data(), s.x.size()), nv(v ? v : s.v.data(), s.v.size());
         require(nx.allFinite() && nv.allFinite(), "node positions and velocities must be finite");
@@ -417,9 +417,9 @@ int hh_world_linear_momentum(const hh_world* world, double out[3]) {
                 p += b.hand_model->handle.mass * b.hand->h.v_com;
                 for (int i = 0; i < b.hand_model->mesh.n_nodes; ++i) p += b.hand_model->masses[i] * b.hand->v.segment<3>(3 * i);
             } else if (b.kind == hh::BodyKind::Soft) {
-                for (int i = 0; i < b.soft.flesh->mesh.n_nodes; ++i) p += b.soft.flesh->masses[i] * b.state.v.segment<3>(3 * i);
+                for (int i = 0; i < b.soft.flesh->mesh.n_nodes; ++i) p += b.soft.flesh->masses[i] * b.soft.state.v.segment<3>(3 * i);
             } else if (b.kind == hh::BodyKind::Rigid) {
-                p += b.mesh.mass * b.rigid.v_com;
+                p += b.mesh.mass * b.mesh.state.v_com;
             }
         }
         put3(p, out);

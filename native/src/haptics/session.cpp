@@ -277,7 +277,7 @@ void Session::publish_frame() {
                 for (int k = 0; k < 3; ++k) out[3 * v + k] = b.surface.x[v][k];
         }
         if (b.kind == BodyKind::Rigid || b.kind == BodyKind::Kinematic || b.kind == BodyKind::Static)
-            put_pose(f.poses.data() + 7 * i, b.rigid.x_com, b.rigid.q);
+            put_pose(f.poses.data() + 7 * i, b.mesh.state.x_com, b.mesh.state.q);
     }
     const HandleState& h = world_.bodies[hand_]->hand->h;
     put_pose(f.handle, h.x_com, h.q);

@@ -26,7 +26,7 @@ void Body::update_points() {
     switch (kind) {
         case BodyKind::Hand:
         case BodyKind::Soft: {
-            const VecX& x = kind == BodyKind::Hand ? hand->x : state.x;
+            const VecX& x = kind == BodyKind::Hand ? hand->x : soft.state.x;
             points.resize(x.size() / 3);
             for (size_t i = 0; i < points.size(); ++i) points[i] = x.segment<3>(3 * i);
             break;
@@ -34,9 +34,9 @@ void Body::update_points() {
         case BodyKind::Rigid:
         case BodyKind::Kinematic:
         case BodyKind::Static: {
-            const Mat3 r = quat_to_matrix(rigid.q);
+            const Mat3 r = quat_to_matrix(mesh.state.q);
             points.resize(mesh.local.size());
-            for (size_t i = 0; i < mesh.local.size(); ++i) points[i] = rigid.x_com + r * mesh.local[i];
+            for (size_t i = 0; i < mesh.local.size(); ++i) points[i] = mesh.state.x_com + r * mesh.local[i];
             break;
         }
         case BodyKind::Plane: break;
@@ -97,7 +97,7 @@ double Body::bone_travel(int b, double dt) const {
 // move, or a hand whose device has jumped away; their end-of-step targets are known already.
 double Body::step_travel(double dt) const {
     switch (kind) {
-        case BodyKind::Soft: return fastest_node(state.v) * dt;
+        case BodyKind::Soft: return fastest_node(soft.state.v) * dt;
         case BodyKind::Hand: {
             double travel = fastest_node(hand->v) * dt;
             for (int b = 0; b < hand_model->n_bones(); ++b) travel = std::max(travel, bone_travel(b, dt));
@@ -105,18 +105,18 @@ double Body::step_travel(double dt) const {
         }
         case BodyKind::Rigid: {
             const double arm = farthest(mesh.local, Vec3::Zero());
-            return (rigid.v_com.norm() + rigid.omega.norm() * arm) * dt;
+            return (mesh.state.v_com.norm() + mesh.state.omega.norm() * arm) * dt;
         }
         case BodyKind::Kinematic: {
             const double arm = farthest(mesh.local, Vec3::Zero());
-            const double moving = (rigid.v_com.norm() + rigid.omega.norm() * arm) * dt;
-            return std::max(moving, pose_travel(rigid.x_com, rigid.q, target.x_com, target.q, arm));
+            const double moving = (mesh.state.v_com.norm() + mesh.state.omega.norm() * arm) * dt;
+            return std::max(moving, pose_travel(mesh.state.x_com, mesh.state.q, mesh.target.x_com, mesh.target.q, arm));
         }
         default: return 0;
     }
 }
 
-void SoftParts::solve_free(FleshState& state, double dt, const Vec3& gravity, const VecX& carried, VecX& v_free) {
+void SoftParts::solve_free(double dt, const Vec3& gravity, const VecX& carried, VecX& v_free) {
     const int n3 = 3 * flesh->mesh.n_nodes;
     rhs.resize(n3);
     formulate_flesh(*flesh, state, dt, gravity, alpha, beta, *tool, rhs);
@@ -145,14 +145,14 @@ void SoftParts::solve_free(FleshState& state, double dt, const Vec3& gravity, co
     }
 }
 
-void SoftParts::integrate(FleshState& state, const VecX& v, double dt) const {
+void SoftParts::integrate(const VecX& v, double dt) {
     state.v = v;
     for (int i = 0; i < flesh->mesh.n_nodes; ++i)
         if (fixed[i]) state.v.segment<3>(3 * i).setZero();
     state.x += dt * state.v;
 }
 
-void MeshParts::solve_free(const RigidState& state, double dt, const Vec3& gravity, VecX& v_free) const {
+void MeshParts::solve_free(double dt, const Vec3& gravity, VecX& v_free) const {
     const Mat3 r = quat_to_matrix(state.q);
     const Mat3 inertia = r * inertia_body * r.transpose();
     RigidSystem& rs = *system;
@@ -165,7 +165,7 @@ void MeshParts::solve_free(const RigidState& state, double dt, const Vec3& gravi
     v_free = rs.s;
 }
 
-void MeshParts::integrate(RigidState& state, const VecX& v, double dt) {
+void MeshParts::integrate(const VecX& v, double dt) {
     state.v_com = v.head<3>();
     state.omega = v.tail<3>();
     state.x_com += dt * state.v_com;

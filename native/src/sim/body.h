@@ -1,7 +1,8 @@
 // One body of a World (sim/world.h): what every kind has (kind, friction, collision surface,
 // the step's velocities and contact force) and each kind's own component: the hand's model and
-// state (sim/data.h) with its step's bookkeeping, a soft body's FEM system (SoftParts), a mesh
-// body's rigid parts (MeshParts), a plane's point and normal.
+// state (sim/data.h) with its step's bookkeeping, a soft body's nodes and FEM system
+// (SoftParts), a mesh body's pose and rigid parts (MeshParts), a plane's point and normal
+// (PlaneParts).
 #pragma once
 #include <memory>
 #include <vector>
@@ -30,6 +31,7 @@ struct HandStep {
 // A soft FEM body (BodyKind::Soft): its mesh and material, its implicit system At (Eq. 7
 // without the handle), the nodes held still, and its free solve (sim/body.cpp).
 struct SoftParts {
+    FleshState state;  // its nodes' positions and velocities
     std::unique_ptr<Flesh> flesh;
     std::unique_ptr<DeformableSystem> tool;
     std::vector<char> fixed;         // per node
@@ -42,23 +44,31 @@ struct SoftParts {
 
     // v_free = At^-1 (b + carried) - P^-1 carried for the step from state (P: the reused
     // factor's response operator; carried: the last step's contact impulses, empty without)
-    void solve_free(FleshState& state, double dt, const Vec3& gravity, const VecX& carried, VecX& v_free);
+    void solve_free(double dt, const Vec3& gravity, const VecX& carried, VecX& v_free);
     // state advanced by the velocities v (the fixed nodes' held at zero)
-    void integrate(FleshState& state, const VecX& v, double dt) const;
+    void integrate(const VecX& v, double dt);
 };
 
 // A mesh body (Rigid, Kinematic, Static): its vertices in the body frame (origin at the centre
 // of mass) and, for a free rigid body, its mass properties and 6x6 system.
 struct MeshParts {
+    RigidState state;
+    RigidState target;  // kinematic: the pose and velocity at the end of the next step
+    Keyframes script;   // kinematic: when set, the world moves the body along it (target = script at t + dt)
     std::vector<Vec3> local;
     double mass = 0;
     Mat3 inertia_body = Mat3::Zero();
     std::unique_ptr<RigidSystem> system;
 
     // the free rigid body's velocities (v, omega) after one implicit step of dt from `state`
-    void solve_free(const RigidState& state, double dt, const Vec3& gravity, VecX& v_free) const;
+    void solve_free(double dt, const Vec3& gravity, VecX& v_free) const;
     // the free rigid body's state advanced by the velocities v = (v, omega)
-    static void integrate(RigidState& state, const VecX& v, double dt);
+    void integrate(const VecX& v, double dt);
+};
+
+// An infinite plane (BodyKind::Plane): a point on it and its unit normal.
+struct PlaneParts {
+    Vec3 point = Vec3::Zero(), normal = Vec3::UnitZ();
 };
 
 struct Body {
@@ -71,20 +81,14 @@ struct Body {
     CollisionSurface surface;
     std::vector<Vec3> points;  // the points the surface is made of, this step (world frame)
 
-    // hand
+    // each kind's own component: the hand's, a soft body's, a mesh body's (rigid, kinematic,
+    // static), a plane's
     std::unique_ptr<Model> hand_model;
     std::unique_ptr<Data> hand;
     HandStep hand_step;
-    // soft body: its nodes' state and its FEM parts
-    FleshState state;
     SoftParts soft;
-    // rigid, kinematic, static mesh
-    RigidState rigid;
-    RigidState target;  // kinematic: the pose and velocity at the end of the next step
-    Keyframes script;   // kinematic: when set, the world moves the body along it (target = script at t + dt)
     MeshParts mesh;
-    // plane
-    Vec3 plane_point = Vec3::Zero(), plane_normal = Vec3::UnitZ();
+    PlaneParts plane;
 
     // last step
     VecX v_free, v_new;     // velocities of the body's unknowns (dofs())

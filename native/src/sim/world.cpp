@@ -114,8 +114,8 @@ void World::solve_free(Body& b) {
             st.t_total = st.t_assembly + parts + seconds_since(t1);
             break;
         }
-        case BodyKind::Soft: b.soft.solve_free(b.state, dt, settings.gravity, take_carried_impulse(b, *b.soft.tool), b.v_free); break;
-        case BodyKind::Rigid: b.mesh.solve_free(b.rigid, dt, settings.gravity, b.v_free); break;
+        case BodyKind::Soft: b.soft.solve_free(dt, settings.gravity, take_carried_impulse(b, *b.soft.tool), b.v_free); break;
+        case BodyKind::Rigid: b.mesh.solve_free(dt, settings.gravity, b.v_free); break;
         default: b.v_free.resize(0);
     }
     b.v_new = b.v_free;
@@ -159,9 +159,9 @@ void World::integrate() {
                 if (b.skeleton()) integrate_skeleton(*b.hand_model, *b.hand, b.v_new);
                 else hh::integrate(*b.hand_model, *b.hand, b.v_new);
                 break;
-            case BodyKind::Soft: b.soft.integrate(b.state, b.v_new, dt); break;
-            case BodyKind::Rigid: MeshParts::integrate(b.rigid, b.v_new, dt); break;
-            case BodyKind::Kinematic: b.rigid = b.target; break;
+            case BodyKind::Soft: b.soft.integrate(b.v_new, dt); break;
+            case BodyKind::Rigid: b.mesh.integrate(b.v_new, dt); break;
+            case BodyKind::Kinematic: b.mesh.state = b.mesh.target; break;
             default: break;
         }
         b.update_points();
@@ -173,7 +173,7 @@ double World::contact_distance(const Contact& c) const {
     const Body& a = *bodies[c.a.body];
     const Body& b = *bodies[c.b.body];
     const Vec3 pa = c.a.point(a.surface);
-    if (b.kind == BodyKind::Plane) return (pa - b.plane_point).dot(b.plane_normal);
+    if (b.kind == BodyKind::Plane) return (pa - b.plane.point).dot(b.plane.normal);
     return c.normal.dot(pa - c.b.point(b.surface));
 }
 

@@ -32,8 +32,8 @@ constexpr size_t kSharedColumnsBytes = size_t(4) << 20;
 // step moves now, and the gap the contact closes is the one it really crosses.
 Vec3 carried_velocity(const Body& b, const Vec3& x, double dt) {
     if (b.kind != BodyKind::Kinematic) return Vec3::Zero();
-    const Vec3 local = quat_to_matrix(b.rigid.q).transpose() * (x - b.rigid.x_com);
-    return (b.target.x_com + quat_to_matrix(b.target.q) * local - x) / dt;
+    const Vec3 local = quat_to_matrix(b.mesh.state.q).transpose() * (x - b.mesh.state.x_com);
+    return (b.mesh.target.x_com + quat_to_matrix(b.mesh.target.q) * local - x) / dt;
 }
 
 // A contact row's direction in the world: normal, tangent1, tangent2 (rows 3c, 3c + 1, 3c + 2)
@@ -99,7 +99,7 @@ void World::prepare_contacts() {
             for (int k = 0; k < side.count; ++k) {
                 const int v = side.vertex[k];
                 if (b.kind == BodyKind::Rigid) {
-                    ts->push_back({0, sign * side.weight[k], true, b.surface.x[v] - b.rigid.x_com});
+                    ts->push_back({0, sign * side.weight[k], true, b.surface.x[v] - b.mesh.state.x_com});
                 } else {
                     const int base = b.handle_dofs();
                     for (int q = 0; q < 4; ++q) {

@@ -79,7 +79,7 @@ void World::detect_job(int k) {
     if (job.a == job.b)
         detect_self(a.surface, job.a, DetectionSettings{job.reach}, &a.self_exclusions, job.found);
     else if (b.kind == BodyKind::Plane)
-        detect_plane(a.surface, job.a, b.plane_point, b.plane_normal, job.b, DetectionSettings{job.reach}, job.found);
+        detect_plane(a.surface, job.a, b.plane.point, b.plane.normal, job.b, DetectionSettings{job.reach}, job.found);
     else
         detect_pair(a.surface, job.a, b.surface, job.b, DetectionSettings{job.reach}, job.found);
 }

@@ -106,12 +106,12 @@ void World::step() {
 // pose at t to t + dt
 void World::move_kinematic_targets() {
     for (auto& bp : bodies)
-        if (bp->kind == BodyKind::Kinematic && !bp->script.empty()) {
-            const Pose p0 = bp->script.at(time), p1 = bp->script.at(time + settings.dt);
-            bp->target.x_com = p1.position;
-            bp->target.q = p1.quaternion;
-            bp->target.v_com = (p1.position - p0.position) / settings.dt;
-            bp->target.omega = quat_to_rotation_vector(quat_multiply(p1.quaternion, quat_conjugate(p0.quaternion))) / settings.dt;
+        if (bp->kind == BodyKind::Kinematic && !bp->mesh.script.empty()) {
+            const Pose p0 = bp->mesh.script.at(time), p1 = bp->mesh.script.at(time + settings.dt);
+            bp->mesh.target.x_com = p1.position;
+            bp->mesh.target.q = p1.quaternion;
+            bp->mesh.target.v_com = (p1.position - p0.position) / settings.dt;
+            bp->mesh.target.omega = quat_to_rotation_vector(quat_multiply(p1.quaternion, quat_conjugate(p0.quaternion))) / settings.dt;
         }
 }
 
