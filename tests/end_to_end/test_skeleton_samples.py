@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bone_results import lumped_masses
+
 SAMPLES = Path(__file__).resolve().parents[2] / "addon" / "engine" / "sample_scenes"
 
 
@@ -60,23 +62,13 @@ def test_the_procedural_hand_closes_onto_the_block_and_each_bone_rests_where_its
         assert turned(r["bone_pose"][-1, bones[2], 3:]) < 0.8 * turned(r["bone_target"][-1, bones[2], 3:]), finger
     # at rest, every finger bone's coupling k_b (p*_b - x_b) holds its springs' force F_b, with
     # k_b = m_b (2 pi f)^2 (docs/skeleton.md, Section 4) and m_b its nodes' lumped mass
-    masses = lumped_masses(r)
+    masses = lumped_masses(r, scene["material"]["density"])
     f = scene["skeleton"]["drive"]["frequency"]
     for b in range(1, len(r["bone_names"])):
         k = masses[r["bone_nodes"] == b].sum() * (2 * np.pi * f) ** 2
         offset = r["bone_target"][-1, b, :3] - r["bone_pose"][-1, b, :3]
         springs = r["bone_wrench"][-1, b, :3]
         assert np.linalg.norm(k * offset + springs) < 0.03 * np.linalg.norm(springs) + 1e-3, r["bone_names"][b]
-
-
-def lumped_masses(r) -> np.ndarray:
-    """Eq. 2: each tet's mass (density times volume) shared equally by its four nodes."""
-    x, tets = r["rest_nodes"], r["tets"]
-    a, b, c = (x[tets[:, k]] - x[tets[:, 0]] for k in (1, 2, 3))
-    density = json.loads(str(r["scene"]))["material"]["density"]
-    out = np.zeros(len(x))
-    np.add.at(out, tets.ravel(), np.repeat(density * np.einsum("ij,ij->i", np.cross(a, b), c) / 24.0, 4))
-    return out
 
 
 def test_the_grasped_ball_rises_with_the_palm_and_stays_where_the_palm_carries_it(results):
