@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from haptic_hand.engine import mesh
 from haptic_hand.engine import skeleton as sk
@@ -73,3 +74,37 @@ def test_check_rig_reports_each_bones_nodes_and_the_weight_it_carries(scene_dir)
     assert checks["schur_vs_monolithic"]["relative_difference"] < 1e-8
     readable = run_cli("check-rig", str(scene_dir / "scene.json"))
     assert "index_1" in readable.stdout and "rig is ready" in readable.stdout
+
+
+def test_with_the_root_on_the_device_the_hand_follows_it_and_the_fingers_keep_their_pose(scene_dir):
+    """skeleton.root_device, gravity off: the device moves 2 cm along x and turns 0.3 rad about z
+    over 0.3 s; the palm follows it through the coupling, and the keyed finger rides along,
+    its target its keyed pose relative to the palm, carried by the palm's pose."""
+    scene = json.loads((scene_dir / "scene.json").read_text())
+    turn = [0.0, 0.0, np.sin(0.15), np.cos(0.15)]
+    scene.update({"gravity": [0, 0, 0], "frames": 20,
+                  "device": {"trajectory": [{"t": 0.0, "position": [0, 0, 0], "quaternion": [0, 0, 0, 1]},
+                                            {"t": 0.3, "position": [0.02, 0, 0], "quaternion": turn}]}})
+    scene["skeleton"]["root_device"] = True
+    (scene_dir / "device.json").write_text(json.dumps(scene))
+    out = scene_dir / "device.npz"
+    proc = run_cli("simulate", str(scene_dir / "device.json"), "--out", str(out), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    r = np.load(out)
+    palm, device = r["bone_pose"][-1, 0], r["device_pose"][-1]
+    assert np.allclose(r["bone_target"][-1, 0], device, atol=1e-12)
+    assert np.linalg.norm(palm[:3] - device[:3]) < 5e-4 and abs(abs(palm[3:] @ device[3:]) - 1) < 1e-5
+    rig = sk.procedural_hand_skeleton()
+    i3 = rig.index("index_3")
+    keyed_turn = Rotation.from_quat([0.0, np.sin(0.2), 0.0, np.cos(0.2)])
+    # the finger's keyed pose relative to the unmoved palm, carried by the palm's pose at the
+    # start of the last step
+    rest, head1 = r["bone_pose"][0, :, :3], rig.bones[rig.index("index_1")].head
+    keyed = head1 + keyed_turn.apply(rest[i3] - head1)
+    carrier = Rotation.from_quat(r["bone_pose"][-2, 0, 3:])
+    expected = r["bone_pose"][-2, 0, :3] + carrier.apply(keyed - rest[0])
+    assert np.allclose(r["bone_target"][-1, i3, :3], expected, atol=1e-12)
+    # and the hand went along: every bone within 3 mm of its target (the keyed finger's flesh
+    # holds it back most), the little finger, not keyed, carried 2 cm or more with the palm
+    assert np.linalg.norm(r["bone_pose"][-1, :, :3] - r["bone_target"][-1, :, :3], axis=1).max() < 0.003
+    assert np.linalg.norm(r["bone_pose"][-1, rig.index("little_3"), :3] - rest[rig.index("little_3")]) > 0.02
