@@ -151,16 +151,21 @@ def droop_advice(scene: scenes.Scene, rig: dict, result: dict, droop_of=None) ->
 def add_droop(add, scene: scenes.Scene, model: native.HandModel) -> None:
     rig = model.params()
     result = settle(scene.nodes, scene.tets, rig)
-    droop_mm = result["droop"] * 1e3
-    detail = (f"{droop_mm:.1f} mm under gravity with the handle held still (node {result['node']}; the springs "
-              f"stretch {result['springs'] * 1e3:.2f} mm)")
+    add_droop_result(add, scene, rig, result, f"with the handle held still (node {result['node']}")
+
+
+def add_droop_result(add, scene: scenes.Scene, rig: dict, result: dict, held: str, droop_of=None, **values) -> None:
+    """The droop check from a settle's result; `held` says how the hand was held (and where it
+    drooped most), droop_of is droop_advice's, values go into the report."""
+    detail = (f"{result['droop'] * 1e3:.1f} mm under gravity {held}; the springs stretch "
+              f"{result['springs'] * 1e3:.2f} mm)")
     if not result["settled"]:
         detail += f"; still moving after {result['steps']} steps of {SETTLE_DT} s"
     ok = result["droop"] <= DROOP_LIMIT
     if not ok:
-        detail += f", over {DROOP_LIMIT * 1e3:.0f} mm: try {droop_advice(scene, rig, result)}"
+        detail += f", over {DROOP_LIMIT * 1e3:.0f} mm: try {droop_advice(scene, rig, result, droop_of)}"
     add("droop", ok, detail, droop=result["droop"], spring_stretch=result["springs"], droop_node=result["node"],
-        settle_steps=result["steps"])
+        settle_steps=result["steps"], **values)
 
 
 def add_schur(add, model: native.HandModel) -> None:

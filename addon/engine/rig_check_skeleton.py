@@ -51,15 +51,8 @@ def add_droop(add, scene: scenes.Scene, model: ns.SkeletonModel) -> None:
     bones = [{"name": name, "droop": float(displacement[region == b].max(initial=0.0)),
               "carries": float(forces[b] @ gravity / g**2) if g > 0 else 0.0} for b, name in enumerate(names)]
     worst = max(bones, key=lambda b: b["droop"])
-    detail = (f"{result['droop'] * 1e3:.1f} mm under gravity with every bone held still (most at {worst['name']}; "
-              f"the springs stretch {result['springs'] * 1e3:.2f} mm)")
-    if not result["settled"]:
-        detail += f"; still moving after {result['steps']} steps of {rig_check.SETTLE_DT} s"
-    ok = result["droop"] <= rig_check.DROOP_LIMIT
-    if not ok:
-        detail += f", over {rig_check.DROOP_LIMIT * 1e3:.0f} mm: try {rig_check.droop_advice(scene, rig, result, lambda changed: settle(scene, changed)[0]['droop'])}"
-    add("droop", ok, detail, droop=result["droop"], spring_stretch=result["springs"], droop_node=result["node"],
-        settle_steps=result["steps"], bones=bones)
+    rig_check.add_droop_result(add, scene, rig, result, f"with every bone held still (most at {worst['name']}",
+                               lambda changed: settle(scene, changed)[0]["droop"], bones=bones)
     if g > 0:
         error = np.linalg.norm(forces.sum(axis=0) - weight) / np.linalg.norm(weight)
         carried = ", ".join(f"{b['name']} {b['carries'] * 1000:.1f} g" for b in bones)
