@@ -16,7 +16,12 @@ from pathlib import Path
 from .engine import rig_check, simulate
 from .engine import scene as scenes
 
-SAMPLE_SCENE = Path(__file__).resolve().parent / "engine" / "sample_scenes" / "hand_wave.json"
+SAMPLES = Path(__file__).resolve().parent / "engine" / "sample_scenes"
+SAMPLE_SCENE = SAMPLES / "hand_wave.json"
+# the skeleton samples the demo runs, each with the title of its per-finger force plot
+SKELETON_SAMPLES = {"procedural_hand_close": "The 16-bone procedural hand closing its fingers",
+                    "grasp_ball": "A two-finger hand grasping a soft ball and lifting it 3 cm",
+                    "pinch_letter": "A two-finger hand pinching a soft letter I (gravity off)"}
 USER_ERRORS = rig_check.USER_ERRORS
 EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED = 2, 3, 130
 
@@ -86,6 +91,13 @@ def cmd_demo(args) -> int:
     hand_path = plots.hand_plot(result, out_dir / "hand.png")
     print(summary)
     print(f"result:  {result_path}\nsummary: {out_dir / 'summary.txt'}\nforces:  {plot_path}\nhand:    {hand_path}")
+    for name, title in SKELETON_SAMPLES.items():
+        print(f"\ndemo: {name}.json, a hand driven by a skeleton")
+        result = simulate.run(scenes.load(SAMPLES / f"{name}.json"), progress=simulate.text_progress)
+        result_path = simulate.write(result, out_dir / f"{name}.npz")
+        fingers = plots.finger_force_plot(result, out_dir / f"{name}_fingers.png", title)
+        print(simulate.summary(result))
+        print(f"result:  {result_path}\nfingers: {fingers}")
     return 0
 
 
@@ -105,7 +117,7 @@ def main(argv=None) -> int:
     p.add_argument("scene")
     p.add_argument("--json", action="store_true", help="print the report as JSON (always, errors included)")
     p.set_defaults(fn=cmd_check_rig)
-    p = sub.add_parser("demo", help="run the bundled sample scene, write result, summary and plot")
+    p = sub.add_parser("demo", help="run the bundled sample scenes, write results, a summary and plots")
     p.add_argument("--out", default="out/demo")
     p.set_defaults(fn=cmd_demo)
     args = parser.parse_args(argv)

@@ -17,8 +17,8 @@ import sys
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "scene_format.md"
 BEGIN, END = "<!-- parameter table: begin (scripts/param_docs.py writes it) -->", "<!-- parameter table: end -->"
-SECTIONS = ("format", "hand", "material", "springs", "coupling", "dt", "frames", "gravity", "solver", "contact",
-            "haptics", "device", "bodies", "bodies[]")
+SECTIONS = ("format", "hand", "hand.skeleton[]", "material", "springs", "coupling", "dt", "frames", "gravity", "solver",
+            "contact", "haptics", "device", "bodies", "bodies[]", "skeleton")
 
 
 def _import_params():
@@ -59,7 +59,7 @@ def table_markdown() -> str:
     params = _import_params()
 
     def section(p):
-        key = "bodies[]" if p.body else p.keys[0]
+        key = p.element[:-1] if p.element else p.keys[0]
         return SECTIONS.index(key) if key in SECTIONS else len(SECTIONS)
 
     rows = sorted((p for p in params.table() if not p.flags & params.INTERNAL), key=section)

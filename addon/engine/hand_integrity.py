@@ -7,6 +7,11 @@ from __future__ import annotations
 import numpy as np
 
 TEAR_PERSISTS = 0.2  # s: inverted tets for this long are a tear, not a transient of a hard contact
+HANDLE_TEAR = ("The input moved the handle faster than the flesh can follow: slow the device trajectory, lower the "
+               "virtual coupling stiffness or shorten dt")
+SKELETON_TEAR = ("The bones bent or moved further than the tets between them can follow: bend the joints less or more "
+                 "slowly (the sample hand's tets invert beyond about 25 degrees at a knuckle), or give the hand finer "
+                 "tets at its joints")
 
 
 def inverted_tets(positions: np.ndarray, tets: np.ndarray) -> np.ndarray:
@@ -29,11 +34,12 @@ def first_persistent(flags: np.ndarray, frames_needed: int) -> int:
 
 
 def check(positions: np.ndarray, rest: np.ndarray, tets: np.ndarray, handle_pose: np.ndarray, time: np.ndarray,
-          distance: np.ndarray) -> dict:
+          distance: np.ndarray, skeleton: bool = False) -> dict:
     """The verdict: inverted tets per frame, the frame the hand tore (-1: it did not), the frame
     the flesh strayed farther from the handle's rigid motion than the hand is large (-1: never),
     and one warning line for each. distance: per frame, the largest distance of a node from where
-    the handle's rigid motion carries it (simulate.flesh_deformation)."""
+    the handle's rigid motion carries it (simulate.flesh_deformation); skeleton: the hand is
+    driven by bones (the advice names their targets)."""
     inverted = inverted_tets(positions, tets)
     dt = float(time[1] - time[0]) if len(time) > 1 else 1.0
     torn = first_persistent(inverted > 0, max(2, int(np.ceil(TEAR_PERSISTS / dt - 1e-9))))
@@ -43,8 +49,7 @@ def check(positions: np.ndarray, rest: np.ndarray, tets: np.ndarray, handle_pose
     if torn >= 0:
         warnings.append(f"WARNING: the hand tore at frame {torn} (t = {time[torn]:.3f} s): {inverted[torn]} tets "
                         f"inverted for {TEAR_PERSISTS:.1f} s or more, up to {inverted.max()}, {inverted[-1]} at the "
-                        "end. The input moved the handle faster than the flesh can follow: slow the device "
-                        "trajectory, lower the virtual coupling stiffness or shorten dt")
+                        f"end. {SKELETON_TEAR if skeleton else HANDLE_TEAR}")
     if strayed >= 0:
         warnings.append(f"WARNING: the flesh strayed from the handle at frame {strayed} (t = {time[strayed]:.3f} s): "
                         f"a node {distance[strayed]:.3f} m from where the handle's rigid motion carries it, more "

@@ -23,7 +23,9 @@ UI_SCENE, UI_OBJECT, UI_DERIVED, UI_ADVANCED, INTERNAL = 0x20, 0x40, 0x80, 0x100
 FOR_TYPES = {"soft": 0x1000, "rigid": 0x2000, "kinematic": 0x4000, "static": 0x8000, "plane": 0x10000}
 STRUCT_NONE, STRUCT_PARAMS, STRUCT_WORLD_PARAMS, STRUCT_MATERIAL, STRUCT_SESSION_PARAMS = map(
     native_library.STRUCT_NAMES.index, ("", "hh_params", "hh_world_params", "hh_material", "hh_session_params"))
-BODY = "bodies[]."
+BODY = "bodies[]."  # the fields of each body
+BONE = "hand.skeleton[]."  # the fields of each bone of a skeleton given as a list
+ELEMENTS = (BODY, BONE)  # lists of objects whose fields are rows: each object is merged over their defaults
 
 
 class ParamError(ValueError):
@@ -68,13 +70,18 @@ class Param:
         return bool(self.flags & NULLABLE)
 
     @property
+    def element(self) -> str:
+        """The list whose objects hold this field (BODY, BONE), or "" for a field of the scene."""
+        return next((e for e in ELEMENTS if self.json.startswith(e)), "")
+
+    @property
     def body(self) -> bool:
-        return self.json.startswith(BODY)
+        return self.element == BODY
 
     @property
     def keys(self) -> tuple[str, ...]:
-        """The path of keys in the scene (within a body for body fields)."""
-        return tuple((self.json[len(BODY):] if self.body else self.json).split("."))
+        """The path of keys in the scene (within a body or bone for their fields)."""
+        return tuple(self.json[len(self.element):].split("."))
 
     def applies_to(self, body_type: str) -> bool:
         return bool(self.flags & FOR_TYPES.get(body_type, 0))
@@ -201,11 +208,13 @@ def struct_values(s) -> dict:
     return out
 
 
-def defaults(body: bool = False) -> dict:
-    """The scene's defaults as nested dicts (a body's with body=True), from the table."""
+def defaults(body: bool = False, element: str | None = None) -> dict:
+    """The scene's defaults as nested dicts (a body's with body=True, or those of the objects of
+    the list `element`, BODY or BONE), from the table."""
+    element = (BODY if body else "") if element is None else element
     out: dict = {}
     for p in table():
-        if p.body != body or p.flags & INTERNAL:
+        if p.element != element or p.flags & INTERNAL:
             continue
         node = out
         for k in p.keys[:-1]:

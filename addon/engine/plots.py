@@ -1,4 +1,5 @@
-"""Pictures people would rather look at than read: forces over time, step-time breakdown."""
+"""Pictures people would rather look at than read: forces over time (the handle's, a skeleton's
+per finger), the hand at its most deformed frame."""
 
 from __future__ import annotations
 
@@ -92,6 +93,53 @@ def hand_plot(result: dict, path: Path | str, frame: int | None = None) -> Path:
         ax.set_ylabel("y (m)")
         ax.set_zlabel("z (m)")
     fig.axes[0].legend(loc="upper left")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def finger_groups(names, parents) -> dict[str, list[int]]:
+    """A skeleton's bones by finger: each root alone, and each child of a root with everything
+    below it, named by its first bone without the phalanx number (index_1 -> index)."""
+    parents = [int(p) for p in parents]
+
+    def top(b):
+        while parents[b] >= 0 and parents[parents[b]] >= 0:
+            b = parents[b]
+        return b
+
+    groups: dict[str, list[int]] = {}
+    for b in range(len(parents)):
+        first = top(b)
+        groups.setdefault(str(names[first]).rsplit("_", 1)[0] if parents[first] >= 0 else str(names[first]),
+                          []).append(b)
+    return groups
+
+
+def finger_force_plot(result: dict, path: Path | str, title: str = "") -> Path:
+    """A skeleton run's forces per finger over time: the contacts' push on the finger (its bones'
+    regions) and its bones' springs' force, the force its drive holds the flesh with."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = result["time"]
+    fig, (ax_c, ax_s) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for name, bones in finger_groups(result["bone_names"], result["bone_parents"]).items():
+        contact = np.linalg.norm(result["bone_contact_force"][:, bones].sum(axis=1), axis=1)
+        springs = np.linalg.norm(result["bone_wrench"][:, bones, :3].sum(axis=1), axis=1)
+        line, = ax_c.plot(t, contact, label=name)
+        ax_s.plot(t, springs, color=line.get_color(), label=name)
+    ax_c.set_ylabel("contact force on the finger (N)")
+    ax_s.set_ylabel("its bones' spring force (N)")
+    ax_s.set_xlabel("time (s)")
+    for ax in (ax_c, ax_s):
+        ax.grid(alpha=0.3)
+    ax_c.legend(loc="upper left", ncol=3, fontsize=8)
+    fig.suptitle(title or "Forces per finger")
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)

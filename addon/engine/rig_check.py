@@ -1,7 +1,8 @@
 """`check-rig`: checks a hand rig before it is used. It prepares the scene exactly as `simulate`
 does (so it refuses what `simulate` refuses, with the same message), then reports the surface,
 the tets, the handle, how far the hand droops under gravity while the handle is held still, and
-the Schur-complement solve against the monolithic reference on one step of the rig."""
+the Schur-complement solve against the monolithic reference on one step of the rig (a skeleton's
+bones: rig_check_skeleton)."""
 
 from __future__ import annotations
 
@@ -66,6 +67,13 @@ def check(scene: scenes.Scene, progress=None) -> dict:
     vols = meshing.tet_signed_volumes(scene.nodes, scene.tets)
     add("tets", True, f"{len(scene.tets)} tets, {len(scene.nodes)} nodes, volumes {vols.min():.3g} to {vols.max():.3g} m^3",
         n_tets=int(len(scene.tets)), n_nodes=int(len(scene.nodes)), min_volume=float(vols.min()))
+    if scene.skeleton is not None:
+        from . import rig_check_skeleton
+
+        rig_check_skeleton.add_bones(add, scene, model)
+        rig_check_skeleton.add_droop(add, scene, model)
+        rig_check_skeleton.add_schur(add, model)
+        return report
     info = model.info()
     add("handle", True,
         f"{info['n_handle_nodes']} of {info['n_nodes']} nodes captured, mass {info['handle_mass'] * 1000:.1f} g "
@@ -77,16 +85,25 @@ def check(scene: scenes.Scene, progress=None) -> dict:
     return report
 
 
+def settle_params(rig: dict) -> dict:
+    """The rig's parameters for the settle: steps of SETTLE_DT with SETTLE_DAMPING at least."""
+    return {**rig, "dt": SETTLE_DT, "rayleigh_alpha": max(rig.get("rayleigh_alpha", 0.0), SETTLE_DAMPING)}
+
+
 def settle(nodes, tets, rig: dict) -> dict:
     """The hand's static equilibrium under gravity with the handle held at its rest pose, by
-    damped implicit steps of the engine's own co-rotational model until the nodes stop moving.
-    Returns droop (m, the largest node displacement), springs (m, the largest of the handle's
-    nodes: the springs' stretch), node (the one that droops most), steps, settled."""
-    model = native.HandModel(nodes, tets, **{**rig, "dt": SETTLE_DT,
-                                             "rayleigh_alpha": max(rig.get("rayleigh_alpha", 0.0), SETTLE_DAMPING)})
+    damped implicit steps of the engine's own co-rotational model until the nodes stop moving
+    (settle_steps)."""
+    model = native.HandModel(nodes, tets, **settle_params(rig))
     sim = native.HandSimulation(model)
     sim.set_device(model.info()["handle_com"], [0.0, 0.0, 0.0, 1.0], [0.0] * 3, [0.0] * 3, enabled=2)
-    rest = model.nodes
+    return settle_steps(sim, model.nodes, model.handle_nodes())
+
+
+def settle_steps(sim, rest: np.ndarray, held: np.ndarray) -> dict:
+    """Steps sim until its nodes stop moving. Returns droop (m, the largest node displacement),
+    springs (m, the largest of the held nodes: the springs' stretch), node (the one that droops
+    most), steps, settled."""
     x = rest
     for k in range(1, SETTLE_STEPS + 1):
         sim.step()
@@ -96,27 +113,29 @@ def settle(nodes, tets, rig: dict) -> dict:
         displacement = np.linalg.norm(x - rest, axis=1)
         if moved <= max(1e-9, 1e-5 * displacement.max()):
             break
-    return {"droop": float(displacement.max()), "springs": float(displacement[model.handle_nodes()].max()),
+    return {"droop": float(displacement.max()), "springs": float(displacement[held].max()),
             "node": int(np.argmax(displacement)), "steps": k, "settled": bool(moved <= max(1e-9, 1e-5 * displacement.max()))}
 
 
-def droop_advice(scene: scenes.Scene, rig: dict, result: dict) -> str:
+def droop_advice(scene: scenes.Scene, rig: dict, result: dict, droop_of=None) -> str:
     """The fixes for a droop above DROOP_LIMIT, each with the droop it gives: stiffer springs when
     their stretch is most of it; the smallest larger handle radius (of RADIUS_FACTORS) that brings
-    it under, or the best of them; stiffer flesh (the droop of the flesh goes as 1 / E)."""
+    it under, or the best of them (the palm handle); stiffer flesh (the droop of the flesh goes as
+    1 / E). droop_of(rig): the droop of the rig with other parameters (default: settle's)."""
+    droop_of = droop_of or (lambda changed: settle(scene.nodes, scene.tets, changed)["droop"])
     fixes = []
     k = rig["spring_stiffness"]
     if result["springs"] > 0.5 * result["droop"]:
         fixes.append(f"stiffer springs (springs.stiffness about {k * result['springs'] / (0.25 * DROOP_LIMIT):.3g} "
                      f"N/m, now {k:.3g})")
     radius, best = rig["handle_radius"], None
-    for factor in RADIUS_FACTORS:
+    for factor in RADIUS_FACTORS if scene.skeleton is None else ():  # (bones have radii of their own)
         r = radius * factor
         try:
             native.check_handle(scene.nodes, rig["palm_seed"], r)
         except native.InvalidInput:
             break  # it would hold every node
-        best = (r, settle(scene.nodes, scene.tets, {**rig, "handle_radius": r})["droop"])
+        best = (r, droop_of({**rig, "handle_radius": r}))
         if best[1] <= DROOP_LIMIT:
             break
     if best is not None:
@@ -124,7 +143,7 @@ def droop_advice(scene: scenes.Scene, rig: dict, result: dict) -> str:
     flesh = result["droop"] - result["springs"]
     if flesh > 0.5 * result["droop"]:
         e = rig["young_modulus"] * flesh / (0.8 * DROOP_LIMIT)
-        stiffer = settle(scene.nodes, scene.tets, {**rig, "young_modulus": e})["droop"]
+        stiffer = droop_of({**rig, "young_modulus": e})
         fixes.append(f"stiffer flesh (material.young_modulus {e:.3g} Pa droops {stiffer * 1e3:.1f} mm)")
     return ", or ".join(fixes)
 
@@ -132,16 +151,21 @@ def droop_advice(scene: scenes.Scene, rig: dict, result: dict) -> str:
 def add_droop(add, scene: scenes.Scene, model: native.HandModel) -> None:
     rig = model.params()
     result = settle(scene.nodes, scene.tets, rig)
-    droop_mm = result["droop"] * 1e3
-    detail = (f"{droop_mm:.1f} mm under gravity with the handle held still (node {result['node']}; the springs "
-              f"stretch {result['springs'] * 1e3:.2f} mm)")
+    add_droop_result(add, scene, rig, result, f"with the handle held still (node {result['node']}")
+
+
+def add_droop_result(add, scene: scenes.Scene, rig: dict, result: dict, held: str, droop_of=None, **values) -> None:
+    """The droop check from a settle's result; `held` says how the hand was held (and where it
+    drooped most), droop_of is droop_advice's, values go into the report."""
+    detail = (f"{result['droop'] * 1e3:.1f} mm under gravity {held}; the springs stretch "
+              f"{result['springs'] * 1e3:.2f} mm)")
     if not result["settled"]:
         detail += f"; still moving after {result['steps']} steps of {SETTLE_DT} s"
     ok = result["droop"] <= DROOP_LIMIT
     if not ok:
-        detail += f", over {DROOP_LIMIT * 1e3:.0f} mm: try {droop_advice(scene, rig, result)}"
+        detail += f", over {DROOP_LIMIT * 1e3:.0f} mm: try {droop_advice(scene, rig, result, droop_of)}"
     add("droop", ok, detail, droop=result["droop"], spring_stretch=result["springs"], droop_node=result["node"],
-        settle_steps=result["steps"])
+        settle_steps=result["steps"], **values)
 
 
 def add_schur(add, model: native.HandModel) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 from . import bodies as bodies_module
 from . import devices
 from . import mesh as meshing
-from . import native, native_session, params, quaternion
+from . import native, native_session, native_skeleton, params, quaternion, scene_skeleton
 from .embedding import check_embedding
 from .scene_fields import SceneError, check_fields, merge, timed_poses, vector
 
@@ -79,6 +79,8 @@ class Scene:
     # what is suspicious but not refused (a hand far outside the human size range): shown by the
     # command line, check-rig and Blender
     warnings: list = field(default_factory=list)
+    # the hand's bones and what drives them (hand.skeleton, skeleton.*); None: the palm handle
+    skeleton: scene_skeleton.SceneSkeleton | None = None
 
     @property
     def dt(self) -> float:
@@ -160,6 +162,11 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
     except bodies_module.BodyError as e:
         raise SceneError(str(e)) from None
     scene.bodies = parsed
+    scene.skeleton = scene_skeleton.parse(merged, Path(base_dir))
+    if scene.skeleton is not None and merged["haptics"]["enabled"]:
+        raise SceneError("haptics.enabled is true with a skeleton (hand.skeleton): the haptic loop drives the palm "
+                         "handle only: set haptics.enabled to false (the device trajectory then drives the "
+                         "root bone with skeleton.root_device on)")
     return scene
 
 
@@ -215,8 +222,17 @@ def load_hand_geometry(scene: Scene, progress=None) -> None:
 
 
 def build_model(scene: Scene, progress=None) -> native.HandModel:
+    """The hand model: the palm handle's, or a native_skeleton.SkeletonModel for a skeleton."""
     if scene.nodes is None:
         load_hand_geometry(scene, progress)
+    if scene.skeleton is not None:
+        rig = scene.struct_values(params.STRUCT_PARAMS)  # (the palm seed and handle radius are not read)
+        scene_skeleton.check_node_indices(scene.skeleton.skeleton, len(scene.nodes))
+        try:
+            return native_skeleton.SkeletonModel(scene.nodes, scene.tets, scene.skeleton.skeleton,
+                                                 scene.skeleton.drive_scales, **rig)
+        except native.InvalidInput as e:
+            raise scene_skeleton.capture_error(e) from None
     try:
         return native.HandModel(scene.nodes, scene.tets, **scene.engine_params())
     except native.InvalidInput as e:
@@ -230,6 +246,8 @@ def result_bytes(scene: Scene, n_nodes: int) -> int:
     positions of the hand and the soft bodies, poses, and the haptic log."""
     frames = scene.frames
     per_frame = 8 * (3 * n_nodes + 7 * 3 + 6 + 14)
+    if scene.skeleton is not None:  # each bone's pose, target, wrench and contact force
+        per_frame += 8 * len(scene.skeleton.skeleton) * (7 + 7 + 6 + 3)
     for spec in scene.bodies:
         if spec["type"] == "soft" and spec["mesh"] == "box":
             per_frame += 8 * 3 * int(np.prod(np.asarray(spec["cells"]) + 1))
@@ -271,8 +289,8 @@ def _gib(n: float) -> str:
 
 
 def input_files(scene: Scene) -> list[tuple[str, Path]]:
-    """(field, path) of every file a run of the scene reads: the meshes, stored tets and a
-    playback recording (the scene file itself is the caller's)."""
+    """(field, path) of every file a run of the scene reads: the meshes, stored tets, a tracking
+    stream and a playback recording (the scene file itself is the caller's)."""
     out = []
     hand = scene.data["hand"]
     if hand["mesh"] != "procedural":
@@ -285,6 +303,8 @@ def input_files(scene: Scene) -> list[tuple[str, Path]]:
             out.append((f"bodies[{i}].mesh", scene.base_dir / mesh))
         if spec["tets"]:
             out.append((f"bodies[{i}].tets", scene.base_dir / spec["tets"]))
+    if scene.data["skeleton"]["tracking"]:
+        out.append(("skeleton.tracking", scene.base_dir / scene.data["skeleton"]["tracking"]))
     kind, _, arg = scene.data["haptics"]["device"].partition(":")
     if kind == "playback" and arg:
         out.append(("haptics.device", scene.base_dir / arg))

@@ -32,11 +32,13 @@ def merge(defaults: dict, given: dict, where: str) -> dict:
     return out
 
 
-def check_fields(data: dict, body: bool = False, where=None) -> None:
-    """Every table field of a scene (or of one body, body=True) against its JSON type and range;
-    `where` turns a field's path into the name the message gives."""
+def check_fields(data: dict, body: bool = False, where=None, element: str | None = None) -> None:
+    """Every table field of a scene (or of one body, body=True, or of one object of the list
+    `element`) against its JSON type and range; `where` turns a field's path into the name the
+    message gives."""
+    element = (params.BODY if body else "") if element is None else element
     for p in params.table():
-        if p.body == body and not p.flags & params.INTERNAL:
+        if p.element == element and not p.flags & params.INTERNAL:
             try:
                 params.check(p, params.get(data, p), where(p) if where else None)
             except params.ParamError as e:

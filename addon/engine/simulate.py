@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import hand_integrity
+from . import bone_drive, hand_integrity
 from . import native_world, quaternion
 from . import scene as scenes
 from . import session as session_module
@@ -36,17 +36,53 @@ def text_progress(fraction: float, message: str) -> None:
 
 class ScriptedInputs:
     """What drives a scene without haptics: the device trajectory, through the virtual coupling,
-    applied for the step that ends at time t (kinematic bodies follow their scripts natively)."""
+    applied for the step that ends at time t (kinematic bodies follow their scripts natively);
+    a skeleton's bones by their targets (bone_drive), the root on the device if the scene says."""
 
     def __init__(self, scene: scenes.Scene, world, hand: int, model):
         self.world, self.hand = world, hand
         self.device = scene.trajectory(np.array(model.info()["handle_com"]))
         self.device_on = bool(scene.data["device"]["enabled"])
+        self.bones = None
+        if scene.skeleton is not None:
+            coms = [model.bone_info(b)["com"] for b in range(model.n_bones)]
+            self.bones = bone_drive.BoneDrive(scene.skeleton, coms, self.device, self.device_on)
 
-    def apply(self, t: float, dt: float) -> None:
+    def apply(self, t: float, dt: float):
+        """Sets the inputs of the step that ends at t; returns the bones' targets (None: no skeleton)."""
+        if self.bones is not None:
+            return self.bones.apply(self.world, self.hand, t, dt)
         p, q = self.device.pose(t)
         v, w = self.device.velocity(t, dt)
         self.world.set_device(self.hand, p, q, v, w, enabled=self.device_on)
+        return None
+
+
+class BoneRecord:
+    """A skeleton hand's bones frame by frame: poses and targets (centre of mass, quaternion),
+    their springs' wrenches, and the contacts' push on the nodes of each bone's region (the
+    bone's own nodes and the flesh nearest its segment at rest)."""
+
+    def __init__(self, scene: scenes.Scene, model, frames: int):
+        rig = scene.skeleton.skeleton
+        b = len(rig)
+        self.owner = model.node_bones()
+        self.region = rig.regions(scene.nodes, self.owner)
+        self.names, self.parents = np.array(rig.names), np.asarray(rig.parents, dtype=np.int32)
+        self.pose, self.target = np.empty((frames + 1, b, 7)), np.empty((frames + 1, b, 7))
+        self.wrench, self.contact = np.empty((frames + 1, b, 6)), np.empty((frames + 1, b, 3))
+
+    def record(self, k: int, world, hand: int, targets) -> None:
+        p, q, w = world.bone_states(hand)
+        self.pose[k], self.wrench[k] = np.concatenate([p, q], axis=1), w
+        self.target[k] = np.concatenate(targets, axis=1)
+        per_node = world.node_contact_forces(hand)
+        self.contact[k] = [per_node[self.region == bone].sum(axis=0) for bone in range(len(self.names))]
+
+    def arrays(self) -> dict:
+        return {"bone_names": self.names, "bone_parents": self.parents, "bone_nodes": self.owner,
+                "bone_region": self.region, "bone_pose": self.pose, "bone_target": self.target,
+                "bone_wrench": self.wrench, "bone_contact_force": self.contact}
 
 
 def run(scene: scenes.Scene, progress=None) -> dict:
@@ -73,6 +109,7 @@ def run(scene: scenes.Scene, progress=None) -> dict:
     contact_stats = np.zeros((frames, len(CONTACT_FIELDS)))
     cg_iterations = np.zeros(frames, dtype=np.int32)
     body_frames = {b.name: [] for b in others if b.kind != native_world.PLANE}
+    bones = BoneRecord(scene, model, frames) if scene.skeleton is not None else None
 
     def record(k: int, t: float) -> None:
         positions[k] = world.nodes(hand)[0]
@@ -93,14 +130,19 @@ def run(scene: scenes.Scene, progress=None) -> dict:
                 body_frames[b.name].append(np.concatenate([bp, bq]))
 
     record(0, 0.0)
+    if bones is not None:
+        start = world.bone_states(hand)
+        bones.record(0, world, hand, inputs.bones.targets(0.0, (start[0][0], start[1][0])))
     for k in range(frames):
         t = (k + 1) * dt
         if haptics is not None:
             haptics.run_offline(1)
             vis = world.stats()
         else:
-            inputs.apply(t, dt)
+            targets = inputs.apply(t, dt)
             vis = world.step()
+            if bones is not None:
+                bones.record(k + 1, world, hand, targets)
         stats = world.hand_step_stats(hand)
         timings[k] = [stats[f] for f in TIMING_FIELDS]
         cg_iterations[k] = stats["cg_iterations"]
@@ -138,11 +180,12 @@ def run(scene: scenes.Scene, progress=None) -> dict:
         "surface_weights": weights,
         "body_names": np.array([b.name for b in others]),
         "body_types": np.array([b.spec["type"] for b in others]),
+        **(bones.arrays() if bones is not None else {}),
         "machine": np.array(f"{platform.machine()} {platform.processor() or ''} {platform.system()}".strip()),
     })
     # whether the hand stayed whole: a violent input tears it or pulls the flesh off the handle
     verdict = hand_integrity.check(positions, scene.nodes, scene.tets, handle_pose, result["time"],
-                                   flesh_deformation(result))
+                                   flesh_deformation(result), skeleton=bones is not None)
     result.update({"inverted_tets": verdict["inverted_tets"], "torn_frame": np.array(verdict["torn_frame"]),
                    "strayed_frame": np.array(verdict["strayed_frame"]),
                    "warnings": np.array(verdict["warnings"], dtype=str)})
@@ -201,13 +244,32 @@ def write(result: dict, path: Path | str) -> Path:
 
 def flesh_deformation(result: dict) -> np.ndarray:
     """Per frame, the largest distance (m) of a node from where the handle's rigid motion alone
-    would carry it: how much the flesh lags, sags or bulges."""
-    rest, com0 = result["rest_nodes"], result["handle_pose"][0, :3]
+    would carry it (a skeleton's: its region's bone, BoneRecord): how much the flesh lags, sags
+    or bulges."""
+    rest = result["rest_nodes"]
+    if "bone_pose" in result:
+        poses, region = result["bone_pose"], result["bone_region"]
+    else:
+        poses, region = result["handle_pose"][:, None], np.zeros(len(rest), dtype=int)
     out = np.empty(len(result["time"]))
-    for k, pose in enumerate(result["handle_pose"]):
-        rigid = pose[:3] + (rest - com0) @ quaternion.to_matrix(pose[3:]).T
+    for k, frame in enumerate(poses):
+        rigid = np.empty_like(rest)
+        for b, pose in enumerate(frame):
+            mine = region == b
+            rigid[mine] = pose[:3] + (rest[mine] - poses[0, b, :3]) @ quaternion.to_matrix(pose[3:]).T
         out[k] = np.linalg.norm(result["positions"][k] - rigid, axis=1).max()
     return out
+
+
+def bones_summary(result: dict) -> str:
+    """A skeleton hand's bones on the summary's hand line: how many hold how many nodes, and the
+    bone furthest from its target at the end (nothing for the palm handle)."""
+    if "bone_pose" not in result:
+        return ""
+    gap = np.linalg.norm(result["bone_pose"][-1, :, :3] - result["bone_target"][-1, :, :3], axis=1)
+    held = int((result["bone_nodes"] >= 0).sum())
+    return (f" of the root; {len(result['bone_names'])} bones hold {held} nodes, the furthest from its target at the "
+            f"end {result['bone_names'][int(np.argmax(gap))]} ({gap.max() * 1000:.1f} mm)")
 
 
 def summary(result: dict) -> str:
@@ -227,7 +289,7 @@ def summary(result: dict) -> str:
     return "\n".join([
         f"frames: {n_frames} at dt = {result['time'][1]:.4f} s ({result['time'][-1]:.2f} s simulated)",
         f"hand: {len(result['rest_nodes'])} nodes, {len(result['tets'])} tets, "
-        f"{len(result['handle_nodes'])} handle nodes",
+        f"{len(result['handle_nodes'])} handle nodes" + bones_summary(result),
         f"handle travel: up to {travel.max() * 1000:.1f} mm from its start",
         f"flesh deformation (distance from the handle's rigid motion): up to {flesh_deformation(result).max() * 1000:.1f} mm",
         f"coupling force on handle: max {force.max():.3f} N, final {force[-1]:.3f} N",

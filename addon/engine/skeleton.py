@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import quaternion as quat
+
 #: A rigid bone needs at least this many nodes (the palm handle's rule, per bone).
 MIN_BONE_NODES = 4
 
@@ -174,6 +176,14 @@ class Skeleton:
             raise SkeletonError(f"the bones capture all {n} nodes, so nothing of the hand is soft: decrease the "
                                 f"capsule radii")
 
+    def regions(self, rest: np.ndarray, owner: np.ndarray) -> np.ndarray:
+        """Each node's bone for reporting (n,): the bone that holds it (owner >= 0), else the bone
+        whose rest segment is nearest (what a finger's contact forces are summed over)."""
+        rest = _rest_nodes(rest)
+        distances = np.stack([segment_distance(rest, np.asarray(b.head, float), np.asarray(b.tail, float))
+                              for b in self.bones], axis=1)
+        return np.where(np.asarray(owner) >= 0, owner, np.argmin(distances, axis=1)).astype(np.int32)
+
     def bodies(self, rest: np.ndarray, masses: np.ndarray, owner: np.ndarray | None = None) -> list[BoneBody]:
         """Eq. 3 per bone from the lumped masses (n,) (native HandModel.lumped_masses())."""
         rest = _rest_nodes(rest)
@@ -210,6 +220,43 @@ class Skeleton:
                 names.append(self.names[j])
             group[b] = names.index(self.names[j])
         return group, names
+
+
+def pose_bones(skeleton: Skeleton, coms: np.ndarray, turns: list, heads: list) -> tuple[np.ndarray, np.ndarray]:
+    """Forward kinematics of the rig: each bone's handle pose (positions (B, 3) of its centre of
+    mass, quaternions (B, 4)) when bone b turns from rest by turns[b] about its head and its head
+    moves to heads[b]. A None turn turns with the parent (a root: no turn); a None head rides on
+    the parent at the bone's rest head (a root: stays at rest), so the rig keeps its own bone
+    lengths. coms: the bones' rest centres of mass (B, 3)."""
+    motion = [None] * len(skeleton)  # each bone's rigid motion: (turn, rest head, moved head)
+    positions, quaternions = np.empty((len(skeleton), 3)), np.empty((len(skeleton), 4))
+    for b in parents_first(skeleton):
+        head, parent = np.asarray(skeleton.bones[b].head, dtype=float), skeleton.parents[b]
+        inherited = motion[parent] if parent >= 0 else (np.array([0.0, 0.0, 0.0, 1.0]), head, head)
+        turn = inherited[0] if turns[b] is None else np.asarray(turns[b], dtype=float)
+        turn = turn / np.linalg.norm(turn)
+        moved = _moved(inherited, head) if heads[b] is None else np.asarray(heads[b], dtype=float)
+        motion[b] = (turn, head, moved)
+        positions[b] = _moved(motion[b], coms[b])
+        quaternions[b] = turn
+    return positions, quaternions
+
+
+def _moved(motion, x) -> np.ndarray:
+    turn, pivot, moved = motion
+    return moved + quat.to_matrix(turn) @ (np.asarray(x, dtype=float) - pivot)
+
+
+def parents_first(skeleton: Skeleton) -> list[int]:
+    """The bones' indices, every parent before its children."""
+    order, placed = [], set()
+    while len(order) < len(skeleton):
+        for b in range(len(skeleton)):
+            p = skeleton.parents[b]
+            if b not in placed and (p < 0 or p in placed):
+                order.append(b)
+                placed.add(b)
+    return order
 
 
 def _rest_nodes(rest) -> np.ndarray:

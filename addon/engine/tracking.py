@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from . import quaternion as quat
-from .skeleton import Skeleton
+from .skeleton import Skeleton, pose_bones
 
 FORMAT = "haptic_hand.tracking/1"
 CSV_HEADER = ("t", "joint", "x", "y", "z", "qx", "qy", "qz", "qw")
@@ -327,37 +327,10 @@ def bone_targets(stream: TrackingStream, skeleton: Skeleton, coms: np.ndarray, j
     its parent (a root with no joint stays at rest). coms: the bones' rest centres of mass."""
     driven = check_map(stream.layout, skeleton, joint_map)
     p_now, q_now = stream.pose(t)
-    coms = np.asarray(coms, dtype=float)
-    rotation = [None] * len(skeleton)  # each bone's rigid motion: x -> R (x - pivot) + moved pivot
-    positions, quats = np.empty((len(skeleton), 3)), np.empty((len(skeleton), 4))
-    for b in _parents_first(skeleton):
-        bone, j, parent = skeleton.bones[b], driven.get(b), skeleton.parents[b]
-        turn = quat.multiply(q_now[j], quat.conjugate(stream.rest_quaternions[j])) if j is not None else None
-        if parent < 0:
-            pivot = stream.rest_positions[j] if j is not None else np.zeros(3)
-            moved = p_now[j] if j is not None else np.zeros(3)
-            turn = turn if turn is not None else np.array([0.0, 0.0, 0.0, 1.0])
-        else:
-            pivot = np.asarray(bone.head, dtype=float)
-            moved = _apply(rotation[parent], pivot)
-            turn = turn if turn is not None else rotation[parent][0]
-        rotation[b] = (turn, pivot, moved)
-        positions[b] = _apply(rotation[b], coms[b])
-        quats[b] = turn / np.linalg.norm(turn)
-    return positions, quats
-
-
-def _apply(motion, x):
-    turn, pivot, moved = motion
-    return moved + quat.to_matrix(turn) @ (np.asarray(x, dtype=float) - pivot)
-
-
-def _parents_first(skeleton: Skeleton) -> list[int]:
-    order, placed = [], set()
-    while len(order) < len(skeleton):
-        for b in range(len(skeleton)):
-            p = skeleton.parents[b]
-            if b not in placed and (p < 0 or p in placed):
-                order.append(b)
-                placed.add(b)
-    return order
+    turns, heads = [None] * len(skeleton), [None] * len(skeleton)
+    for b, j in driven.items():
+        turns[b] = quat.multiply(q_now[j], quat.conjugate(stream.rest_quaternions[j]))
+        if skeleton.parents[b] < 0:  # the joint's rigid motion carries the root's head
+            heads[b] = p_now[j] + quat.to_matrix(turns[b]) @ (np.asarray(skeleton.bones[b].head, dtype=float)
+                                                               - stream.rest_positions[j])
+    return pose_bones(skeleton, np.asarray(coms, dtype=float), turns, heads)

@@ -94,7 +94,7 @@ def test_a_default_blender_scene_exports_to_the_default_scene(addon):
         content = ("hand.mesh", "hand.tets", "hand.palm_seed", "device.trajectory")  # the scene's own content
         compared = 0
         for p in params.table():
-            if p.body or p.flags & params.INTERNAL or p.json in content:
+            if p.element or p.flags & params.INTERNAL or p.json in content:
                 continue
             assert params.get(got, p) == params.get(cli, p), p.json
             compared += 1
@@ -138,7 +138,7 @@ def add_body(context, name, role, vertices, faces, location):
 def table_values(path) -> dict:
     """Every table field of the scene file at path, default-filled as the engine reads it."""
     scene = scenes.load(path)
-    out = {p.json: params.get(scene.data, p) for p in params.table() if not p.body and not p.flags & params.INTERNAL}
+    out = {p.json: params.get(scene.data, p) for p in params.table() if not p.element and not p.flags & params.INTERNAL}
     for b in scene.bodies:
         for p in params.table():
             if p.body and p.applies_to(b["type"]):

@@ -253,6 +253,102 @@ BAD_SCENES = [
 ]
 
 
+def bones(**change) -> list:
+    """Two bones of the procedural hand's palm and index finger as a scene's bone list; `change`:
+    {index: {field: value}} edits."""
+    out = [{"name": "palm", "head": [0, 0, 0], "tail": [0, 0, -0.075], "radius": 0.03},
+           {"name": "index", "parent": "palm", "head": [0, 0.033, -0.095], "tail": [0, 0.036, -0.161],
+            "radius": 0.0098}]
+    for i, fields in change.items():
+        out[int(i[1:])].update(fields)
+    return out
+
+
+def skeletal(s: dict, **section) -> dict:
+    """The scene with the procedural skeleton and these skeleton.* fields."""
+    return put(put(s, "hand.skeleton", "procedural"), "skeleton", section)
+
+
+def index_keys(name="index_1", **pose) -> list:
+    return [{"t": 0.0, "bones": {name: {"quaternion": [0, 0, 0, 1], **pose}}},
+            {"t": 1.0, "bones": {"index_1": {"quaternion": [0, 0.3, 0, 0.95]}}}]
+
+
+# (name, change, words): the skeleton fields (docs/skeleton.md, Section 8)
+BAD_SKELETONS = [
+    ("skeleton a number", lambda d, s: put(s, "hand.skeleton", 3), 'hand.skeleton = 3 is invalid: use null (the '
+     'palm handle), "procedural"'),
+    ("no bones", lambda d, s: put(s, "hand.skeleton", []), "hand.skeleton = [] has no bones"),
+    ("a bone a string", lambda d, s: put(s, "hand.skeleton", ["palm"]), 'hand.skeleton[0] = "palm" is invalid: each '
+     "bone must be an object"),
+    ("a bone's radius a string", lambda d, s: put(s, "hand.skeleton", bones(b1={"radius": "1"})),
+     "hand.skeleton[1] ('index').radius = \"1\" is invalid: it must be a number or null (m)"),
+    ("a bone without head", lambda d, s: put(s, "hand.skeleton", [{"name": "palm", "tail": [0, 0, -0.07],
+                                                                    "radius": 0.03}]),
+     "hand.skeleton[0] ('palm').head = null is invalid: it must be a list of 3 numbers (m)"),
+    ("a bone's unknown field", lambda d, s: put(s, "hand.skeleton", bones(b1={"length": 0.05})),
+     "unknown field 'hand.skeleton[1] ('index').length'"),
+    ("an unknown parent", lambda d, s: put(s, "hand.skeleton", bones(b1={"parent": "wrist"})),
+     "hand.skeleton[1] ('index').parent = 'wrist' is not a bone of the list (its bones: palm, index)"),
+    ("two bones of one name", lambda d, s: put(s, "hand.skeleton", bones(b1={"name": "palm", "parent": None})),
+     "hand.skeleton[1] is named 'palm' as bone 0 is"),
+    ("the first bone not a root", lambda d, s: put(s, "hand.skeleton", bones(b0={"parent": "index"})),
+     "hand.skeleton[0] ('palm') has parent 'index': the first bone must be a root"),
+    ("a bone with radius and nodes", lambda d, s: put(s, "hand.skeleton", bones(b1={"nodes": [1, 2, 3, 4]})),
+     "hand.skeleton[1] ('index') has both a radius and nodes"),
+    ("a bone with neither", lambda d, s: put(s, "hand.skeleton", bones(b1={"radius": None})),
+     "hand.skeleton[1] ('index') has neither a radius nor nodes"),
+    ("a node in two bones", lambda d, s: put(s, "hand.skeleton", bones(b0={"radius": None, "nodes": [0, 1, 2, 3, 4]},
+                                                                       b1={"radius": None, "nodes": [4, 5, 6, 7]})),
+     "hand.skeleton[1] ('index').nodes holds node 4, which bone 'palm' holds too"),
+    ("node indices not whole", lambda d, s: put(s, "hand.skeleton", bones(b1={"radius": None, "nodes": [1.5]})),
+     "hand.skeleton[1] ('index').nodes = [1.5] is invalid: give a list of tet node indices"),
+    ("a node beyond the tets", lambda d, s: put(s, "hand.skeleton", bones(b1={"radius": None,
+                                                                               "nodes": [1, 2, 3, 5000]})),
+     "hand.skeleton[1] ('index').nodes holds node 5000, but the hand's tets have nodes 0..936"),
+    ("a bone holding 3 nodes", lambda d, s: put(s, "hand.skeleton", bones(b1={"radius": 0.001})),
+     "hand.skeleton: bone 'index'"),
+    ("targets without a skeleton", lambda d, s: put(s, "skeleton.targets", index_keys()),
+     "skeleton.targets drives a skeleton's bones, but hand.skeleton is null"),
+    ("a target naming an unknown bone", lambda d, s: skeletal(s, targets=index_keys("indx_1")),
+     "skeleton.targets[0].bones names 'indx_1', which is not a bone of hand.skeleton (its bones: palm, thumb_1"),
+    ("targets an object", lambda d, s: skeletal(s, targets={"t": 0}), "skeleton.targets must be a list of keys"),
+    ("a target time backwards", lambda d, s: skeletal(s, targets=index_keys()[::-1]),
+     "skeleton.targets[1].t = 0.0 s comes after 1.0 s: key times must strictly increase"),
+    ("a target quaternion of strings", lambda d, s: skeletal(s, targets=index_keys(quaternion=["0", 0, 0, 1])),
+     "skeleton.targets[0].bones.index_1.quaternion must be a list of 4 numbers"),
+    ("a target with a stray field", lambda d, s: skeletal(s, targets=index_keys(scale=[1, 1, 1])),
+     "skeleton.targets[0].bones.index_1 = {"),
+    ("a position in one key only", lambda d, s: skeletal(s, targets=index_keys(position=[0, 0, 0])),
+     "skeleton.targets: bone 'index_1' has a position in some keys and not in others"),
+    ("tracking file missing", lambda d, s: skeletal(s, tracking="hand.csv"), "skeleton.tracking: "),
+    ("tracking file not a stream", lambda d, s: skeletal(s, tracking=write_text(d, "bad.csv", "t,joint\n")),
+     "skeleton.tracking: "),
+    ("tracking and targets", lambda d, s: skeletal(s, targets=index_keys(), tracking=write_mano(d)),
+     "skeleton.targets and skeleton.tracking both drive the bones: give one of them"),
+    ("a map without a stream", lambda d, s: skeletal(s, tracking_map={"wrist": "palm"}),
+     "skeleton.tracking_map is given without skeleton.tracking"),
+    ("a map to an unknown bone", lambda d, s: skeletal(s, tracking=write_mano(d), tracking_map={"wrist": "hand"}),
+     "skeleton.tracking_map: joint map: joint 'wrist' drives 'hand', which is not a bone of the skeleton"),
+    ("the procedural map on other bones", lambda d, s: put(put(s, "hand.skeleton", bones()), "skeleton.tracking",
+                                                           write_mano(d)),
+     "give skeleton.tracking_map for this skeleton's bones"),
+    ("haptics with a skeleton", lambda d, s: put(skeletal(s), "haptics.enabled", True),
+     "haptics.enabled is true with a skeleton"),
+]
+BAD_SCENES += BAD_SKELETONS
+
+
+def write_mano(d: Path) -> str:
+    """A one-sample MANO stream at rest, every joint at the origin."""
+    from haptic_hand.engine import tracking
+
+    layout = tracking.MANO
+    zeros, unit = np.zeros((1, len(layout.joints), 3)), np.tile([0.0, 0.0, 0.0, 1.0], (1, len(layout.joints), 1))
+    tracking.write(d / "mano.csv", tracking.TrackingStream(layout, np.zeros(1), zeros, unit, zeros[0], unit[0]))
+    return "mano.csv"
+
+
 @pytest.fixture
 def scene_dir(tmp_path):
     shutil.copy(HAND_TETS, tmp_path / "hand_tets.npz")

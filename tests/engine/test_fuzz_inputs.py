@@ -25,8 +25,9 @@ json_scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12),
                                           "plane", "bottom", "cholesky", "playback:x.csv", "5e4", "no"]))
 json_values = st.recursive(json_scalars, lambda inner: st.one_of(
     st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=6), inner, max_size=4)), max_leaves=10)
-FIELDS = [p.json for p in params.table() if not p.body and not p.flags & params.INTERNAL]
+FIELDS = [p.json for p in params.table() if not p.element and not p.flags & params.INTERNAL]
 BODY_FIELDS = [p.json[len(params.BODY):] for p in params.table() if p.body]
+BONE_FIELDS = [p.json[len(params.BONE):] for p in params.table() if p.element == params.BONE]
 
 
 def sections(defaults: dict, where: str = "") -> list[str]:
@@ -66,6 +67,37 @@ def bodies(draw):
 
 
 @st.composite
+def bone_lists(draw):
+    """Bone lists near a valid palm and finger of the procedural hand, fields changed at random."""
+    out = [{"name": "palm", "head": [0, 0, 0], "tail": [0, 0, -0.075], "radius": 0.03},
+           {"name": "index_1", "parent": "palm", "head": [0, 0.033, -0.095], "tail": [0, 0.036, -0.161],
+            "radius": 0.0098}]
+    for path, value in draw(st.lists(st.tuples(st.sampled_from(BONE_FIELDS + ["junk"]), json_values), max_size=2)):
+        put(out[draw(st.integers(0, 1))], path, value)
+    return draw(st.one_of(st.just(out), st.just(out[:1]), json_values)) if draw(st.integers(0, 4)) == 0 else out
+
+
+@st.composite
+def skeleton_section(draw):
+    keys = [{"t": 0.0, "bones": {"index_1": {"quaternion": [0, 0, 0, 1]}}},
+            {"t": 0.05, "bones": {"index_1": {"quaternion": [0, 0.2, 0, 0.98]}, "palm": {"position": [0, 0, 0.001]}}}]
+    section = {"targets": keys, "root_device": draw(st.booleans()), "drive": {"prescribed": draw(st.booleans())}}
+    for path, value in draw(st.lists(st.tuples(st.sampled_from(["targets", "targets.0", "targets.1.bones",
+                                                                "targets.1.bones.index_1", "tracking", "tracking_map",
+                                                                "root_device", "drive.prescribed"]), json_values),
+                                     max_size=2)):
+        keys_path = path.split(".")
+        if len(keys_path) > 1 and keys_path[1].isdigit():  # inside a key of the list, if it still is one
+            targets = section["targets"]
+            key = targets[int(keys_path[1])] if isinstance(targets, list) and len(targets) > int(keys_path[1]) else None
+            if isinstance(key, dict):
+                put(key, ".".join(keys_path[2:]) or "t", value)
+        else:
+            put(section, path, value)
+    return section
+
+
+@st.composite
 def scenes_json(draw):
     data = {"format": "haptic_hand.scene/1", "hand": {"mesh": "procedural", "tets": "hand_tets.npz"}, "frames": 2}
     for path, value in draw(st.lists(st.tuples(st.sampled_from(FIELDS + ["junk", "hand.junk"]), json_values),
@@ -73,6 +105,9 @@ def scenes_json(draw):
         put(data, path, value)
     if draw(st.booleans()):
         data["bodies"] = draw(st.lists(bodies(), max_size=2))
+    if draw(st.integers(0, 2)) == 0:  # a skeleton: the procedural one or a bone list, and what drives it
+        data["hand"]["skeleton"] = draw(st.one_of(st.just("procedural"), bone_lists()))
+        data["skeleton"] = draw(skeleton_section())
     if draw(st.integers(0, 3)) == 0:  # a whole section of any JSON type: the hand as a string, ...
         put(data, draw(st.sampled_from(SECTIONS)), draw(json_values))
     return draw(json_values) if draw(st.integers(0, 19)) == 0 else data
@@ -97,6 +132,20 @@ def test_an_arbitrary_scene_runs_or_is_refused_cleanly(scene_dir, data):
         simulate.run(scene)
     except rig_check.USER_ERRORS as e:
         assert str(e)  # a message, never an empty one
+
+
+@settings(FUZZ, max_examples=60)
+@given(skeleton=st.one_of(st.just("procedural"), bone_lists()), section=skeleton_section())
+def test_an_arbitrary_skeleton_scene_runs_or_is_refused_cleanly(scene_dir, skeleton, section):
+    """Only the skeleton's fields changed, so most of these scenes reach the run."""
+    data = {"format": "haptic_hand.scene/1", "frames": 2, "skeleton": section,
+            "hand": {"mesh": "procedural", "tets": "hand_tets.npz", "skeleton": skeleton}}
+    try:
+        scene = scenes.from_dict(json.loads(json.dumps(data)), scene_dir)
+        rig_check.prepare(scene)
+        simulate.run(scene)
+    except rig_check.USER_ERRORS as e:
+        assert str(e)
 
 
 any_float = st.floats(allow_nan=True, allow_infinity=True, allow_subnormal=False, width=64)

@@ -69,7 +69,7 @@ def test_the_ctypes_structures_have_the_header_layout():
 def test_a_default_filled_scene_is_the_table():
     scene = scenes.from_dict({"format": scenes.FORMAT})
     for p in params.table():
-        if not p.body and not p.flags & params.INTERNAL and not p.flags & params.REQUIRED:
+        if not p.element and not p.flags & params.INTERNAL and not p.flags & params.REQUIRED:
             assert params.get(scene.data, p) == p.default, p.json
     # and its engine parameters are the C defaults, field for field
     c = c_defaults(params.STRUCT_PARAMS)
@@ -105,7 +105,7 @@ def _outside(p) -> float:
     return math.inf
 
 
-SCENE_ROWS = [p for p in params.table() if not p.body and not p.flags & params.INTERNAL
+SCENE_ROWS = [p for p in params.table() if not p.element and not p.flags & params.INTERNAL
               and p.kind in params.NUMERIC_KINDS]
 
 

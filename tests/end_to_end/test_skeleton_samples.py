@@ -1,0 +1,107 @@
+"""The skeleton sample scenes (addon/engine/sample_scenes/, written by scripts/skeleton_samples.py)
+run through the command line, and do what they show (docs/skeleton.md, Section 8):
+
+- procedural_hand_close: the 16-bone procedural hand closes by keyed targets without tearing;
+  the fingers that meet the soft block stop on it, the others reach their targets, and every
+  bone at rest is where its drive balances its springs (x_b = p*_b + F_b / k_b);
+- grasp_ball: the two-finger hand lifts a soft ball off the ground by the palm's lift and
+  holds it where the palm carries it;
+- pinch_letter: the thumb and the index finger pinch a soft letter with equal and opposite
+  forces (gravity off), and the letter stays put.
+"""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bone_results import lumped_masses
+
+SAMPLES = Path(__file__).resolve().parents[2] / "addon" / "engine" / "sample_scenes"
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    """Each sample, run once through `simulate`."""
+    out = {}
+    d = tmp_path_factory.mktemp("samples")
+    for name in ("procedural_hand_close", "grasp_ball", "pinch_letter"):
+        proc = subprocess.run([sys.executable, "-m", "haptic_hand", "simulate", str(SAMPLES / f"{name}.json"), "--out",
+                               str(d / f"{name}.npz"), "--quiet"], capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        out[name] = dict(np.load(d / f"{name}.npz"))
+        out[name]["stdout"] = proc.stdout
+    return out
+
+
+def turned(quaternions) -> np.ndarray:
+    """Each quaternion's angle from the identity (degrees)."""
+    return 2 * np.degrees(np.arccos(np.clip(np.abs(quaternions[..., 3]), 0, 1)))
+
+
+def bone(result, name: str) -> int:
+    return list(result["bone_names"]).index(name)
+
+
+def test_the_procedural_hand_closes_onto_the_block_and_each_bone_rests_where_its_drive_balances(results):
+    r = results["procedural_hand_close"]
+    scene = json.loads(str(r["scene"]))
+    assert r["inverted_tets"].max() == 0 and "WARNING" not in r["stdout"]
+    # the fingers the block does not stop reach most of their keyed turn (the flesh holds them back
+    # by what their drives yield)
+    for free in ("thumb_3", "little_3"):
+        b = bone(r, free)
+        assert turned(r["bone_pose"][-1, b, 3:]) > 0.75 * turned(r["bone_target"][-1, b, 3:]), free
+    # index, middle and ring press the block and stop short of their targets
+    for finger in ("index", "middle", "ring"):
+        bones = [bone(r, f"{finger}_{k}") for k in (1, 2, 3)]
+        assert np.linalg.norm(r["bone_contact_force"][-1, bones].sum(axis=0)) > 1.0, finger
+        assert turned(r["bone_pose"][-1, bones[2], 3:]) < 0.8 * turned(r["bone_target"][-1, bones[2], 3:]), finger
+    # at rest, every finger bone's coupling k_b (p*_b - x_b) holds its springs' force F_b, with
+    # k_b = m_b (2 pi f)^2 (docs/skeleton.md, Section 4) and m_b its nodes' lumped mass
+    masses = lumped_masses(r, scene["material"]["density"])
+    f = scene["skeleton"]["drive"]["frequency"]
+    for b in range(1, len(r["bone_names"])):
+        k = masses[r["bone_nodes"] == b].sum() * (2 * np.pi * f) ** 2
+        offset = r["bone_target"][-1, b, :3] - r["bone_pose"][-1, b, :3]
+        springs = r["bone_wrench"][-1, b, :3]
+        assert np.linalg.norm(k * offset + springs) < 0.03 * np.linalg.norm(springs) + 1e-3, r["bone_names"][b]
+
+
+def test_the_grasped_ball_rises_with_the_palm_and_stays_where_the_palm_carries_it(results):
+    r = results["grasp_ball"]
+    scene = json.loads(str(r["scene"]))
+    lifted = round(scene["skeleton"]["targets"][-1]["t"] / scene["dt"])  # the frame the palm's lift ends
+    ball = r["body_ball_positions"].mean(axis=1)
+    palm = r["bone_pose"][:, 0, :3]
+    lift = palm[-1, 2] - palm[0, 2]
+    assert lift == pytest.approx(scene["skeleton"]["targets"][-1]["bones"]["palm"]["position"][2], abs=1e-3)
+    # off the ground by about the palm's lift (the ground is where it started)
+    assert abs((ball[-1, 2] - ball[0, 2]) - lift) < 0.003
+    assert r["body_ball_positions"][-1][:, 2].min() - r["body_ground_plane"][2] > 0.9 * lift
+    # held: from the end of the lift on, within 3 mm of where the palm carries it
+    carried = ball[lifted:] - palm[lifted:]
+    assert np.linalg.norm(carried - carried[0], axis=1).max() < 0.003
+    # by the two fingers alone, each pressing it with the same force from its side
+    thumb, index = r["bone_contact_force"][-1, bone(r, "thumb")], r["bone_contact_force"][-1, bone(r, "index")]
+    assert np.linalg.norm(r["bone_contact_force"][-1, bone(r, "palm")]) == 0.0
+    assert thumb[0] < -0.1 and index[0] > 0.1
+
+
+def test_the_pinched_letter_is_held_between_equal_and_opposite_finger_forces(results):
+    """Gravity off and the letter touched by the two fingers only: once still, the letter's
+    momentum balance makes the thumb's push the index finger's, opposite, within a few %."""
+    r = results["pinch_letter"]
+    assert json.loads(str(r["scene"]))["gravity"] == [0.0, 0.0, 0.0]
+    thumb, index = r["bone_contact_force"][-1, bone(r, "thumb")], r["bone_contact_force"][-1, bone(r, "index")]
+    assert np.linalg.norm(thumb) > 1.0  # a real pinch, newtons
+    assert np.linalg.norm(thumb + index) < 0.03 * np.linalg.norm(thumb)
+    assert thumb[0] < 0 < index[0]  # each finger pushed back outwards by the letter
+    assert np.linalg.norm(r["bone_contact_force"][-1, bone(r, "palm")]) == 0.0
+    # still and in place: the letter's centre within 1 mm of its start, no longer moving
+    letter = r["body_letter_positions"].mean(axis=1)
+    assert np.linalg.norm(letter[-1] - letter[0]) < 0.001
+    assert np.linalg.norm(letter[-1] - letter[-6]) < 1e-5
