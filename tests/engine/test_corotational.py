@@ -58,20 +58,26 @@ def force_probe():
     return sc.nodes, sc.tets, native.HandSimulation(model), model.lumped_masses(), np.array(model.info()["handle_com"])
 
 
+def forces_at(probe, x, q):
+    """The engine's elastic forces at x (handle turned to q) and the reference's, with det F."""
+    rest, tets, sim, masses, com = probe
+    # no reset: the element rotations of the previous state are the warm starts, as after a teleport
+    sim.set_state(x, np.zeros_like(x), handle_position=com, handle_quaternion=q,
+                  handle_velocity=np.zeros(3), handle_angular_velocity=np.zeros(3))
+    sim.set_device(enabled=False)
+    sim.step()
+    return masses[:, None] * sim.velocities() / DT, *reference_forces(rest, tets, x)
+
+
 def test_elastic_forces_after_a_jump_to_a_rotated_noisy_state_match_numpy():
-    rest, tets, sim, masses, com = force_probe()
+    probe = force_probe()
+    rest, com = probe[0], probe[4]
     rng = np.random.default_rng(37)
     inverted = 0
     for trial in range(16):
         rot, q = random_rotation(rng)
         x = com + (rest - com) @ rot.T + 1e-3 * rng.standard_normal(rest.shape)
-        # no reset: the element rotations of the previous state are the warm starts, as after a teleport
-        sim.set_state(x, np.zeros_like(x), handle_position=com, handle_quaternion=q,
-                      handle_velocity=np.zeros(3), handle_angular_velocity=np.zeros(3))
-        sim.set_device(enabled=False)
-        sim.step()
-        engine = masses[:, None] * sim.velocities() / DT
-        expected, det = reference_forces(rest, tets, x)
+        engine, expected, det = forces_at(probe, x, q)
         inverted += int((det <= 0).sum())
         scale = np.abs(expected).max()
         assert np.abs(engine - expected).max() < 1e-7 * scale, f"trial {trial}"
@@ -91,17 +97,13 @@ def test_elastic_forces_under_large_deformations_match_numpy():
     """Thousands of elements in large deformations, stretched and squashed up to 3x and 5x in
     random directions, turned anywhere, a third of them inverted: 48 states of the 2468-tet hand,
     each a random deformation of the whole hand with 1 mm of noise, warm-started from the last."""
-    rest, tets, sim, masses, com = force_probe()
+    probe = force_probe()
+    rest, com = probe[0], probe[4]
     rng = np.random.default_rng(2)
     inverted = elements = 0
     for trial in range(48):
         x = com + (rest - com) @ random_large_deformation(rng).T + 1e-3 * rng.standard_normal(rest.shape)
-        sim.set_state(x, np.zeros_like(x), handle_position=com, handle_quaternion=[0, 0, 0, 1],
-                      handle_velocity=np.zeros(3), handle_angular_velocity=np.zeros(3))
-        sim.set_device(enabled=False)
-        sim.step()
-        engine = masses[:, None] * sim.velocities() / DT
-        expected, det = reference_forces(rest, tets, x)
+        engine, expected, det = forces_at(probe, x, [0, 0, 0, 1])
         inverted += int((det <= 0).sum())
         elements += len(det)
         assert np.abs(engine - expected).max() < 1e-7 * np.abs(expected).max(), f"trial {trial}"
