@@ -175,3 +175,33 @@ def test_a_scenes_glove_pushes_the_frames_it_renders_and_poses_the_others(feedba
         assert np.array_equal(r["haptic_bone_device"][-1, b], r["bone_target"][-1, b]), b
     if root_device:  # the root's script is the device trajectory: at the root's rest centre of mass
         assert np.abs(r["bone_target"][:, 0, :3] - r["bone_pose"][0, 0, :3]).max() < 1e-15
+
+
+@pytest.mark.parametrize("sample", ["pinch_letter", "grasp_ball"])
+def test_the_samples_settle_on_the_tables_soft_glove(sample):
+    """The two-finger samples with the haptic loop on and the table's glove (a relaxed finger:
+    20 g at 50 N/m; the root on the simulated arm, 1 kg at 300 N/m). The fingers yield to what
+    they feel, so they close on nothing; once the glove's scripts hold still, the hand does too:
+    over the last third of a second every bone's springs' force on the visual-loop bone stays put,
+    each proxy at rest feels it, and each frame sits F / k off its script, its arm's spring
+    holding its felt force (2 % of the largest felt force). (With each bone's free-space reference continued with the
+    acceleration of its last two steps, the pinch's bones' springs' force swung between 0.03 and
+    11 N from frame to frame and the grasp's haptic step's force became non-finite.)"""
+    import json
+
+    from haptic_hand.engine import scene as scenes
+    from haptic_hand.engine import simulate
+
+    data = json.loads((SAMPLES / f"{sample}.json").read_text())
+    data["haptics"] = {"enabled": True, "feedback": "bones"}
+    scene = scenes.from_dict(data, SAMPLES)
+    r = simulate.run(scene)
+    h = scene.data["haptics"]
+    k = np.array([h["arm"]["stiffness"]] + [h["glove"]["stiffness"]] * 2)
+    wrench, felt = r["bone_wrench"][-10:, :, :3], r["haptic_bone_feedback"][-1, :, :3]
+    scale = np.linalg.norm(felt, axis=1).max()
+    assert scale > 0.1  # the fingers hold their flesh bent (and with gravity, the hand's weight)
+    assert np.linalg.norm(wrench - wrench[-1], axis=2).max() < 0.02 * scale
+    assert np.linalg.norm(felt - wrench[-1], axis=1).max() < 0.02 * scale
+    off = r["haptic_bone_device"][-1, :, :3] - r["bone_target"][-1, :, :3]
+    assert (np.linalg.norm(off - felt / k[:, None], axis=1) < 0.02 * scale / k).all()
