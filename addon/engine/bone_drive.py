@@ -17,6 +17,14 @@ from .scene import Trajectory
 from .scene_skeleton import SceneSkeleton
 
 
+def for_scene(scene, model) -> "BoneDrive":
+    """The bones' drive of a scene (scene.Scene) on its model (which gives the bones' rest
+    centres of mass and the root's, which the device trajectory is relative to)."""
+    coms = [model.bone_info(b)["com"] for b in range(model.n_bones)]
+    device = scene.trajectory(np.array(model.info()["handle_com"]))
+    return BoneDrive(scene.skeleton, coms, device, bool(scene.data["device"]["enabled"]))
+
+
 class BoneDrive:
     def __init__(self, rig: SceneSkeleton, coms: np.ndarray, device: Trajectory, device_on: bool):
         """coms: the bones' rest centres of mass (B, 3), as the model computed them."""

@@ -93,6 +93,7 @@ _lib = binding({
     "hh_session_push_device_frames": ([_vp, _i, _pd, _pd], _i),
     "hh_session_device_feedback": ([_vp, _i, _pd, _i, _pd, _pd], _i),
     "hh_session_device_simulated_glove": ([_vp, _i, _pd, _pd, _pd, _i, _d, _d, _d, _d], _i),
+    "hh_session_device_simulated_glove_arms": ([_vp, _i, _pd, _pd, _pd, _i, _pd, _pi, _d], _i),
     "hh_session_set_feedback_groups": ([_vp, _i, _pi, _i], _i),
     "hh_session_frame_bones": ([_vp, _i, _pd, _pd, _pd, _pd], _i),
     "hh_session_frame_groups": ([_vp, _i, _pd], _i),
@@ -270,18 +271,25 @@ class NativeSession:
         return bones, groups, t.value
 
     def device_simulated_glove(self, times, positions, quaternions=None, arm_mass=None, arm_stiffness=None,
-                               arm_damping=None, fail_at=math.inf) -> None:
-        """The simulated glove user: one simulated arm per bone (settings None: the table's
-        haptics.arm.*) following timed poses positions (n, B, 3), quaternions (n, B, 4) or None."""
-        arm = table.defaults()["haptics"]["arm"]
+                               arm_damping=None, fail_at=math.inf, arms=None, posed=None) -> None:
+        """The simulated glove user: one simulated arm per bone following timed poses positions
+        (n, B, 3), quaternions (n, B, 4) or None. Every arm alike (settings None: the table's
+        haptics.glove.*), or arms (B, 3) of their own (mass, stiffness, damping); posed (B,) bools
+        (None: none): frames that follow their poses exactly and feel nothing."""
+        glove = table.defaults()["haptics"]["glove"]
         b = self.n_bones
         t = _f64(times, None, "times").reshape(-1)
         p = _f64(positions, (len(t), b, 3), "glove positions")
         q = None if quaternions is None else _f64(quaternions, (len(t), b, 4), "glove quaternions")
-        _check(_lib().hh_session_device_simulated_glove(
-            self._handle, b, _ptr(t), _ptr(p), _ptr(q), len(t), float(arm["mass"] if arm_mass is None else arm_mass),
-            float(arm["stiffness"] if arm_stiffness is None else arm_stiffness),
-            float(arm["damping"] if arm_damping is None else arm_damping), float(fail_at)))
+        if arms is None:
+            arm = [glove[k] if v is None else v for k, v in (("mass", arm_mass), ("stiffness", arm_stiffness),
+                                                             ("damping", arm_damping))]
+            arms = np.tile(np.array(arm, dtype=float), (b, 1))
+        arms = _f64(arms, (b, 3), "glove arms")
+        flags = None if posed is None else np.ascontiguousarray(np.asarray(posed).reshape(b), dtype=np.int32)
+        _check(_lib().hh_session_device_simulated_glove_arms(
+            self._handle, b, _ptr(t), _ptr(p), _ptr(q), len(t), _ptr(arms),
+            None if flags is None else _ptr(flags, ctypes.c_int), float(fail_at)))
 
     def set_feedback_groups(self, group_of_bone, n_groups: int | None = None) -> None:
         """Groups of bones whose feedback is summed (each bone's group 0..G-1, or -1 for none;

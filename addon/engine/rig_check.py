@@ -40,7 +40,7 @@ def prepare(scene: scenes.Scene, progress=None):
     if scene.data["haptics"]["enabled"]:
         haptics = session_module.create(world, hand, scene, log_capacity=16)
         try:
-            helper = session_module.attach_device(haptics, scene, np.array(model.info()["handle_com"]))
+            helper = session_module.attach_device(haptics, scene, model)
             if helper is not None:
                 helper.stop()
         finally:

@@ -16,7 +16,7 @@ import numpy as np
 from . import bodies as bodies_module
 from . import devices
 from . import mesh as meshing
-from . import native, native_session, native_skeleton, params, quaternion, scene_skeleton
+from . import native, native_session, native_skeleton, params, quaternion, scene_feedback, scene_skeleton
 from .embedding import check_embedding
 from .scene_fields import SceneError, check_fields, merge, timed_poses, vector
 
@@ -81,6 +81,8 @@ class Scene:
     warnings: list = field(default_factory=list)
     # the hand's bones and what drives them (hand.skeleton, skeleton.*); None: the palm handle
     skeleton: scene_skeleton.SceneSkeleton | None = None
+    # what the haptic loop renders and a run logs (haptics.feedback, haptics.groups)
+    feedback: scene_feedback.Feedback = field(default_factory=scene_feedback.Feedback)
 
     @property
     def dt(self) -> float:
@@ -163,10 +165,7 @@ def from_dict(data: dict, base_dir: Path | str = ".") -> Scene:
         raise SceneError(str(e)) from None
     scene.bodies = parsed
     scene.skeleton = scene_skeleton.parse(merged, Path(base_dir))
-    if scene.skeleton is not None and merged["haptics"]["enabled"]:
-        raise SceneError("haptics.enabled is true with a skeleton (hand.skeleton): the haptic loop drives the palm "
-                         "handle only: set haptics.enabled to false (the device trajectory then drives the "
-                         "root bone with skeleton.root_device on)")
+    scene.feedback = scene_feedback.parse(merged, scene.skeleton)
     return scene
 
 
@@ -247,7 +246,10 @@ def result_bytes(scene: Scene, n_nodes: int) -> int:
     frames = scene.frames
     per_frame = 8 * (3 * n_nodes + 7 * 3 + 6 + 14)
     if scene.skeleton is not None:  # each bone's pose, target, wrench and contact force
-        per_frame += 8 * len(scene.skeleton.skeleton) * (7 + 7 + 6 + 3)
+        b = len(scene.skeleton.skeleton)
+        per_frame += 8 * b * (7 + 7 + 6 + 3)
+        if scene.data["haptics"]["enabled"]:  # each bone's device frame and felt wrench, each group's
+            per_frame += 8 * (b * (7 + 6) + 6 * len(scene.feedback.group_names))
     for spec in scene.bodies:
         if spec["type"] == "soft" and spec["mesh"] == "box":
             per_frame += 8 * 3 * int(np.prod(np.asarray(spec["cells"]) + 1))

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import devices
-from . import native_world, params
+from . import devices, glove
+from . import native_world, params, scene_feedback
 from . import scene as scenes
 from .native_session import LOG_COLUMNS, NativeSession, log_arrays
 from .scene_world import build_world
@@ -31,12 +31,19 @@ def create(world, hand: int, scene: scenes.Scene, log_capacity: int = 1 << 16) -
                          **scene.struct_values(params.STRUCT_SESSION_PARAMS))
 
 
-def attach_device(session: NativeSession, scene: scenes.Scene, handle_com: np.ndarray, name: str | None = None):
+def attach_device(session: NativeSession, scene: scenes.Scene, model, name: str | None = None):
     """Gives the session the device named in the scene (or `name`); returns a host-side helper
-    that must be stopped with the session (the HID reader), or None."""
+    that must be stopped with the session (the HID reader), or None. A skeleton hand's is a glove
+    (glove.py): one frame per bone."""
     h = scene.data["haptics"]
     kind, _, arg = str(name or h["device"]).partition(":")
     fail_at = math.inf if h["fail_at"] is None else float(h["fail_at"])
+    if scene.skeleton is not None and (session.n_bones > 1 or kind == "simulated"):
+        if session.n_bones > 1:
+            scene_feedback.check_glove_session(kind, scene.skeleton)
+        glove.attach(session, scene, model, kind, fail_at)
+        return None
+    handle_com = np.array(model.info()["handle_com"])
     if kind == "simulated":
         traj = scene.trajectory(handle_com)
         arm = h["arm"]
@@ -96,8 +103,7 @@ class LiveSession:
             scene.data["haptics"]["rate"] = float(haptic_rate)
         self.world, self.hand, self.model, others, _ = build_world(scene, progress=progress)
         self.native = create(self.world, self.hand, scene)
-        handle_com = np.array(self.model.info()["handle_com"])
-        self._helper = attach_device(self.native, scene, handle_com, device)
+        self._helper = attach_device(self.native, scene, self.model, device)
         self.body_names = ["hand"] + [b.name for b in others]
         self._index = {"hand": self.hand, **{b.name: b.index for b in others}}
         self._kinds = {name: self.world.body_kind(i) for name, i in self._index.items()}

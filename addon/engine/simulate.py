@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import bone_drive, hand_integrity
+from . import bone_drive, glove, hand_integrity
 from . import native_world, quaternion
 from . import scene as scenes
 from . import session as session_module
@@ -43,10 +43,7 @@ class ScriptedInputs:
         self.world, self.hand = world, hand
         self.device = scene.trajectory(np.array(model.info()["handle_com"]))
         self.device_on = bool(scene.data["device"]["enabled"])
-        self.bones = None
-        if scene.skeleton is not None:
-            coms = [model.bone_info(b)["com"] for b in range(model.n_bones)]
-            self.bones = bone_drive.BoneDrive(scene.skeleton, coms, self.device, self.device_on)
+        self.bones = bone_drive.for_scene(scene, model) if scene.skeleton is not None else None
 
     def apply(self, t: float, dt: float):
         """Sets the inputs of the step that ends at t; returns the bones' targets (None: no skeleton)."""
@@ -85,6 +82,32 @@ class BoneRecord:
                 "bone_wrench": self.wrench, "bone_contact_force": self.contact}
 
 
+class FeltRecord:
+    """A skeleton hand's haptic session frame by frame: each bone's device frame (position,
+    quaternion) and felt wrench, and each group's (haptics.feedback "groups"), as the frame
+    after each visual step shows them (its last haptic step's)."""
+
+    def __init__(self, scene: scenes.Scene, session, frames: int):
+        b, fb = session.n_bones, scene.feedback
+        self.groups = fb.group_names
+        self.device, self.bones = np.empty((frames + 1, b, 7)), np.empty((frames + 1, b, 6))
+        self.group = np.empty((frames + 1, len(self.groups), 6))
+        self.group_of_bone = fb.group_of_bone if fb.group_of_bone is not None else np.full(b, -1, dtype=np.int32)
+
+    def record(self, k: int, session) -> None:
+        """Frame k, from the session's fetched frame."""
+        frame = session.frame_bones()
+        self.device[k], self.bones[k] = frame["devices"], frame["feedback"]
+        self.group[k] = session.frame_groups()
+
+    def arrays(self) -> dict:
+        out = {"haptic_bone_device": self.device, "haptic_bone_feedback": self.bones}
+        if self.groups:
+            out.update({"haptic_group_names": np.array(self.groups), "haptic_bone_group": self.group_of_bone,
+                        "haptic_group_feedback": self.group})
+        return out
+
+
 def run(scene: scenes.Scene, progress=None) -> dict:
     """Simulates scene.frames visual-loop steps and returns the result arrays."""
     world, hand, model, others, (tet_index, weights) = build_world(
@@ -98,7 +121,8 @@ def run(scene: scenes.Scene, progress=None) -> dict:
         # log holds every haptic step
         steps = math.ceil(frames * dt * scene.data["haptics"]["rate"]) + 2
         haptics = session_module.create(world, hand, scene, log_capacity=steps)
-        session_module.attach_device(haptics, scene, np.array(model.info()["handle_com"]))
+        session_module.attach_device(haptics, scene, model)
+    felt = FeltRecord(scene, haptics, frames) if haptics is not None and haptics.n_bones > 1 else None
 
     positions = np.empty((frames + 1, n, 3))
     handle_pose = np.empty((frames + 1, 7))
@@ -118,6 +142,8 @@ def run(scene: scenes.Scene, progress=None) -> dict:
         if haptics is not None:
             haptics.fetch_frame()
             device_pose[k] = np.array(haptics.frame_info.device)
+            if felt is not None:
+                felt.record(k, haptics)
         else:
             dp, dq = trajectory.pose(t)
             device_pose[k] = np.concatenate([dp, dq])
@@ -129,15 +155,23 @@ def run(scene: scenes.Scene, progress=None) -> dict:
                 bp, bq, _, _ = world.pose(b.index)
                 body_frames[b.name].append(np.concatenate([bp, bq]))
 
+    def bone_targets(t: float):
+        """The bones' targets at t: with haptics, the glove's scripts (glove.py)."""
+        if haptics is not None:
+            return glove.targets(inputs.bones, t)
+        start = world.bone_states(hand)
+        return inputs.bones.targets(t, (start[0][0], start[1][0]))
+
     record(0, 0.0)
     if bones is not None:
-        start = world.bone_states(hand)
-        bones.record(0, world, hand, inputs.bones.targets(0.0, (start[0][0], start[1][0])))
+        bones.record(0, world, hand, bone_targets(0.0))
     for k in range(frames):
         t = (k + 1) * dt
         if haptics is not None:
             haptics.run_offline(1)
             vis = world.stats()
+            if bones is not None:
+                bones.record(k + 1, world, hand, bone_targets(t))
         else:
             targets = inputs.apply(t, dt)
             vis = world.step()
@@ -181,6 +215,7 @@ def run(scene: scenes.Scene, progress=None) -> dict:
         "body_names": np.array([b.name for b in others]),
         "body_types": np.array([b.spec["type"] for b in others]),
         **(bones.arrays() if bones is not None else {}),
+        **(felt.arrays() if felt is not None else {}),
         "machine": np.array(f"{platform.machine()} {platform.processor() or ''} {platform.system()}".strip()),
     })
     # whether the hand stayed whole: a violent input tears it or pulls the flesh off the handle
@@ -272,6 +307,18 @@ def bones_summary(result: dict) -> str:
             f"end {result['bone_names'][int(np.argmax(gap))]} ({gap.max() * 1000:.1f} mm)")
 
 
+def felt_summary(result: dict) -> list[str]:
+    """A skeleton hand's session: the felt force at the end per group (or the largest bone's)."""
+    if "haptic_group_feedback" in result:
+        felt = np.linalg.norm(result["haptic_group_feedback"][-1, :, :3], axis=1)
+        return ["felt per group at the end: " + ", ".join(f"{name} {f:.3f} N" for name, f in
+                                                          zip(result["haptic_group_names"], felt))]
+    if "haptic_bone_feedback" in result:
+        felt = np.linalg.norm(result["haptic_bone_feedback"][-1, :, :3], axis=1)
+        return [f"felt per bone at the end: up to {felt.max():.3f} N ({result['bone_names'][int(np.argmax(felt))]})"]
+    return []
+
+
 def summary(result: dict) -> str:
     t = result["timings"]
     vt = result["visual_timings"]
@@ -300,4 +347,4 @@ def summary(result: dict) -> str:
         f"{1.0 / vt[:, 3].mean():.0f} Hz",
         f"contacts: up to {int(cs[:, 0].max())} ({int(cs[:, 1].max())} between fingers), deepest into the "
         f"{thickness * 1e3:.1f} mm thickness: {cs[:, 2].max() * 1e3:.3f} mm",
-    ] + haptic + [str(w) for w in result.get("warnings", [])])
+    ] + haptic + felt_summary(result) + [str(w) for w in result.get("warnings", [])])

@@ -541,6 +541,13 @@ int hh_session_device_feedback(hh_session* session, int n_bones, double* bones, 
 int hh_session_device_simulated_glove(hh_session* session, int n_bones, const double* times, const double* positions,
                                       const double* quaternions, int n, double arm_mass, double arm_stiffness,
                                       double arm_damping, double fail_at);
+/* The simulated glove user with an arm of its own per bone, arms[B][3] = (mass kg, stiffness N/m,
+ * damping N s/m), each checked against the haptics.glove.* rows; posed[B] (NULL: none): 1 where
+ * the frame follows its poses exactly and feels nothing (a finger posed by animation while a
+ * palm device carries the root, docs/skeleton.md Section 8). */
+int hh_session_device_simulated_glove_arms(hh_session* session, int n_bones, const double* times,
+                                           const double* positions, const double* quaternions, int n,
+                                           const double* arms, const int* posed, double fail_at);
 /* Groups of bones whose feedback is summed (a glove's actuators: e.g. the wrist and each digit):
  * group_of_bone[B] in 0 .. n_groups-1, or -1 for none; every group holds a bone. A group's force
  * is its bones' sum, its torque their torques plus each bone's force's moment about the device

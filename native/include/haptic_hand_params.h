@@ -379,6 +379,30 @@
     X(arm_damping, HH_KIND_DOUBLE, 1, "haptics.arm.damping", "N s/m", HH_V(20), 0, HH_INF,             \
       HH_UI_SCENE | HH_UI_ADVANCED, 0, 200, "Arm damping", "", "Damping of the simulated arm",         \
       "about 2 sqrt(mass x stiffness) for no overshoot")                                               \
+    X(haptic_feedback, HH_KIND_ENUM, 1, "haptics.feedback", "", HH_V(0), 0, 2, 0, 0, 2, "Feedback",    \
+      "palm|bones|groups",                                                                             \
+      "What the haptic loop renders: the palm's wrench (a skeleton's root bone; its other bones' "     \
+      "frames are posed); each bone's own, on a skeleton hand; or each bone's and their sums per "     \
+      "group (haptics.groups), which a run logs too",                                                  \
+      "palm; bones or groups need a skeleton hand of several bones (hand.skeleton)")                   \
+    X(haptic_groups, HH_KIND_JSON, 0, "haptics.groups", "", HH_V(0), 0, 0, HH_NULLABLE, 0, 0,          \
+      "Feedback groups", "null",                                                                       \
+      "The groups of haptics.feedback \"groups\", {name: [bone names]}, each bone in at most one; a "  \
+      "group's torque is about its first bone's frame (null: the wrist, then one per digit: each "     \
+      "chain of bones leaving a root)",                                                                \
+      "an object of group names to lists of bone names of hand.skeleton")                              \
+    X(glove_mass, HH_KIND_DOUBLE, 1, "haptics.glove.mass", "kg", HH_V(0.02), 0, HH_INF,                \
+      HH_OPEN_MIN, 0.005, 1, "Glove finger mass", "",                                                  \
+      "The simulated glove user's finger: the mass that follows each finger bone's targets (the "      \
+      "root's frame is the simulated arm's, haptics.arm.*)",                                           \
+      "about 0.02 kg")                                                                                 \
+    X(glove_stiffness, HH_KIND_DOUBLE, 1, "haptics.glove.stiffness", "N/m", HH_V(50), 0, HH_INF,       \
+      0, 0, 30000, "Glove finger stiffness", "",                                                       \
+      "How stiffly each simulated finger tracks its bone's targets",                                   \
+      "about 50 N/m for a relaxed finger; 3e4 holds every bone at its target (docs/haptics.md)")       \
+    X(glove_damping, HH_KIND_DOUBLE, 1, "haptics.glove.damping", "N s/m", HH_V(2), 0, HH_INF,          \
+      0, 0, 500, "Glove finger damping", "",                                                           \
+      "Damping of each simulated finger", "about 2 sqrt(mass x stiffness) for no overshoot")          \
     X(fail_at, HH_KIND_DOUBLE, 1, "haptics.fail_at", "s", HH_V(0), 0, HH_INF, HH_NULLABLE, 0, 10,      \
       "Fail at", "", "The device reports a disconnection at this time (tests; null: never)",           \
       "a time of at least 0 s, or null")                                                               \

@@ -486,6 +486,38 @@ TEST(bone_session_takes_a_device_of_one_frame_per_bone) {
     CHECK(std::string(hh_last_error()).find("bone 2 is in group 3: give each bone a group from 0 to 1") != std::string::npos);
 }
 
+TEST(glove_frames_posed_follow_their_script_and_the_others_yield_to_their_feedback) {
+    // The bar pressed 3 mm into the ground by a glove: bone 0's frame a simulated arm (1 kg,
+    // 3000 N/m), bones 1 and 2 posed. Settled, the arm's spring holds its bone's feedback,
+    // k (x* - x) + F = 0, so its frame sits F / k off its script; a posed frame sits on its script
+    // whatever it feels.
+    BoneRig rig;
+    const std::vector<double> x = rig.frames(-0.004);
+    const double t[2] = {0.0, 0.2};
+    const double arms[3 * BoneRig::kBones] = {1.0, 3000, 150, 1.0, 3000, 150, 1.0, 3000, 150};
+    const int posed[BoneRig::kBones] = {0, 1, 1};
+    const double bad[3 * BoneRig::kBones] = {1.0, 3000, 150, 0.0, 3000, 150, 1.0, 3000, 150};
+    CHECK(hh_session_device_simulated_glove_arms(rig.session, BoneRig::kBones, t, x.data(), nullptr, 2, bad, posed,
+                                                 1e300) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("bone 1's arm: haptics.glove.mass") != std::string::npos);
+    CHECK(hh_session_device_simulated_glove_arms(rig.session, BoneRig::kBones, t, x.data(), nullptr, 2, arms, posed,
+                                                 1e300) == HH_OK);
+    CHECK(hh_session_run_offline(rig.session, 45) == HH_OK);
+    int fresh = 0;
+    hh_session_frame f;
+    CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK && fresh);
+    double devices[7 * BoneRig::kBones], feedback[6 * BoneRig::kBones];
+    CHECK(hh_session_frame_bones(rig.session, BoneRig::kBones, nullptr, nullptr, devices, feedback) == HH_OK);
+    const double* script = x.data() + 3 * BoneRig::kBones;  // where the scripts end and hold
+    const double lift = devices[2] - script[2], expected = feedback[2] / 3000;
+    CHECK(feedback[2] > 0.5);  // the ground pushes the bar up through bone 0, newtons
+    CHECK_LT(std::abs(lift - expected), 0.01 * expected);
+    for (int b = 1; b < BoneRig::kBones; ++b) {
+        CHECK(std::abs(feedback[6 * b + 2]) > 0.1);  // posed, yet it feels its bone
+        for (int d = 0; d < 3; ++d) CHECK(devices[7 * b + d] == script[3 * b + d]);
+    }
+}
+
 TEST(bone_haptic_step_never_allocates) {
     BoneRig rig;
     hh::SessionParams p;

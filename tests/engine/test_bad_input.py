@@ -333,9 +333,52 @@ BAD_SKELETONS = [
     ("the procedural map on other bones", lambda d, s: put(put(s, "hand.skeleton", bones()), "skeleton.tracking",
                                                            write_mano(d)),
      "give skeleton.tracking_map for this skeleton's bones"),
-    ("haptics with a skeleton", lambda d, s: put(skeletal(s), "haptics.enabled", True),
-     "haptics.enabled is true with a skeleton"),
 ]
+
+
+def felt(s: dict, skeleton="procedural", **haptics) -> dict:
+    """The scene with this skeleton and these haptics.* fields."""
+    return put(put(s, "hand.skeleton", skeleton), "haptics", haptics)
+
+
+INDEX = ["index_1", "index_2", "index_3"]
+# (name, change, words): a skeleton hand's haptic session (haptics.feedback, .groups, .glove, the device)
+BAD_HAPTIC_SKELETONS = [
+    ("bones felt on the palm handle", lambda d, s: put(s, "haptics.feedback", "bones"),
+     'haptics.feedback = "bones" needs a skeleton hand of several bones, and hand.skeleton is null (the palm handle): '
+     'set haptics.feedback to "palm"'),
+    ("groups felt on one bone", lambda d, s: felt(s, bones()[:1], feedback="groups"),
+     'haptics.feedback = "groups" needs a skeleton hand of several bones, and hand.skeleton has one bone'),
+    ("groups without feedback by groups", lambda d, s: felt(s, groups={"index": INDEX}),
+     'haptics.groups is given but haptics.feedback is "palm": set haptics.feedback to "groups", or remove '
+     "haptics.groups"),
+    ("groups not an object", lambda d, s: felt(s, feedback="groups", groups=INDEX),
+     'haptics.groups = ["index_1", "index_2", "index_3"] is invalid: give an object {group name: [bone names]}'),
+    ("a group not a list", lambda d, s: felt(s, feedback="groups", groups={"index": "index_1"}),
+     'haptics.groups.index = "index_1" is invalid: give a non-empty list of bone names'),
+    ("a group naming an unknown bone", lambda d, s: felt(s, feedback="groups", groups={"index": ["index_1", "indx_2"]}),
+     "haptics.groups.index names 'indx_2', which is not a bone of hand.skeleton (its bones: palm, thumb_1"),
+    ("a bone in two groups", lambda d, s: felt(s, feedback="groups", groups={"index": INDEX,
+                                                                             "pinch": ["thumb_3", "index_3"]}),
+     "haptics.groups: bone 'index_3' is in group 'index' and in group 'pinch': a bone's feedback goes to one group: "
+     "remove it from one of them"),
+    ("a bone twice in a group", lambda d, s: felt(s, feedback="groups", groups={"index": INDEX + ["index_1"]}),
+     "haptics.groups.index names bone 'index_1' twice: name it once"),
+    ("the wrist and digits of a hand without digits",
+     lambda d, s: felt(s, bones(b1={"parent": None}), feedback="groups"),
+     'haptics.feedback = "groups" with haptics.groups null groups the wrist and the digits (the chains of bones '
+     "leaving a root), but no bone of hand.skeleton has a parent, so it has no digit: list the groups in "
+     'haptics.groups, e.g. {"palm": ["palm"], "index": ["index"]}, or set haptics.feedback to "bones"'),
+    ("a one-frame device on a skeleton", lambda d, s: felt(s, enabled=True, device="openhaptics"),
+     "haptics.device 'openhaptics' has one frame, and a skeleton hand's session has a device frame per bone: use "
+     "'simulated' (the simulated glove user) or 'external'"),
+    ("a free bone in a haptic session", lambda d, s: felt(s, bones(b1={"drive_scale": 0}), enabled=True),
+     "hand.skeleton[1] ('index').drive_scale = 0 frees the bone, but in a haptic session every bone follows its own "
+     "device frame: set its drive_scale above 0, or haptics.enabled to false"),
+    ("a glove finger of no mass", lambda d, s: felt(s, enabled=True, glove={"mass": 0}),
+     "haptics.glove.mass = 0 is invalid"),
+]
+BAD_SKELETONS += BAD_HAPTIC_SKELETONS
 BAD_SCENES += BAD_SKELETONS
 
 

@@ -98,6 +98,17 @@ def skeleton_section(draw):
 
 
 @st.composite
+def haptics_section(draw):
+    """A skeleton hand's haptic session: on or off, its feedback and groups, the glove, the device."""
+    groups = st.sampled_from([None, None, {"index": ["index_1"], "palm": ["palm"]}, {"a": ["index_1"], "b": ["index_1"]},
+                              {"a": "index_1"}, ["palm"]])
+    return {"enabled": draw(st.booleans()), "feedback": draw(st.sampled_from(["palm", "bones", "groups", "groups", "digits"])),
+            "groups": draw(groups), "device": draw(st.sampled_from(["simulated", "external", "hid"])),
+            "glove": {"stiffness": draw(st.sampled_from([50.0, 3e4, 50.0, 3e4, -1.0])),
+                      "mass": draw(st.sampled_from([0.02, 1.0, 0.02, 1.0, 0.0]))}}
+
+
+@st.composite
 def scenes_json(draw):
     data = {"format": "haptic_hand.scene/1", "hand": {"mesh": "procedural", "tets": "hand_tets.npz"}, "frames": 2}
     for path, value in draw(st.lists(st.tuples(st.sampled_from(FIELDS + ["junk", "hand.junk"]), json_values),
@@ -135,10 +146,10 @@ def test_an_arbitrary_scene_runs_or_is_refused_cleanly(scene_dir, data):
 
 
 @settings(FUZZ, max_examples=60)
-@given(skeleton=st.one_of(st.just("procedural"), bone_lists()), section=skeleton_section())
-def test_an_arbitrary_skeleton_scene_runs_or_is_refused_cleanly(scene_dir, skeleton, section):
-    """Only the skeleton's fields changed, so most of these scenes reach the run."""
-    data = {"format": "haptic_hand.scene/1", "frames": 2, "skeleton": section,
+@given(skeleton=st.one_of(st.just("procedural"), bone_lists()), section=skeleton_section(), haptics=haptics_section())
+def test_an_arbitrary_skeleton_scene_runs_or_is_refused_cleanly(scene_dir, skeleton, section, haptics):
+    """Only the skeleton's fields and its haptic session's changed, so most of these scenes reach the run."""
+    data = {"format": "haptic_hand.scene/1", "frames": 2, "skeleton": section, "haptics": haptics,
             "hand": {"mesh": "procedural", "tets": "hand_tets.npz", "skeleton": skeleton}}
     try:
         scene = scenes.from_dict(json.loads(json.dumps(data)), scene_dir)

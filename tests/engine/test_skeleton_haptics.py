@@ -137,3 +137,71 @@ def test_a_glove_has_one_frame_per_bone_and_a_palm_session_one_frame(procedural_
         palm_session.device_external_frames()
     with pytest.raises(native.InvalidInput, match="feedback groups sum the bones of a skeleton hand"):
         palm_session.set_feedback_groups([0])
+
+
+def pinch_scene(feedback: str, root_device: bool = False, **haptics) -> "scenes.Scene":
+    """The pinch sample (gravity off) with the haptic loop on: the glove's root a simulated arm and
+    its fingers firm (3000 N/m), or haptics' own settings."""
+    import json
+
+    from haptic_hand.engine import scene as scenes
+
+    data = json.loads((SAMPLES / "pinch_letter.json").read_text())
+    firm = {"mass": 0.2, "stiffness": 3000.0, "damping": 50.0}
+    data["haptics"] = {"enabled": True, "feedback": feedback, "arm": firm, "glove": firm, **haptics}
+    data["skeleton"]["root_device"] = root_device
+    return scenes.from_dict(data, SAMPLES)
+
+
+@pytest.mark.parametrize("feedback, root_device", [("bones", False), ("palm", False), ("palm", True)])
+def test_a_scenes_glove_pushes_the_frames_it_renders_and_poses_the_others(feedback, root_device):
+    """The simulated glove of a scene (engine/glove.py) pinching the letter, held still for a
+    second: a frame its bone's feedback pushes is a simulated arm at rest, k (x* - x) + F = 0, so
+    it sits F / k off its script (the root always; the fingers with feedback per bone); a posed
+    frame (the fingers with the palm's feedback, or with skeleton.root_device the palm device
+    on the wrist) sits on its script whatever its bone feels."""
+    from haptic_hand.engine import simulate
+
+    scene = pinch_scene(feedback, root_device)
+    r = simulate.run(scene)
+    k = scene.data["haptics"]["glove"]["stiffness"]
+    off = r["haptic_bone_device"][-1, :, :3] - r["bone_target"][-1, :, :3]
+    felt = r["haptic_bone_feedback"][-1, :, :3]
+    assert np.linalg.norm(felt[1:], axis=1).min() > 1.0  # the fingers feel the pinch (and the flesh)
+    pushed = [0, 1, 2] if feedback == "bones" else [0]
+    for b in pushed:
+        assert np.linalg.norm(off[b] - felt[b] / k) < 0.02 * np.linalg.norm(felt[b] / k) + 1e-9, b
+    for b in set(range(3)) - set(pushed):
+        assert np.array_equal(r["haptic_bone_device"][-1, b], r["bone_target"][-1, b]), b
+    if root_device:  # the root's script is the device trajectory: at the root's rest centre of mass
+        assert np.abs(r["bone_target"][:, 0, :3] - r["bone_pose"][0, 0, :3]).max() < 1e-15
+
+
+@pytest.mark.parametrize("sample", ["pinch_letter", "grasp_ball"])
+def test_the_samples_settle_on_the_tables_soft_glove(sample):
+    """The two-finger samples with the haptic loop on and the table's glove (a relaxed finger:
+    20 g at 50 N/m; the root on the simulated arm, 1 kg at 300 N/m). The fingers yield to what
+    they feel, so they close on nothing; once the glove's scripts hold still, the hand does too:
+    over the last third of a second every bone's springs' force on the visual-loop bone stays put,
+    each proxy at rest feels it, and each frame sits F / k off its script, its arm's spring
+    holding its felt force (2 % of the largest felt force). (With each bone's free-space reference continued with the
+    acceleration of its last two steps, the pinch's bones' springs' force swung between 0.03 and
+    11 N from frame to frame and the grasp's haptic step's force became non-finite.)"""
+    import json
+
+    from haptic_hand.engine import scene as scenes
+    from haptic_hand.engine import simulate
+
+    data = json.loads((SAMPLES / f"{sample}.json").read_text())
+    data["haptics"] = {"enabled": True, "feedback": "bones"}
+    scene = scenes.from_dict(data, SAMPLES)
+    r = simulate.run(scene)
+    h = scene.data["haptics"]
+    k = np.array([h["arm"]["stiffness"]] + [h["glove"]["stiffness"]] * 2)
+    wrench, felt = r["bone_wrench"][-10:, :, :3], r["haptic_bone_feedback"][-1, :, :3]
+    scale = np.linalg.norm(felt, axis=1).max()
+    assert scale > 0.1  # the fingers hold their flesh bent (and with gravity, the hand's weight)
+    assert np.linalg.norm(wrench - wrench[-1], axis=2).max() < 0.02 * scale
+    assert np.linalg.norm(felt - wrench[-1], axis=1).max() < 0.02 * scale
+    off = r["haptic_bone_device"][-1, :, :3] - r["bone_target"][-1, :, :3]
+    assert (np.linalg.norm(off - felt / k[:, None], axis=1) < 0.02 * scale / k).all()

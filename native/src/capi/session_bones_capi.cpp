@@ -24,9 +24,46 @@ hh_session& bones_session(hh_session* session, int n_bones, const char* what) {
     return s;
 }
 
+// A glove finger's arm against the haptics.glove.* rows, the message naming the bone
+void check_arm(const hh::ArmParams& arm, int bone) {
+    try {
+        hh::params::check("haptics.glove.mass", arm.mass);
+        hh::params::check("haptics.glove.stiffness", arm.stiffness);
+        hh::params::check("haptics.glove.damping", arm.damping);
+    } catch (const hh::InvalidArgument& e) {
+        throw hh::InvalidArgument("bone " + std::to_string(bone) + "'s arm: " + e.what());
+    }
+}
+
 void put_wrench(const hh::Feedback& fb, double* out) {
     std::memcpy(out, fb.force.data(), 3 * sizeof(double));
     std::memcpy(out + 3, fb.torque.data(), 3 * sizeof(double));
+}
+// The simulated glove of hh_session_device_simulated_glove(_arms): bone b's arm is arms[3b ..
+// 3b+3) (mass, stiffness, damping), posed where posed[b] != 0 (posed NULL: none).
+int simulated_glove(hh_session* session, int n_bones, const double* times, const double* positions,
+                    const double* quaternions, int n, const double* arms, const int* posed, double fail_at) {
+    hh_session& s = bones_session(session, n_bones, "the simulated glove's fingers (one per bone)");
+    require_stopped(s);
+    require(n_bones > 1, "the hand has one handle: give it the simulated arm (hh_session_device_simulated)");
+    require(times && positions && n >= 1, "a glove trajectory needs at least one timed pose per bone");
+    require(arms != nullptr, "hh_session_device_simulated_glove_arms: null arms");
+    require_fail_at(fail_at);
+    std::vector<hh::SimulatedArm> fingers;
+    std::vector<double> p(3 * n), q(4 * n);
+    for (int b = 0; b < n_bones; ++b) {  // bone b's poses, out of the [n][B][.] arrays
+        const hh::ArmParams arm{arms[3 * b], arms[3 * b + 1], arms[3 * b + 2], fail_at};
+        check_arm(arm, b);
+        for (int k = 0; k < n; ++k) {
+            std::memcpy(&p[3 * k], positions + 3 * (k * n_bones + b), 3 * sizeof(double));
+            if (quaternions) std::memcpy(&q[4 * k], quaternions + 4 * (k * n_bones + b), 4 * sizeof(double));
+        }
+        fingers.emplace_back(hh::capi::keyframes(times, p.data(), quaternions ? q.data() : nullptr, n), arm);
+    }
+    std::vector<char> is_posed(n_bones, 0);
+    for (int b = 0; posed && b < n_bones; ++b) is_posed[b] = posed[b] != 0;
+    s.s.set_device(std::make_unique<hh::SimulatedGlove>(std::move(fingers), std::move(is_posed)));
+    return HH_OK;
 }
 }  // namespace
 
@@ -90,27 +127,16 @@ int hh_session_device_simulated_glove(hh_session* session, int n_bones, const do
                                       const double* quaternions, int n, double arm_mass, double arm_stiffness,
                                       double arm_damping, double fail_at) {
     return guard([&] {
-        hh_session& s = bones_session(session, n_bones, "the simulated glove's fingers (one per bone)");
-        require_stopped(s);
-        require(n_bones > 1, "the hand has one handle: give it the simulated arm (hh_session_device_simulated)");
-        require(times && positions && n >= 1, "a glove trajectory needs at least one timed pose per bone");
-        hh::params::check("haptics.arm.mass", arm_mass);
-        hh::params::check("haptics.arm.stiffness", arm_stiffness);
-        hh::params::check("haptics.arm.damping", arm_damping);
-        require_fail_at(fail_at);
-        std::vector<hh::SimulatedArm> arms;
-        std::vector<double> p(3 * n), q(4 * n);
-        for (int b = 0; b < n_bones; ++b) {  // bone b's poses, out of the [n][B][.] arrays
-            for (int k = 0; k < n; ++k) {
-                std::memcpy(&p[3 * k], positions + 3 * (k * n_bones + b), 3 * sizeof(double));
-                if (quaternions) std::memcpy(&q[4 * k], quaternions + 4 * (k * n_bones + b), 4 * sizeof(double));
-            }
-            arms.emplace_back(hh::capi::keyframes(times, p.data(), quaternions ? q.data() : nullptr, n),
-                              hh::ArmParams{arm_mass, arm_stiffness, arm_damping, fail_at});
-        }
-        s.s.set_device(std::make_unique<hh::SimulatedGlove>(std::move(arms)));
-        return HH_OK;
+        std::vector<double> arms;
+        for (int b = 0; b < n_bones; ++b) arms.insert(arms.end(), {arm_mass, arm_stiffness, arm_damping});
+        return simulated_glove(session, n_bones, times, positions, quaternions, n, arms.data(), nullptr, fail_at);
     });
+}
+
+int hh_session_device_simulated_glove_arms(hh_session* session, int n_bones, const double* times,
+                                           const double* positions, const double* quaternions, int n,
+                                           const double* arms, const int* posed, double fail_at) {
+    return guard([&] { return simulated_glove(session, n_bones, times, positions, quaternions, n, arms, posed, fail_at); });
 }
 
 int hh_session_set_feedback_groups(hh_session* session, int n_bones, const int* group_of_bone, int n_groups) {

@@ -45,11 +45,20 @@ void SimulatedArm::turn_toward(const Pose& goal, double dt) noexcept {
     pose_.quaternion = quat_multiply(quat_from_rotation_vector(dt * pose_.angular_velocity), pose_.quaternion).normalized();
 }
 
+bool SimulatedArm::gone(double t) noexcept {
+    if (t < p_.fail_at) return false;
+    fail("the simulated device was told to disconnect", t);
+    return true;
+}
+
+bool SimulatedArm::read_script(double t, Pose& out) noexcept {
+    if (gone(t)) return false;
+    out = target_.at(t);
+    return true;
+}
+
 bool SimulatedArm::read(double t, Pose& out) noexcept {
-    if (t >= p_.fail_at) {
-        fail("the simulated device was told to disconnect", t);
-        return false;
-    }
+    if (gone(t)) return false;
     const Pose goal = target_.at(t);
     if (!started_) {
         started_ = true;

@@ -33,9 +33,13 @@ public:
     SimulatedArm(Keyframes target, const ArmParams& params) : target_(std::move(target)), p_(params) {}
     const char* name() const override { return "simulated"; }
     bool read(double t, Pose& out) noexcept override;
+    // The script itself at time t, never pushed: a frame posed by animation (a glove's finger
+    // while a palm device carries the hand, device/simulated_glove.h)
+    bool read_script(double t, Pose& out) noexcept;
     void command(const Feedback& fb) noexcept override { force_ = fb.force; }
 
 private:
+    bool gone(double t) noexcept;  // told to disconnect by now (fail_at): error() says so
     void move_toward(const Pose& goal, double dt) noexcept;
     void turn_toward(const Pose& goal, double dt) noexcept;
     Keyframes target_;

@@ -50,8 +50,7 @@ Session::Bones::Bones(const Model& m, const Data& d, const VirtualCoupling& coup
       feedback(m.n_bones()),
       group_out(m.n_bones()),
       sample(first_sample(d, m.n_bones())),
-      last_model(resting_bone_model(d, m.n_bones())),
-      previous(m.n_bones(), Vec6::Zero()) {
+      last_model(resting_bone_model(d, m.n_bones())) {
     publish_model(h);
 }
 
@@ -127,27 +126,20 @@ void Session::bones_visual_step() {
     world_.step();
     BoneCouplingModel& m = s.last_model;
     m = p_.linearized ? linearize_bone_coupling(world_, hand_) : resting_bone_model(d, s.n);
-    if (p_.linearized) {
-        // Each bone's reference motion continued from this step: in free space with its velocity
-        // and acceleration, as the palm handle's (visual_step); in contact not at all: a contact
-        // stops a bone pressed into it. (Continued at the step's velocity, a finger's light proxy
-        // followed its reference into the ground: the gripper's fingers pressed by the simulated
-        // glove bounced at ~7 Hz, 0.5-2 mm deep, feeling 0.1-2 N against the world's 50-140 N.)
-        const double dt = world_.settings.dt;
-        for (int b = 0; b < s.n; ++b) {
-            HandleState& end = m.ends[b];
-            const Vec6 step_velocity = (Vec6() << end.v_com, end.omega).finished();
-            if (m.held_rows > 0) {
-                end.v_com.setZero();
-                end.omega.setZero();
-            } else if (s.have_previous) {
-                m.accelerations[b] = (step_velocity - s.previous[b]) / dt;
-                end.v_com += 0.5 * dt * m.accelerations[b].head<3>();
-                end.omega += 0.5 * dt * m.accelerations[b].tail<3>();
-            }
-            s.previous[b] = step_velocity;
+    if (p_.linearized && m.held_rows > 0) {
+        // Each bone's reference motion continued from this step: in free space at its velocity; in
+        // contact not at all: a contact stops a bone pressed into it. (Continued at the step's
+        // velocity in contact, a finger's light proxy followed its reference into the ground: the
+        // gripper's fingers pressed by the simulated glove bounced at ~7 Hz, 0.5-2 mm deep, feeling
+        // 0.1-2 N against the world's 50-140 N. Continued with the acceleration of the last two
+        // steps as well, as the palm handle's, a light finger's proxy on a soft glove finger fed
+        // its own motion back: the two-finger hand closing in free space at haptics.glove.*'s
+        // defaults swung its bones' springs' force between 0.03 and 11 N from frame to frame, and
+        // lifting the ball the haptic step's force became non-finite.)
+        for (HandleState& end : m.ends) {
+            end.v_com.setZero();
+            end.omega.setZero();
         }
-        s.have_previous = true;
     }
     m.time = s.sample.time;
     m.horizon = 2 * world_.settings.dt;

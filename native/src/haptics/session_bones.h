@@ -32,11 +32,9 @@ struct Session::Bones {
     // haptic side: the frames read and the feedback of the step (sized once)
     std::vector<Pose> devices;
     std::vector<Feedback> feedback, group_out;
-    // visual side: the newest sample, the last model, the last step's bone velocities
+    // visual side: the newest sample, the last model
     BoneSample sample;
     BoneCouplingModel last_model;
-    std::vector<Vec6> previous;
-    bool have_previous = false;
     // A snapshot of last_model for haptic steps of h, published (the visual loop's, or while stopped)
     void publish_model(double h);
 };
