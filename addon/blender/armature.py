@@ -300,3 +300,25 @@ def _holding_problem(b: RigBone, held: np.ndarray, threshold: float) -> str:
     if eig[0] <= 1e-12 * eig[-1]:
         return f"bone '{b.name}': its {b.count} nodes lie on a line: {fix}"
     return ""
+
+
+def skinning(obj) -> list:
+    """obj's Armature modifiers: what deforms a skinned hand's own vertices by the pose."""
+    return [m for m in obj.modifiers if m.type == "ARMATURE"]
+
+
+def mute_skinning(obj) -> list[str]:
+    """Turns off obj's Armature modifiers that are on, so positions written into its mesh (a
+    live frame, a baked shape key) are not deformed by the pose a second time; returns their
+    names for unmute_skinning."""
+    muted = [m for m in skinning(obj) if m.show_viewport or m.show_render]
+    for m in muted:
+        m.show_viewport = m.show_render = False
+    return [m.name for m in muted]
+
+
+def unmute_skinning(obj, names) -> None:
+    for name in names:
+        m = obj.modifiers.get(name)
+        if m is not None:
+            m.show_viewport = m.show_render = True
