@@ -1,0 +1,74 @@
+"""A live session of a rigged hand driven by a tracking recording: the Device section's Tracking
+stream (a // path beside the .blend) reaches the session's scene as the stream, read; each frame
+lands on the skinned hand where the session put it (its Armature modifier off while the session
+runs, back on after); the functions the modal operator calls (live.start/update/stop)."""
+
+import math
+
+import pytest
+
+bpy = pytest.importorskip("bpy")
+import numpy as np
+
+from haptic_hand.blender import live, meshdata
+from haptic_hand.engine import tracking
+
+from blender_helpers import FakeFrame, FakeSession, build_hand, curling_stream, rig_procedural_armature
+from test_bake import evaluated_world
+
+
+def test_a_live_session_plays_a_tracking_recording_on_the_skinned_hand(addon, tmp_path):
+    context = addon
+    hand = build_hand(context)
+    arm = rig_procedural_armature(context, hand)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "rigged.blend"))
+    (tmp_path / "takes").mkdir()
+    written = curling_stream(tmp_path / "takes" / "curl.csv", seconds=2.0)
+    s = context.scene.haptic_hand
+    s.skeleton_tracking, s.live_record = "//takes/curl.csv", False
+    pose = arm.pose.bones["index_1"]  # a pose the armature would deform the hand by
+    pose.rotation_mode = "QUATERNION"
+    pose.rotation_quaternion = (math.cos(0.4), math.sin(0.4), 0.0, 0.0)
+    context.view_layer.update()
+    rest = meshdata.world_vertices(hand, context.scene)
+    assert np.abs(evaluated_world(context, hand, 1) - rest).max() > 5e-3, "the pose deforms the skinned hand"
+
+    state = live.start(context, session_factory=FakeSession)
+    scene = state.session.scene
+    assert scene.data["skeleton"]["tracking"] == str(tmp_path / "takes" / "curl.csv")
+    stream = scene.skeleton.stream
+    assert stream.layout is tracking.MANO and scene.skeleton.tracks == {}, "the stream drives the bones, no keys"
+    np.testing.assert_allclose(stream.times, written.times)
+    np.testing.assert_allclose(stream.quaternions, written.quaternions, atol=1e-12)
+    assert [m.show_viewport for m in hand.modifiers] == [False]
+
+    closed = rest + np.array([0.0, 0.0, -0.002]) * np.linspace(0, 1, len(rest))[:, None]
+    state.session.frames.append(FakeFrame(0.5, {"hand": closed}))
+    assert live.update(context, state)
+    np.testing.assert_allclose(evaluated_world(context, hand, 1), closed, atol=1e-7)
+    live.stop(context, state)
+    assert [(m.show_viewport, m.show_render) for m in hand.modifiers] == [(True, True)]
+    np.testing.assert_array_equal(meshdata.world_vertices(hand, context.scene), rest)
+
+
+def test_a_tracking_stream_bakes_and_a_bad_one_is_refused(addon, tmp_path):
+    """The stream drives a bake as it drives the engine (the fingers curl); a missing stream is
+    refused by Live and Bake alike, naming the file and the fix, with nothing started."""
+    from haptic_hand.blender import ops_bake, runtime, scene_export
+
+    context = addon
+    hand = build_hand(context)
+    rig_procedural_armature(context, hand)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "rigged.blend"))
+    s = context.scene.haptic_hand
+    s.skeleton_tracking, s.live_record = "//missing.csv", False
+    for start in (lambda: live.start(context, session_factory=FakeSession), lambda: ops_bake.prepare(context)):
+        with pytest.raises(scene_export.ExportError, match=r"skeleton.tracking: .*missing.csv: no such file"):
+            start()
+    assert not runtime.state.busy()
+    curling_stream(tmp_path / "curl.json", seconds=0.2, angle=0.5, layout_name="openxr")
+    s.skeleton_tracking = "//curl.json"
+    s.bake_frame_start, s.bake_frame_end = 1, 7
+    rest = meshdata.world_vertices(hand, context.scene)
+    assert bpy.ops.haptic_hand.bake() == {"FINISHED"}
+    assert np.abs(evaluated_world(context, hand, 7) - rest).max() > 1e-3, "the tracked fingers curled the flesh"
