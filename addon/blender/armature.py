@@ -57,6 +57,7 @@ class RigBone:
     drive_scale: float
     auto_radius: bool = False
     source: str = ""          # where a group bone's nodes come from
+    exact: bool = False       # they are a group of the tet mesh (else of the hand's skinning weights)
     count: int = 0            # nodes it captures
     problems: list = field(default_factory=list)
 
@@ -174,16 +175,17 @@ class _Groups:
             self._nearest = cKDTree(self.surface).query(self.nodes)[1]
         return self._nearest
 
-    def nodes_of(self, name: str) -> tuple[np.ndarray | None, str]:
-        """(the bone's nodes, None when no group has its name; where they come from)."""
+    def nodes_of(self, name: str) -> tuple[np.ndarray | None, str, bool]:
+        """(the bone's nodes, None when no group has its name; where they come from; whether
+        they are the tet mesh's group, exactly)."""
         exact = self.weights(self.tet_obj).get(name) if self.tet_obj is not None else None
         if exact is not None:
-            return np.flatnonzero(exact > 0), f"the group '{name}' of '{self.tet_obj.name}'"
+            return np.flatnonzero(exact > 0), f"the group '{name}' of '{self.tet_obj.name}'", True
         weights = self.weights(self.hand).get(name)
         if weights is None:
-            return None, ""
+            return None, "", False
         rigid = weights > self.threshold
-        return np.flatnonzero(rigid[self.nearest_vertex()]), f"the group '{name}' of '{self.hand.name}'"
+        return np.flatnonzero(rigid[self.nearest_vertex()]), f"the group '{name}' of '{self.hand.name}'", False
 
 
 def chain_of(scene) -> list[tuple[object, str | None]]:
@@ -237,7 +239,7 @@ def rig(scene, nodes: np.ndarray | None = None) -> Rig:
             if groups is None:
                 groups = _Groups(hand, hand.haptic_hand.tet_object, nodes, meshdata.world_vertices(hand, scene),
                                  s.group_weight)
-            b.nodes, b.source = groups.nodes_of(bone.name)
+            b.nodes, b.source, b.exact = groups.nodes_of(bone.name)
             if b.nodes is None:
                 b.problems.append(f"bone '{bone.name}' captures by vertex group, but neither '{hand.name}' nor its tet "
                                   f"mesh has a group named '{bone.name}': name a vertex group after the bone, or set "
@@ -251,7 +253,7 @@ def _captured(bones: list, nodes: np.ndarray, threshold: float) -> Rig:
     """Each node's bone by engine/skeleton.py's rule, and the problems of what each bone holds.
     A node two groups claim is reported and counted for the first."""
     problems = [p for b in bones for p in b.problems]
-    taken = {}
+    taken, exact = {}, {b.name: b.exact for b in bones}
     for b in bones:
         if b.nodes is None:
             continue
@@ -260,7 +262,8 @@ def _captured(bones: list, nodes: np.ndarray, threshold: float) -> Rig:
             shared.setdefault(taken.setdefault(int(n), b.name), []).append(int(n))
         for other, clash in shared.items():
             if other != b.name:
-                problems.append(_clash(b.name, other, clash, threshold))
+                painted = exact[b.name] or exact[other]
+                problems.append(_clash(b.name, other, clash, threshold if not painted else 1.0))
                 b.problems.append(problems[-1])
         b.nodes = np.array([n for n in b.nodes if taken[int(n)] == b.name], dtype=np.int64)
     engine_bones = [sk.Bone(b.name, b.parent, b.head, b.tail, b.radius or 0.0, b.nodes) for b in bones]
@@ -279,6 +282,7 @@ def _captured(bones: list, nodes: np.ndarray, threshold: float) -> Rig:
 
 
 def _clash(name: str, other: str, nodes: list, threshold: float) -> str:
+    """Nodes two groups claim; the fix for skinning weights below 0.5, else for the groups."""
     fix = ("normalize the hand's weights (Weight Paint > Weights > Normalize All) or raise Group weight above 0.5"
            if threshold < 0.5 else "remove them from one of the two groups")
     return (f"{len(nodes)} tet node(s) are in the vertex groups of both '{other}' and '{name}' (node {nodes[0]}); a "

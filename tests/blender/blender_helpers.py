@@ -215,3 +215,15 @@ def build_hand(context, scale: float = 1.0):
     s.seed = seed
     context.view_layer.update()
     return hand
+
+
+def bone_motion(scene):
+    """The bones' driven poses (centres at their rest heads) at every frame time of a skeleton
+    scene (engine.scene.Scene): what skeleton.targets or the tracking stream asks for, (F, B, 7)."""
+    import numpy as np
+
+    from haptic_hand.engine import bone_drive
+
+    heads = np.array([b.head for b in scene.skeleton.skeleton.bones])
+    drive = bone_drive.BoneDrive(scene.skeleton, heads, None, False)
+    return np.array([np.concatenate(drive.animated(k * scene.dt), axis=1) for k in range(scene.frames + 1)])

@@ -19,7 +19,7 @@ from haptic_hand.engine import native, params, tracking
 from haptic_hand.engine import scene as scenes
 from haptic_hand.engine import skeleton as sk
 
-from blender_helpers import build_hand, curling_stream, key_finger_curl, rig_procedural_armature
+from blender_helpers import bone_motion, build_hand, curling_stream, key_finger_curl, rig_procedural_armature
 
 
 def rna_default(settings, name):
@@ -158,16 +158,6 @@ def rig_skeleton(context, hand, drive: str, folder) -> None:
         curling_stream(folder / "curl.csv")
         s.skeleton_tracking = str(folder / "curl.csv")
         s.tracking_map = json.dumps(tracking.PROCEDURAL_MAPS["mano"])
-
-
-def bone_motion(scene) -> np.ndarray:
-    """The bones' driven poses (centres at the rest heads) at every frame time of a skeleton
-    scene: what skeleton.targets or the stream asks for."""
-    from haptic_hand.engine import bone_drive
-
-    heads = np.array([b.head for b in scene.skeleton.skeleton.bones])
-    drive = bone_drive.BoneDrive(scene.skeleton, heads, None, False)
-    return np.array([np.concatenate(drive.animated(k * scene.dt), axis=1) for k in range(scene.frames + 1)])
 
 
 @pytest.mark.parametrize("device, skeleton", [("PLAYBACK", None), ("HID", "action"), ("PLAYBACK", "tracking")])

@@ -53,7 +53,8 @@ def test_a_live_session_plays_a_tracking_recording_on_the_skinned_hand(addon, tm
 
 def test_a_tracking_stream_bakes_and_a_bad_one_is_refused(addon, tmp_path):
     """The stream drives a bake as it drives the engine (the fingers curl); a missing stream is
-    refused by Live and Bake alike, naming the file and the fix, with nothing started."""
+    refused by Live and Bake alike, naming the file and the fix, with nothing started, and a
+    tracking map that is not JSON is refused naming the setting."""
     from haptic_hand.blender import ops_bake, runtime, scene_export
 
     context = addon
@@ -67,7 +68,10 @@ def test_a_tracking_stream_bakes_and_a_bad_one_is_refused(addon, tmp_path):
             start()
     assert not runtime.state.busy()
     curling_stream(tmp_path / "curl.json", seconds=0.2, angle=0.5, layout_name="openxr")
-    s.skeleton_tracking = "//curl.json"
+    s.skeleton_tracking, s.tracking_map = "//curl.json", '{"wrist": "palm",'
+    with pytest.raises(scene_export.ExportError, match=r"Tracking map \(skeleton.tracking_map\) is not valid JSON"):
+        ops_bake.prepare(context)
+    s.tracking_map = ""  # null: the layout's map onto the procedural hand's bones
     s.bake_frame_start, s.bake_frame_end = 1, 7
     rest = meshdata.world_vertices(hand, context.scene)
     assert bpy.ops.haptic_hand.bake() == {"FINISHED"}

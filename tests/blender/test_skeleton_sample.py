@@ -14,21 +14,13 @@ bpy = pytest.importorskip("bpy")
 import numpy as np
 
 from haptic_hand.blender import scene_export
-from haptic_hand.engine import bone_drive
 from haptic_hand.engine import scene as scenes
 from haptic_hand.engine import skeleton as sk
 
-from blender_helpers import SAMPLES, open_copy
+from blender_helpers import SAMPLES, bone_motion, open_copy
 
 SAMPLE_BLENDS = Path(__file__).resolve().parents[2] / "blender_scenes"
 F32 = 2e-7  # metres: float32 rounding of coordinates below 1 m, as Blender stores them
-
-
-def bone_motion(scene) -> np.ndarray:
-    """Every bone's driven pose (centres at the procedural rest heads) at every frame time."""
-    heads = np.array([b.head for b in sk.procedural_hand_skeleton().bones])
-    drive = bone_drive.BoneDrive(scene.skeleton, heads, None, False)
-    return np.array([np.concatenate(drive.animated(k * scene.dt), axis=1) for k in range(scene.frames + 1)])
 
 
 def test_the_rigged_hand_sample_exports_to_the_engines_sample(addon, tmp_path):
