@@ -7,10 +7,9 @@ parameter table as properties), runtime (what runs now: never saved), meshdata (
 Blender objects), ops_rig (hand, tets in a child process, seed, radius), armature (the
 armature's bones as the skeleton, what each holds), armature_motion (its animation <-> bone
 targets), armature_build (an armature from a scene file's skeleton), ops_skeleton (Use Armature
-as Skeleton, the bones' checks), ops_bodies (roles of
-the other objects), ops_bake (the bake in a child process), bake_store (a bake written aside
-and swapped in, Free Bake), live (modal live session and its recording), draw (viewport
-overlay), panel (the sidebar tab).
+as Skeleton, the bones' checks), ops_bodies (roles of the other objects), ops_bake (the bake in
+a child process), bake_store (a bake written aside and swapped in, Free Bake), live (modal live
+session and its recording), draw (viewport overlays), panel (the sidebar tab).
 """
 
 from . import draw, live, ops_bake, ops_bodies, ops_rig, ops_skeleton, panel, properties, runtime, scene_import
