@@ -2,7 +2,8 @@
 written by blender_scenes/build_scenes.py): an armature of the procedural hand's 16 bones whose
 action closes the fingers, exporting to the engine's sample procedural_hand_close.json where
 that makes sense: the same bones (as a list instead of "procedural"), the same motion of every
-bone at every frame, the same drive, frames, step and block."""
+bone at every frame, the same drive, frames, step and block. The two-finger samples import and
+export to their own motion too."""
 
 import json
 import shutil
@@ -61,3 +62,28 @@ def test_the_rigged_hand_sample_exports_to_the_engines_sample(addon, tmp_path):
     np.testing.assert_allclose(poses[0], poses[1], atol=1e-9, err_msg=stale)
     np.testing.assert_allclose(bone_motion(scenes.load(SAMPLE_BLENDS / "hand_close" / "scene.json")), expected,
                                atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["grasp_ball", "pinch_letter"])
+def test_the_two_finger_samples_import_and_export_to_their_motion(addon, name):
+    """The soft two-finger hand's samples (bones given as a list, their heads keyed to move:
+    the keys give positions): imported, the armature's action exports to the same motion of
+    every bone at every frame, and the bones as the file gives them."""
+    from haptic_hand.blender import scene_import
+
+    scene_import.build(addon, SAMPLES / f"{name}.json")
+    sample = scenes.load(SAMPLES / f"{name}.json")
+    export = scene_export.export(addon)
+    try:
+        got = export.scene
+    finally:
+        export.cleanup()
+    given = json.loads((SAMPLES / f"{name}.json").read_text())["hand"]["skeleton"]
+    for spec, bone in zip(got.data["hand"]["skeleton"], given, strict=True):
+        assert (spec["name"], spec["parent"]) == (bone["name"], bone.get("parent"))
+        np.testing.assert_allclose(spec["head"] + spec["tail"], bone["head"] + bone["tail"], atol=F32)
+        assert spec["radius"] == pytest.approx(bone["radius"], rel=1e-7)
+    assert got.data["skeleton"]["drive"]["prescribed"] is True
+    motion, expected = bone_motion(got), bone_motion(sample)
+    assert np.abs(expected[-1] - expected[0]).max() > 1e-3, "the fingers move: the comparison can fail"
+    np.testing.assert_allclose(motion, expected, atol=1e-6)
