@@ -135,8 +135,9 @@ def key_motion(obj, frames, locations, angles):
 
 HID_PATH = "/dev/hidraw7"
 F32 = 2e-7  # metres: float32 rounding of coordinates below 1 m, as Blender stores them
-# what the scene refuses without a skeleton (it drives a skeleton's bones)
-NEEDS_SKELETON = {"skeleton.tracking", "skeleton.tracking_map", "skeleton.root_device", "skeleton.drive.prescribed"}
+# what the scene refuses without a skeleton (it drives a skeleton's bones, or feeds back per bone)
+NEEDS_SKELETON = {"skeleton.tracking", "skeleton.tracking_map", "skeleton.root_device", "skeleton.drive.prescribed",
+                  "haptics.feedback"}
 
 
 def rig_skeleton(context, hand, drive: str, folder) -> None:
