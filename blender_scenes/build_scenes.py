@@ -1,12 +1,16 @@
 """Build the sample .blend scenes from the engine's sample scenes (procedural hand with its
 stored tets, procedural bunny and letters, boxes): hand + soft bunny on the ground, hand +
-soft letters, fingers squeezed between two moving pads.
+soft letters, fingers squeezed between two moving pads, and the rigged hand: an armature of
+the procedural hand's 16 bones (engine/skeleton.py) whose action closes the fingers onto a
+soft block (procedural_hand_close.json).
 
-    .venv/bin/python blender_scenes/build_scenes.py [bunny letters fingers] [--out DIR]
+    .venv/bin/python blender_scenes/build_scenes.py [bunny letters fingers hand_close] [--out DIR]
 
-Writes DIR/<name>.blend (default DIR: blender_scenes/). The bunny's coarse tets are made by
-pytetwild when the scene is built (not deterministic) and stored in the .blend, so every bake
-of one .blend gives the same result.
+Writes DIR/<name>.blend (default DIR: blender_scenes/), and for the rigged hand also its
+export, DIR/hand_close/scene.json with its meshes: the scene a bake of the .blend simulates,
+which the command line runs too. The bunny's coarse tets are made by pytetwild when the scene
+is built (not deterministic) and stored in the .blend, so every bake of one .blend gives the
+same result.
 """
 
 from __future__ import annotations
@@ -32,8 +36,11 @@ def main(argv=None) -> int:
     try:
         for name in args.names or common.SCENES:
             path = pathlib.Path(args.out) / f"{name}.blend"
-            common.build(name, path)
+            objects = common.build(name, path)
             print(f"{name}: {path} ({path.stat().st_size / 1e6:.1f} MB)")
+            if "armature" in objects:
+                common.export(pathlib.Path(args.out) / name)
+                print(f"{name}: its export in {pathlib.Path(args.out) / name}/scene.json")
     finally:
         haptic_hand.unregister()
     return 0

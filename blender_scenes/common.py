@@ -1,5 +1,5 @@
 """Shared by the scripts of blender_scenes/: import the add-on, build a sample scene into an
-empty Blender file with a camera, light and colours for Workbench renders."""
+empty Blender file with a camera, light and colours for Workbench renders, and export it."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ SCENES = {  # the .blend name -> the engine's sample scene it is built from
     "bunny": "bunny_press.json",
     "letters": "letters_push.json",
     "fingers": "finger_squeeze.json",
+    "hand_close": "procedural_hand_close.json",  # the rigged hand: an armature of 16 bones closing the fingers
 }
 COLOURS = {"hand": (0.85, 0.62, 0.5, 1.0), "soft": (0.45, 0.6, 0.9, 1.0), "plane": (0.55, 0.55, 0.52, 1.0),
            "other": (0.6, 0.75, 0.45, 1.0)}
@@ -29,6 +30,25 @@ def import_addon():
         sys.modules["haptic_hand"] = haptic_hand
         spec.loader.exec_module(haptic_hand)
     return haptic_hand
+
+
+def export(folder: pathlib.Path) -> None:
+    """The open .blend's scene as the engine sees it, written to folder (scene.json and its
+    meshes and tets; what was there is replaced): what a bake simulates, and what the command
+    line runs (`python -m haptic_hand simulate <folder>/scene.json`)."""
+    import shutil
+
+    import bpy
+
+    from haptic_hand.blender import scene_export
+
+    written = scene_export.export(bpy.context)
+    try:
+        shutil.rmtree(folder, ignore_errors=True)
+        shutil.copytree(written.folder, folder)
+        folder.chmod(0o755)  # (the export's own folder is private: a temporary one)
+    finally:
+        written.cleanup()
 
 
 def build(name: str, path: pathlib.Path, resolution=(960, 540)) -> dict:

@@ -6,6 +6,10 @@ What a bake stores, from the engine's result (haptic_hand.engine.simulate.run):
   mesh, its value keyed 1 on its frame and 0 on its neighbours (the last key stays at 1, so
   the last frame holds, as a point cache does); or, in PC2 format, a .pc2 file in
   <blend name>_haptic/<scene name>/ played by a Mesh Cache modifier with a relative path;
+  a skinned hand plays either without its Armature modifier deforming it again: the Mesh
+  Cache comes after the Armature modifiers (it overwrites what they did), shape keys (which
+  come before every modifier) turn them off until Free Bake; a hand that moves with its
+  armature gets each frame's positions in that frame's object space;
 - each rigid body that moves: keyed location and rotation;
 - the hand: the force and torque on the handle, and (with the haptic loop) the force felt at
   the device, as keyed custom properties (the Graph Editor shows them);
@@ -39,7 +43,7 @@ import bpy
 import numpy as np
 
 from ..engine import bake_formats
-from . import meshdata, scene_export
+from . import armature, meshdata, scene_export
 
 KEY_PREFIX = "hh_f"
 STAGED_KEY_PREFIX = "hh_new_f"
@@ -143,12 +147,14 @@ def plan(export: scene_export.Export, result: dict, fmt: str) -> Plan:
             raise BakeWriteError(f"'{obj.name}' has {len(obj.data.vertices)} vertices now and {world.shape[1]} when "
                                  "the bake started: the mesh changed during the bake; bake again")
         rest_world = meshdata.transform(rest, meshdata.local_vertices(obj.data)) * export.scale
-        moved = np.abs(world - rest_world[None]).max(axis=(1, 2))
+        frames_m = export.hand_matrices if name == "hand" and export.hand_matrices is not None else [rest] * len(world)
+        local = np.array([meshdata.transform(np.linalg.inv(m), w / export.scale) for m, w in zip(frames_m, world)])
+        # what differs from the rest mesh, in the object's own space (where a key or cache acts)
+        moved = np.abs(meshdata.transform(rest, local) * export.scale - rest_world[None]).max(axis=(1, 2))
         if moved.max() <= STILL:
             p.still.append(obj.name)
             continue
-        local = meshdata.transform(np.linalg.inv(rest), world / export.scale).astype(np.float32)
-        p.deformed.append(Deformed(obj, name, local, moved > STILL))
+        p.deformed.append(Deformed(obj, name, local.astype(np.float32), moved > STILL))
     for b in export.bodies:
         if b.role != "RIGID":
             continue
@@ -459,6 +465,8 @@ def swap(context, p: Plan, staged: Staged, export: scene_export.Export) -> None:
         o = d.obj.haptic_hand
         if d.obj.name in staged.caches:
             _add_mesh_cache(d.obj, staged.caches[d.obj.name], int(p.frames[0]))
+        else:  # shape keys act before the modifiers: the Armature modifier would turn them again
+            o.bake_muted_modifiers = "\n".join(armature.mute_skinning(d.obj))
         o.baked = True
         o.bake_made_basis = d.obj.name in made_basis
     s.baked, s.baked_format, s.baked_range = True, p.fmt, f"{export.frame_start}-{export.frame_end}"
@@ -476,7 +484,8 @@ def _add_mesh_cache(obj, path: Path, frame_start: int) -> None:
     mod.interpolation = "LINEAR"
     mod.deform_mode = "OVERWRITE"
     mod.forward_axis, mod.up_axis = "POS_Y", "POS_Z"
-    obj.modifiers.move(len(obj.modifiers) - 1, 0)
+    armatures = armature.skinning(obj)  # first, or right after the Armature modifiers: it overwrites them
+    obj.modifiers.move(len(obj.modifiers) - 1, obj.modifiers.find(armatures[-1].name) + 1 if armatures else 0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -552,6 +561,8 @@ def free(context, keep_files: bool = False, keep_staged: bool = False) -> int:
         mod = obj.modifiers.get(MODIFIER_NAME)
         if mod is not None:
             obj.modifiers.remove(mod)
+        armature.unmute_skinning(obj, o.bake_muted_modifiers.splitlines())
+        o.bake_muted_modifiers = ""
         if _restore_action(obj, o.previous_action) and o.bake_keyed_transform:
             obj.rotation_mode = o.rest_rotation_mode or "XYZ"
             obj.matrix_world = mathutils.Matrix(np.array(o.rest_matrix).reshape(4, 4).T.tolist())

@@ -2,7 +2,9 @@
 (haptic_hand.engine.session.LiveSession) and, every viewport frame, writes the newest
 deformed surfaces into the Blender meshes and the rigid bodies' poses into their objects.
 The UI thread never steps the simulation: it only reads the newest frame the visual loop
-published. Esc (or Stop) ends the session and puts every object back as it was.
+published. A skinned hand's Armature modifiers are off while it runs (the frames are the
+engine's positions, not to be posed again). Esc (or Stop) ends the session and puts every
+object back as it was.
 
 With Live Session > Record on, stopping saves the session's haptic log (the device stream and
 the felt force, one row per haptic step, plus the frames Blender showed) to the Recording file;
@@ -25,7 +27,7 @@ from ..engine import mesh as meshing
 from ..engine import native, native_world
 from ..engine.session import LiveSession
 from ..engine import scene as scenes
-from . import draw, meshdata, runtime, scene_export
+from . import armature, draw, meshdata, runtime, scene_export
 
 DEVICES = devices.MENU_NAMES  # PLAYBACK is taken before this lookup
 
@@ -42,6 +44,7 @@ class LiveState:
         self.rigid = {}         # engine name -> (object, rest matrix, rest centre m)
         self.saved_positions = {}
         self.saved_matrices = {}
+        self.muted = {}         # object name -> the Armature modifiers turned off while it runs
         self.frames_written = 0
         self.last_frame = None
         self.target = None      # (object, rest position m, rest quaternion) for the viewport target
@@ -129,6 +132,8 @@ def _start(context, export, device, factory) -> LiveState:
     except Exception as e:
         session.stop()
         raise LiveError(f"The live session could not start: {e}") from None
+    for _, obj, _ in deformed:  # the frames are where the engine put the meshes: no pose on top
+        state.muted[obj.name] = armature.mute_skinning(obj)
     if s.device == "TARGET":
         push_target(state)
     return state
@@ -214,6 +219,10 @@ def stop(context, state: LiveState) -> None:
             obj = bpy.data.objects.get(obj_name)
             if obj is not None:
                 obj.matrix_world = m
+        for obj_name, names in state.muted.items():
+            obj = bpy.data.objects.get(obj_name)
+            if obj is not None:
+                armature.unmute_skinning(obj, names)
         state.export.cleanup()
 
 

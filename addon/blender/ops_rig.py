@@ -316,7 +316,8 @@ def snap_into_tets(nodes: np.ndarray, tets: np.ndarray, point: np.ndarray) -> np
 
 
 class HAPTIC_HAND_OT_check_rig(bpy.types.Operator):
-    """Check the rig with the engine: surface, tets, handle, and one step solved two ways"""
+    """Check the rig with the engine: surface, tets, handle or each bone, and one step solved two
+    ways"""
 
     bl_idname = "haptic_hand.check_rig"
     bl_label = "Check Rig"
@@ -328,7 +329,11 @@ class HAPTIC_HAND_OT_check_rig(bpy.types.Operator):
     def execute(self, context):
         from ..engine import rig_check
 
+        from . import ops_skeleton
+
         scene = context.scene
+        if not ops_skeleton.report_problems(self, scene):
+            return {"CANCELLED"}
         try:
             export = scene_export.export(context, scene.frame_current, scene.frame_current + 1)
         except (scene_export.ExportError, meshing.MeshError, native.NativeError) as e:

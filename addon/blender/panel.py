@@ -6,7 +6,7 @@ from __future__ import annotations
 import bpy
 
 from ..engine import params
-from . import background, bake_store, meshdata, ops_rig, param_props, runtime, scene_export
+from . import armature, background, bake_store, meshdata, ops_rig, param_props, runtime, scene_export
 
 
 def mib(size: int) -> str:
@@ -79,20 +79,59 @@ class HAPTIC_HAND_PT_rig(_Panel, bpy.types.Panel):
                 box.label(text="The hand has no tets yet", icon="ERROR")
         box = layout.box()
         row = box.row(align=True)
-        row.prop(s, "seed")
-        row.operator("haptic_hand.place_seed", text="", icon="PIVOT_CURSOR")
-        box.prop(s, "handle_radius")
-        count = ops_rig.captured_count(context.scene)
-        if count >= 0:
-            box.label(text=f"Handle captures {count} nodes", icon="ERROR" if count < 4 else "CHECKMARK")
+        row.prop(s, "armature")
+        row.operator("haptic_hand.use_armature", text="", icon="EYEDROPPER")
+        if s.armature is not None:
+            draw_skeleton(box, context)
+        else:
+            row = box.row(align=True)
+            row.prop(s, "seed")
+            row.operator("haptic_hand.place_seed", text="", icon="PIVOT_CURSOR")
+            box.prop(s, "handle_radius")
+            count = ops_rig.captured_count(context.scene)
+            if count >= 0:
+                box.label(text=f"Handle captures {count} nodes", icon="ERROR" if count < 4 else "CHECKMARK")
         layout.operator("haptic_hand.check_rig", icon="CHECKMARK")
+
+
+def draw_skeleton(layout, context) -> None:
+    """The skeleton's bones, each with what it captures (engine/skeleton.py's rule, as the palm
+    seed's count), and the active bone's settings."""
+    s = context.scene.haptic_hand
+    layout.prop(s, "group_weight")
+    try:
+        rig = armature.rig(context.scene)
+    except (armature.RigError, scene_export.ExportError) as e:
+        layout.label(text=str(e), icon="ERROR")
+        return
+    col = layout.column(align=True)
+    for b in rig.bones:
+        held = f"radius {b.radius * 1000:.1f} mm" + (" (auto)" if b.auto_radius else "") if b.radius is not None \
+            else "vertex group"
+        col.label(text=f"{b.name}: {b.count} nodes, {held}", icon="ERROR" if b.problems else "BONE_DATA")
+    for problem in rig.problems:
+        layout.label(text=problem, icon="ERROR")
+    bone = s.armature.data.bones.active
+    if bone is not None and bone.use_deform:
+        box = layout.box()
+        box.label(text=f"Bone '{bone.name}'")
+        settings = bone.haptic_hand
+        box.prop(settings, "capture")
+        if settings.capture == "CAPSULE":
+            row = box.row(align=True)
+            row.prop(settings, "use_bone_radius", text="")
+            sub = row.row(align=True)
+            sub.active = settings.use_bone_radius
+            sub.prop(settings, "bone_radius")
+        box.prop(settings, "bone_drive_scale")
 
 
 # Where the panel draws the parameter table's rows, so a new row shows up without a panel edit:
 # the scene's rows by the first key of their scene-file path (these sections in Device, every
-# other in Material and Contact), the advanced ones in Advanced; an object's tetrahedralize rows
+# other in Material and Contact; what drives a skeleton's bones greyed out without an
+# armature), the advanced ones in Advanced; an object's tetrahedralize rows
 # in Rig (for the active mesh), its other rows in Bodies (a body) or Rig (the hand).
-DEVICE_SECTIONS = ("haptics", "device")
+DEVICE_SECTIONS = ("haptics", "device", "skeleton")
 DRAWN_APART = ("handle_radius",)  # Rig draws it beside the palm seed and the captured count
 
 
@@ -199,7 +238,9 @@ class HAPTIC_HAND_PT_device(_Panel, bpy.types.Panel):
             layout.prop(s, "hid_device")
         layout.prop(s, "target")
         for rows in scene_groups(advanced=False, device=True):
-            draw_rows(layout, s, rows)
+            col = layout.column(align=True)
+            col.active = rows[0].keys[0] != "skeleton" or s.armature is not None
+            draw_rows(col, s, rows)
 
 
 class HAPTIC_HAND_PT_live(_Panel, bpy.types.Panel):

@@ -4,12 +4,14 @@ Each row the table keeps in Blender (HH_UI_SCENE: the scene's settings; HH_UI_OB
 object's) becomes a property with the row's label, description (the tooltip, with the unit),
 default, limits and unit. Lengths follow the scene's unit scale: the value is stored in metres
 (a hidden `<name>_si`) and shown in the scene's units, so a radius typed as 2 in a centimetre
-scene is 2 cm. Values are read and written in SI through `get_si` and `set_si`; `to_scene` and
-`from_scene` map a settings block to and from the scene file's fields.
+scene is 2 cm. A JSON row is a switch (JSON_SWITCHES) or its JSON as text. Values are read and
+written in SI through `get_si` and `set_si`; `to_scene` and `from_scene` map a settings block to
+and from the scene file's fields.
 """
 
 from __future__ import annotations
 
+import json
 import math
 
 import bpy
@@ -74,8 +76,10 @@ def _limits(p: params.Param) -> dict:
 
 
 def tooltip(p: params.Param) -> str:
+    """The row's description (less where Blender takes it from: the tooltip is on that place),
+    its unit and its scene-file field."""
     unit = f" ({p.unit})" if p.unit and p.unit not in BLENDER_UNITS else ""
-    return f"{p.description}{unit}. Scene file: {p.json}"
+    return f"{p.description.split('; in Blender, ')[0]}{unit}. Scene file: {p.json}"
 
 
 def _unit(p: params.Param) -> str:
@@ -124,28 +128,33 @@ def annotations(where: int, updates: dict | None = None) -> dict:
     callback run when the property changes)."""
     out = {}
     for p in rows(where):
-        update = (updates or {}).get(p.name)
         if p.nullable and p.kind in params.NUMERIC_KINDS:
             out[f"use_{p.name}"] = bpy.props.BoolProperty(
                 name=f"Set {p.label.lower()}", default=False,
                 description=f"Give {p.label.lower()} a value of its own (off: {p.description.split('(null: ')[-1]}")
-        if p.kind == params.KIND_BOOL:
-            out[p.name] = bpy.props.BoolProperty(name=p.label, description=tooltip(p), default=bool(p.default_value[0]),
-                                                 update=update)
-        elif p.kind == params.KIND_ENUM:
-            items = [(c, c.replace("_", " ").capitalize(), f"{p.json} = \"{c}\"") for c in p.choices]
-            out[p.name] = bpy.props.EnumProperty(name=p.label, description=tooltip(p), items=items,
-                                                 default=p.choices[int(p.default_value[0])], update=update)
-        elif p.kind in (params.KIND_PATH, params.KIND_STRING):
-            path = {"subtype": "FILE_PATH", "options": PATH_OPTIONS} if p.kind == params.KIND_PATH else {}
-            out[p.name] = bpy.props.StringProperty(name=p.label, description=tooltip(p) + " (empty: null)", **path)
-        elif p.kind == params.KIND_JSON:
-            out[p.name] = bpy.props.BoolProperty(name=p.label, description=tooltip(p), default=False)
-        elif p.unit == "m":
-            out.update(_length(p, update))
-        else:
-            out.update(_number(p, update))
+        out.update(row_properties(p, (updates or {}).get(p.name)))
     return out
+
+
+def row_properties(p: params.Param, update=None) -> dict:
+    """The bpy property definitions of one row, by name (a length's two: shown and in metres)."""
+    if p.kind == params.KIND_BOOL:
+        return {p.name: bpy.props.BoolProperty(name=p.label, description=tooltip(p), default=bool(p.default_value[0]),
+                                               update=update)}
+    if p.kind == params.KIND_ENUM:
+        items = [(c, c.replace("_", " ").capitalize(), f"{p.json} = \"{c}\"") for c in p.choices]
+        return {p.name: bpy.props.EnumProperty(name=p.label, description=tooltip(p), items=items,
+                                               default=p.choices[int(p.default_value[0])], update=update)}
+    if p.kind in (params.KIND_PATH, params.KIND_STRING):
+        path = {"subtype": "FILE_PATH", "options": PATH_OPTIONS} if p.kind == params.KIND_PATH else {}
+        return {p.name: bpy.props.StringProperty(name=p.label, description=tooltip(p) + " (empty: null)", **path)}
+    if p.kind == params.KIND_JSON and p.json in JSON_SWITCHES:
+        return {p.name: bpy.props.BoolProperty(name=p.label, description=tooltip(p), default=False)}
+    if p.kind == params.KIND_JSON:
+        return {p.name: bpy.props.StringProperty(name=p.label, description=tooltip(p) + " (JSON; empty: null)")}
+    if p.unit == "m":
+        return _length(p, update)
+    return _number(p, update)
 
 
 def get_si(settings, p: params.Param):
@@ -157,8 +166,10 @@ def get_si(settings, p: params.Param):
     value = getattr(settings, p.name)
     if p.kind in (params.KIND_PATH, params.KIND_STRING):
         return bpy.path.abspath(value) if value and p.kind == params.KIND_PATH else (value or None)
-    if p.kind == params.KIND_JSON:  # a switch between null and one value (fixed: "bottom")
+    if p.kind == params.KIND_JSON and p.json in JSON_SWITCHES:  # a switch between null and one value
         return json_switch_value(p) if value else None
+    if p.kind == params.KIND_JSON:
+        return json_text_value(p, value)
     if p.kind == params.KIND_DOUBLE:
         return decimal(value)
     return value if p.kind == params.KIND_ENUM else (bool(value) if p.kind == params.KIND_BOOL else int(value))
@@ -180,6 +191,8 @@ def set_si(settings, p: params.Param, value) -> None:
         setattr(settings, f"{p.name}_si", float(value))
     elif p.kind in (params.KIND_PATH, params.KIND_STRING):
         setattr(settings, p.name, "" if value is None else str(value))
+    elif p.kind == params.KIND_JSON and p.json not in JSON_SWITCHES:
+        setattr(settings, p.name, "" if value is None else json.dumps(value))
     elif p.kind == params.KIND_JSON:
         if value not in (None, json_switch_value(p)):
             raise ValueError(f"{p.json} = {value!r} cannot be kept in Blender: it takes null or "
@@ -189,12 +202,28 @@ def set_si(settings, p: params.Param, value) -> None:
         setattr(settings, p.name, value)
 
 
-# JSON rows Blender keeps as a switch: off is null, on is this value.
+# JSON rows Blender keeps as a switch: off is null, on is this value. The other JSON rows kept
+# in Blender are kept as their JSON text (empty: null).
 JSON_SWITCHES = {"bodies[].fixed": "bottom"}
 
 
 def json_switch_value(p: params.Param):
     return JSON_SWITCHES[p.json]
+
+
+class SettingError(ValueError):
+    """A setting Blender keeps as text that does not read as its scene-file value."""
+
+
+def json_text_value(p: params.Param, text: str):
+    """A JSON row kept as text (the other JSON rows): its value, None when empty."""
+    if not text.strip():
+        return None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise SettingError(f"{p.label} ({p.json}) is not valid JSON ({e.msg} at character {e.pos}): give "
+                           f"{p.advice}, or leave it empty") from None
 
 
 def selected(where: int, body_type: str | None = None, prefix: str | None = None):

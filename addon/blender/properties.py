@@ -1,6 +1,7 @@
 """Settings the add-on keeps in the .blend: `Scene.haptic_hand` (the rig, device, live session
-and bake, and the scene-wide parameters) and `Object.haptic_hand` (what role an object plays,
-and its own parameters: material, friction, solver, tetrahedralize settings).
+and bake, and the scene-wide parameters), `Object.haptic_hand` (what role an object plays,
+and its own parameters: material, friction, solver, tetrahedralize settings) and
+`Bone.haptic_hand` (what a bone of the skeleton armature holds, and its drive's scale).
 
 The simulation's parameters come from the parameter table (param_props): their defaults,
 limits, units and tooltips are the engine's. Lengths are shown in the scene's units and stored
@@ -10,11 +11,11 @@ in metres.
 from __future__ import annotations
 
 import bpy
-from bpy.props import (BoolProperty, EnumProperty, FloatVectorProperty, IntProperty, PointerProperty,
+from bpy.props import (BoolProperty, EnumProperty, FloatProperty, FloatVectorProperty, IntProperty, PointerProperty,
                        StringProperty)
 
 from ..engine import devices, params
-from . import param_props
+from . import armature, param_props
 
 ROLES = [
     ("NONE", "None", "Not part of the simulation"),
@@ -74,6 +75,10 @@ def _is_empty(self, obj):
     return obj.type == "EMPTY"
 
 
+def _is_armature(self, obj):
+    return obj.type == "ARMATURE"
+
+
 def _radius_changed(self, context):
     from . import ops_rig
 
@@ -123,6 +128,21 @@ class HapticObjectSettings(bpy.types.PropertyGroup):
     rest_matrix: FloatVectorProperty(size=16, options={"HIDDEN"}, description="World matrix before the bake")
     rest_rotation_mode: StringProperty(default="XYZ", options={"HIDDEN"},
                                        description="Rotation mode before the bake")
+    bake_muted_modifiers: StringProperty(default="", options={"HIDDEN"},
+                                         description="The Armature modifiers a shape-key bake turned off, one a "
+                                                     "line (Free Bake turns them back on)")
+
+
+class HapticBoneSettings(bpy.types.PropertyGroup):
+    """What a deforming bone of the skeleton armature holds (docs/blender.md, "Rigging"); its
+    radius and drive scale are the parameter table's bone rows."""
+
+    capture: EnumProperty(name="Capture", items=armature.CAPTURES, default="CAPSULE",
+                          description="What the bone holds: the tet nodes near its segment, or those of its vertex "
+                                      "group")
+    use_bone_radius: BoolProperty(name="Set radius", default=False,
+                                  description="Give the capsule a radius of its own (off: 1.15 times the limb's "
+                                              "radius there, from the hand's mesh)")
 
 
 class HapticSceneSettings(bpy.types.PropertyGroup):
@@ -135,6 +155,13 @@ class HapticSceneSettings(bpy.types.PropertyGroup):
     seed: PointerProperty(name="Palm seed", type=bpy.types.Object, poll=_is_empty,
                           description="Empty at the palm: the rigid handle captures the tet nodes within "
                                       "the radius around it (scene file: hand.palm_seed)")
+    armature: PointerProperty(name="Armature", type=bpy.types.Object, poll=_is_armature,
+                              description="The hand's armature: each deforming bone becomes a rigid handle that holds "
+                                          "the flesh near it, driven by the armature's animation (scene file: "
+                                          "hand.skeleton, skeleton.targets); empty: the palm seed's one handle")
+    group_weight: FloatProperty(name="Group weight", default=0.5, min=0.0, max=1.0,
+                                description="A bone captured by the hand's vertex group holds the flesh of the "
+                                            "vertices weighted above this in its group; blended vertices stay soft")
     tet_confirm_limit: IntProperty(name="Confirm above", default=50000, min=0,
                                    description="Tetrahedralize asks before making more tets than this (its "
                                                "estimate); 0 never asks")
@@ -192,9 +219,11 @@ def _add_table_properties() -> None:
     HapticSceneSettings.__annotations__.update(
         param_props.annotations(params.UI_SCENE, updates={"handle_radius": _radius_changed}))
     HapticObjectSettings.__annotations__.update(param_props.annotations(params.UI_OBJECT))
+    for p in armature.bone_rows().values():
+        HapticBoneSettings.__annotations__.update(param_props.row_properties(p))
 
 
-classes = (HapticObjectSettings, HapticSceneSettings)
+classes = (HapticObjectSettings, HapticBoneSettings, HapticSceneSettings)
 
 
 def register():
@@ -202,11 +231,13 @@ def register():
     for cls in classes:
         bpy.utils.register_class(cls)
     bpy.types.Object.haptic_hand = PointerProperty(type=HapticObjectSettings)
+    bpy.types.Bone.haptic_hand = PointerProperty(type=HapticBoneSettings)
     bpy.types.Scene.haptic_hand = PointerProperty(type=HapticSceneSettings)
 
 
 def unregister():
     del bpy.types.Scene.haptic_hand
+    del bpy.types.Bone.haptic_hand
     del bpy.types.Object.haptic_hand
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

@@ -26,7 +26,7 @@ from ..engine import mesh as meshing
 from ..engine import native, native_world
 from ..engine import devices, params
 from ..engine import scene as scenes
-from . import meshdata, param_props
+from . import armature, armature_motion, meshdata, param_props
 
 # Blender's roles as the scene file's body types
 BODY_TYPES = {"SOFT": "soft", "RIGID": "rigid", "MOVING": "kinematic", "STATIC": "static", "PLANE": "plane"}
@@ -79,6 +79,9 @@ class Export:
     folder: Path = None
     handle_rest_com: np.ndarray = None   # m, filled by handle_com()
     target_rest: tuple = None            # (position m, quaternion) of the target at frame_start
+    # the hand object's world matrix at every frame of the range when it moves (a hand parented
+    # to its moving armature), else None: a bake's meshes are written in the frame's own space
+    hand_matrices: np.ndarray = None
 
     def cleanup(self) -> None:
         if self.folder is not None:
@@ -208,7 +211,7 @@ def export(context, frame_start: int | None = None, frame_end: int | None = None
         raise ExportError(f"The frame range {f0}-{f1} is empty: set End after Start in Haptic Hand > Bake")
     rate = fps(bscene)
     scale = meshdata.unit_scale(bscene)
-    hand, tet_obj, seed_obj = check_hand(bscene)
+    hand, tet_obj, seed_obj = check_hand(bscene, need_seed=s.armature is None)
     if hand.data.shape_keys is not None and not hand.haptic_hand.baked:
         raise ExportError(f"The hand '{hand.name}' has shape keys: the engine uses the base mesh; remove them "
                           "(Object Data > Shape Keys) or apply them first")
@@ -235,13 +238,19 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
     except meshing.MeshError as e:
         raise ExportError(f"The hand '{hand.name}': {e}") from None
     scale_warning = meshing.scale_warning(surface, "hand")
-    seed = check_seed(bscene, nodes, tets, scale_warning)
+    if s.armature is None:
+        seed = check_seed(bscene, nodes, tets, scale_warning).tolist()
+    else:  # the bones hold the hand; a seed there is kept, unchecked
+        seed = seed_world(bscene).tolist() if s.seed is not None else None
 
     data = {"format": scenes.format_name(), "bodies": []}
-    param_props.to_scene(s, data, params.UI_SCENE)
+    try:
+        param_props.to_scene(s, data, params.UI_SCENE)
+    except param_props.SettingError as e:
+        raise ExportError(str(e)) from None
     param_props.to_scene(hand.haptic_hand, data, params.UI_OBJECT, prefix="hand.")
     data["hand"].update(mesh=_write_obj(folder, "hand", surface, faces), tets=_write_tets(folder, "hand", nodes, tets),
-                        palm_seed=seed.tolist())
+                        palm_seed=seed, skeleton=skeleton_bones(bscene, nodes, scale_warning))
     data.update(dt=1.0 / rate, frames=f1 - f0,
                 gravity=[param_props.decimal(g) for g in bscene.gravity] if bscene.use_gravity else [0.0, 0.0, 0.0])
     data["haptics"]["device"] = device_to_scene(s)
@@ -278,19 +287,25 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
         data["bodies"].append(spec)
         links.append(link)
 
-    # Sample the animated target and moving colliders at every frame of the range.
+    # Sample the animated target, moving colliders and the armature at every frame of the range.
     target = s.target
     frames = list(range(f0, f1 + 1))
     times = [(f - f0) / rate for f in frames]
-    target_m, moving_m = [], [[] for _ in moving]
+    target_m, moving_m, hand_m = [], [[] for _ in moving], []
+    poses = pose_sampler(bscene, data)
     for f in frames:
-        if target is not None or moving:
+        if target is not None or moving or s.armature is not None:
             bscene.frame_set(f)
         if target is not None:
             target_m.append(meshdata.matrix(target))
         for i, (_, link, _) in enumerate(moving):
             moving_m[i].append(meshdata.matrix(link.obj))
+        if poses is not None:
+            poses.sample(context.evaluated_depsgraph_get())
+        hand_m.append(meshdata.matrix(hand))
     bscene.frame_set(f0)
+    if poses is not None:
+        data["skeleton"]["targets"] = poses.targets(times)
     trajectory, target_rest = [], None
     if target is not None:
         m0 = target_m[0]
@@ -318,8 +333,36 @@ def _export_at_start(context, bscene, s, hand, tet_obj, f0, f1, rate, scale, fol
     engine_scene.surface_vertices, engine_scene.surface_faces = surface, faces
     engine_scene.warnings += [scale_warning] if scale_warning else []
     engine_scene.nodes, engine_scene.tets = nodes, tets
+    moves = any(not np.allclose(m, hand_m[0], rtol=0, atol=1e-9) for m in hand_m)
     return Export(engine_scene, hand, meshdata.matrix(hand), links, scale, f0, f1, rate, folder,
-                  target_rest=target_rest)
+                  target_rest=target_rest, hand_matrices=np.array(hand_m) if moves else None)
+
+
+def skeleton_bones(bscene, nodes: np.ndarray, scale_warning: str | None) -> list | None:
+    """hand.skeleton from the armature (None without one); ExportError naming the first problem
+    (Check Rig lists them all)."""
+    if bscene.haptic_hand.armature is None:
+        return None
+    try:
+        rig = armature.rig(bscene, nodes)
+    except armature.RigError as e:
+        raise ExportError(str(e)) from None
+    if rig.problems:
+        more = f" ({len(rig.problems) - 1} more problem(s): Check Rig lists them)" if len(rig.problems) > 1 else ""
+        cause = f"; {scale_warning}" if scale_warning else ""
+        raise ExportError(f"The skeleton: {rig.problems[0]}{more}{cause}")
+    return rig.specs()
+
+
+def pose_sampler(bscene, data: dict) -> armature_motion.PoseSampler | None:
+    """What samples the armature's pose into skeleton.targets; None without an armature or when a
+    tracking stream drives the bones instead."""
+    s = bscene.haptic_hand
+    bones = data["hand"]["skeleton"]
+    if s.armature is None or data["skeleton"]["tracking"] is not None:
+        return None
+    return armature_motion.PoseSampler(s.armature, [b["name"] for b in bones], [b["parent"] for b in bones],
+                                       meshdata.unit_scale(bscene))
 
 
 def in_blender_terms(message: str) -> str:

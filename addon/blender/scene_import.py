@@ -1,6 +1,7 @@
 """The engine's JSON scene (docs/scene_format.md) -> Blender objects, with the add-on's settings
 filled in: the hand and its stored tets, the palm seed, a target empty keyed along the device
-trajectory, and the bodies (soft ones with their tets, moving ones keyed along their scripts).
+trajectory, the bodies (soft ones with their tets, moving ones keyed along their scripts), and
+a skeleton's armature (armature_build) with its targets keyed as its action.
 
 The sample scenes of blender_scenes/ are built by this; File > Import > Haptic Hand Scene uses
 it too. The Blender scene is in metres (unit scale 1) at the frame rate 1 / dt.
@@ -14,9 +15,9 @@ import bpy
 import numpy as np
 
 from ..engine import bodies as bodies_module
-from ..engine import params
+from ..engine import bone_drive, params
 from ..engine import scene as scenes
-from . import bake_store, meshdata, ops_rig, param_props, scene_export
+from . import armature_build, armature_motion, bake_store, meshdata, ops_rig, param_props, scene_export
 
 
 class ImportError_(ValueError):
@@ -80,6 +81,7 @@ def build(context, path, frame_start: int = 1) -> dict:
         param_props.from_scene(s, data, params.UI_SCENE)
     except ValueError as e:
         raise ImportError_(str(e)) from None
+    _paths_from(s, scene.base_dir)
     scene_export.device_from_scene(s, data["haptics"]["device"])
 
     scenes.load_hand_geometry(scene)
@@ -90,25 +92,54 @@ def build(context, path, frame_start: int = 1) -> dict:
     param_props.from_scene(hand_obj.haptic_hand, data, params.UI_OBJECT, prefix="hand.")
     ops_rig.make_tet_object(context, hand_obj, scene.nodes, scene.tets)
     s.hand = hand_obj
-    seed = _link(context, bpy.data.objects.new(ops_rig.SEED_NAME, None))
-    seed.empty_display_type = "SPHERE"
-    seed.parent = hand_obj
-    seed.location = scene.palm_seed()
-    s.seed = seed
-    objects.update(hand=hand_obj, seed=seed)
+    objects["hand"] = hand_obj
+    if scene.skeleton is None or data["hand"]["palm_seed"] is not None:  # a skeleton needs no seed
+        seed = _link(context, bpy.data.objects.new(ops_rig.SEED_NAME, None))
+        seed.empty_display_type = "SPHERE"
+        seed.parent = hand_obj
+        seed.location = scene.palm_seed()
+        s.seed = objects["seed"] = seed
+    # the device's start: the palm seed, or a skeleton's root head (its motion is what counts)
+    start = scene.palm_seed() if s.seed is not None else np.asarray(scene.skeleton.skeleton.bones[0].head, float)
 
     target = _link(context, bpy.data.objects.new("Device target", None))
     target.empty_display_type = "ARROWS"
     target.empty_display_size = 0.03
-    _keyed_motion(target, scene.palm_seed(), data["device"]["trajectory"], rate, frame_start)
+    _keyed_motion(target, start, data["device"]["trajectory"], rate, frame_start)
     s.target = target
     objects["target"] = target
 
+    if scene.skeleton is not None:
+        objects["armature"] = _add_armature(context, scene, hand_obj, frame_start)
     for spec in scene.bodies:
         objects[spec["name"]] = _add_body(context, spec, rate, frame_start)
     context.view_layer.update()
     ops_rig.update_captured(bscene)
     return objects
+
+
+def _paths_from(s, base_dir: Path) -> None:
+    """File paths of the scene's settings, which the file gives relative to itself, made
+    absolute (Blender would read them relative to the .blend)."""
+    for p in param_props.selected(params.UI_SCENE):
+        value = getattr(s, p.name) if p.kind == params.KIND_PATH else ""
+        if value and not value.startswith("//") and not Path(value).is_absolute():
+            setattr(s, p.name, str((base_dir / value).resolve()))
+
+
+def _add_armature(context, scene: scenes.Scene, hand_obj, frame_start: int):
+    """The skeleton's armature, chosen in Rig > Skeleton, with skeleton.targets keyed as its
+    action (one key per frame of the scene)."""
+    rig = scene.skeleton
+    obj = armature_build.new_armature(context, rig.skeleton, rig.drive_scales, hand_obj,
+                                      hand_obj.haptic_hand.tet_object)
+    context.scene.haptic_hand.armature = obj
+    if rig.tracks:
+        heads = np.array([b.head for b in rig.skeleton.bones], dtype=float)
+        drive = bone_drive.BoneDrive(rig, heads, device=None, device_on=False)
+        steps = np.arange(scene.frames + 1)
+        armature_motion.key_targets(obj, drive, rig.skeleton, steps * scene.dt, frame_start + steps)
+    return obj
 
 
 def _add_body(context, spec: dict, rate: float, frame_start: int):

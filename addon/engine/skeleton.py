@@ -126,6 +126,13 @@ class Skeleton:
 
     def capture(self, rest: np.ndarray) -> np.ndarray:
         """Each rest node's bone (n,), -1 for flesh only; checks every rule (docs/skeleton.md)."""
+        owner = self.assign(rest)
+        self._check_capture(owner, len(owner))
+        return owner
+
+    def assign(self, rest: np.ndarray) -> np.ndarray:
+        """Each rest node's bone (n,) by the capture rule, without the checks on what each bone
+        holds (at least 4 nodes, not every node): what Blender lists while a rig is authored."""
         rest = _rest_nodes(rest)
         n = len(rest)
         owner = self._explicit_owners(n)
@@ -138,7 +145,6 @@ class Skeleton:
         nearest = np.argmin(distances, axis=1)  # the first of equal distances: the bone listed first
         inside = np.isfinite(distances[np.arange(n), nearest])
         owner[free & inside] = nearest[free & inside]
-        self._check_capture(owner, n)
         return owner
 
     def _explicit_owners(self, n: int) -> np.ndarray:

@@ -255,39 +255,44 @@
       "at most the static coefficient")                                                                \
     X(self_collision, HH_KIND_BOOL, 1, "hand.self_collision", "", HH_V(1), 0, 1, HH_UI_SCENE, 0, 1,    \
       "Self collision", "", "The hand's fingers collide with each other", "true or false")             \
-    X(skeleton, HH_KIND_JSON, 0, "hand.skeleton", "", HH_V(0), 0, 0, HH_NULLABLE, 0, 0,  \
+    X(skeleton, HH_KIND_JSON, 0, "hand.skeleton", "", HH_V(0), 0, 0, HH_NULLABLE | HH_UI_DERIVED, 0, 0,\
       "Skeleton", "null",                                                                              \
       "The hand's bones, each a rigid handle (docs/skeleton.md): null: the palm handle "               \
       "(hand.palm_seed, hand.handle_radius); \"procedural\": the procedural hand's 16 bones; or a "     \
-      "list of bones {name, parent, head, tail, radius, nodes, drive_scale}, the root first",         \
+      "list of bones {name, parent, head, tail, radius, nodes, drive_scale}, the root first; in "    \
+      "Blender, the deforming bones of the armature chosen in Rig > Skeleton",                        \
       "null, \"procedural\" or a list of bones")                                                      \
     X(bone_name, HH_KIND_STRING, 0, "hand.skeleton[].name", "", HH_V(0), 0, 0,                         \
-      HH_REQUIRED, 0, 0, "Bone name", "null",                                          \
-      "A bone's unique name (targets and tracking maps name it)", "a unique, non-empty name")         \
+      HH_REQUIRED | HH_UI_DERIVED, 0, 0, "Bone name", "null",                          \
+      "A bone's unique name (targets and tracking maps name it); in Blender, the bone's name", "a unique, non-empty name")         \
     X(bone_parent, HH_KIND_STRING, 0, "hand.skeleton[].parent", "", HH_V(0), 0, 0,                     \
-      HH_NULLABLE, 0, 0, "Bone parent", "null",                                        \
-      "The name of the bone it hangs from (null: a root; the first bone must be one)",                 \
+      HH_NULLABLE | HH_UI_DERIVED, 0, 0, "Bone parent", "null",                        \
+      "The name of the bone it hangs from (null: a root; the first bone must be one); in Blender, "    \
+      "its nearest deforming ancestor",                                                                \
       "the name of a bone of the list, or null")                                                       \
     X(bone_head, HH_KIND_DOUBLE, 3, "hand.skeleton[].head", "m", HH_V3(0, 0, 0), -HH_INF, HH_INF,      \
-      HH_REQUIRED, -1, 1, "Bone head", "",                                             \
-      "The rest segment's start (the joint it turns about), world frame", "finite, in metres")         \
+      HH_REQUIRED | HH_UI_DERIVED, -1, 1, "Bone head", "",                             \
+      "The rest segment's start (the joint it turns about), world frame; in Blender, the bone's rest " \
+      "head", "finite, in metres")                                                                     \
     X(bone_tail, HH_KIND_DOUBLE, 3, "hand.skeleton[].tail", "m", HH_V3(0, 0, 0), -HH_INF, HH_INF,      \
-      HH_REQUIRED, -1, 1, "Bone tail", "", "The rest segment's end, world frame",      \
+      HH_REQUIRED | HH_UI_DERIVED, -1, 1, "Bone tail", "",                             \
+      "The rest segment's end, world frame; in Blender, the bone's rest tail",                         \
       "finite, in metres")                                                                             \
     X(bone_radius, HH_KIND_DOUBLE, 1, "hand.skeleton[].radius", "m", HH_V(0.01), 0, HH_INF,            \
-      HH_OPEN_MIN | HH_NULLABLE, 0.001, 0.05, "Bone radius", "",                       \
+      HH_OPEN_MIN | HH_NULLABLE | HH_UI_DERIVED, 0.001, 0.05, "Bone radius", "",       \
       "Capsule radius: the bone holds the tet nodes nearer its segment than this and nearer it than "  \
-      "any other bone's (null: it holds its nodes only)",                                             \
+      "any other bone's (null: it holds its nodes only); in Blender, the bone's Radius in Rig > "       \
+      "Skeleton",                                                                                      \
       "a little more than the limb's own radius, so it holds 4 nodes off its axis")                    \
     X(bone_nodes, HH_KIND_JSON, 0, "hand.skeleton[].nodes", "", HH_V(0), 0, 0,                         \
-      HH_NULLABLE, 0, 0, "Bone nodes", "null",                                         \
-      "The tet node indices the bone holds, instead of a capsule (e.g. from a vertex group; null: "    \
-      "by its radius)",                                                                                \
+      HH_NULLABLE | HH_UI_DERIVED, 0, 0, "Bone nodes", "null",                         \
+      "The tet node indices the bone holds, instead of a capsule (null: by its radius); in Blender, "  \
+      "from the vertex group named like the bone (Capture: Vertex group in Rig > Skeleton)",          \
       "at least 4 node indices, none held by another bone")                                           \
     X(bone_drive_scale, HH_KIND_DOUBLE, 1, "hand.skeleton[].drive_scale", "", HH_V(1), 0, HH_INF,      \
-      0, 0, 4, "Bone drive scale", "",                                                     \
+      HH_UI_DERIVED, 0, 4, "Bone drive scale", "",                                         \
       "Multiplies the gains of the bone's drive to its target (0: the bone is free, carried by the "   \
-      "flesh)",                                                                                        \
+      "flesh); in Blender, the bone's Drive scale in Rig > Skeleton",                                  \
       "1; 0 frees the bone")                                                                           \
     X(bodies, HH_KIND_JSON, 0, "bodies", "", HH_V(0), 0, 0, HH_UI_DERIVED, 0, 0, "Bodies", "[]",       \
       "The other bodies (docs/contact.md); in Blender, the objects with a role", "a list")             \
@@ -429,29 +434,30 @@
       "Timed device poses [{t, position, quaternion (x, y, z, s)}], linear and slerp between (in "     \
       "Blender, the target empty's animation)",                                                        \
       "a non-empty list with strictly increasing times")                                            \
-    X(drive_prescribed, HH_KIND_BOOL, 1, "skeleton.drive.prescribed", "", HH_V(0), 0, 1, 0, 0, 1,       \
+    X(drive_prescribed, HH_KIND_BOOL, 1, "skeleton.drive.prescribed", "", HH_V(0), 0, 1,                 \
+      HH_UI_SCENE | HH_UI_ADVANCED, 0, 1,                                                              \
       "Prescribed bones", "",                                                                          \
       "Every driven bone but a root on the device reaches its target pose at the end of each step "    \
       "(the flesh and contacts never push it back); off: each follows its target through its own "     \
       "virtual coupling (docs/skeleton.md, Section 4)",                                                \
       "true or false")                                                                                 \
-    X(skeleton_targets, HH_KIND_JSON, 0, "skeleton.targets", "", HH_V(0), 0, 0, 0, 0, 0,               \
+    X(skeleton_targets, HH_KIND_JSON, 0, "skeleton.targets", "", HH_V(0), 0, 0, HH_UI_DERIVED, 0, 0,   \
       "Bone targets", "[]",                                                                            \
       "Timed bone poses [{t, bones: {name: {position, quaternion}}}]: each bone's head offset from "   \
       "rest and its turn from rest, world frame; linear and slerp between keys (docs/skeleton.md, "    \
-      "Section 8)",                                                                                    \
+      "Section 8); in Blender, the armature's animation, sampled every frame",                         \
       "a list of keys with strictly increasing times naming bones of the skeleton")                    \
     X(skeleton_tracking, HH_KIND_PATH, 0, "skeleton.tracking", "", HH_V(0), 0, 0,                      \
-      HH_NULLABLE, 0, 0, "Tracking stream", "null",                                    \
+      HH_NULLABLE | HH_UI_SCENE, 0, 0, "Tracking stream", "null",                      \
       "A hand-tracking stream (haptic_hand.tracking/1, .csv or .json; OpenXR or MANO joints) that "    \
       "drives the bones, relative to the scene file (null: none)",                                     \
       "a .csv or .json tracking stream")                                                               \
     X(tracking_map, HH_KIND_JSON, 0, "skeleton.tracking_map", "", HH_V(0), 0, 0,                       \
-      HH_NULLABLE, 0, 0, "Tracking map", "null",                                       \
+      HH_NULLABLE | HH_UI_SCENE, 0, 0, "Tracking map", "null",                         \
       "Which bone each tracked joint drives, {joint: bone} (null: the layout's map onto the "          \
       "procedural hand's bones)",                                                                      \
       "an object of joint names to bone names")                                                        \
-    X(root_device, HH_KIND_BOOL, 1, "skeleton.root_device", "", HH_V(0), 0, 1, 0, 0, 1,    \
+    X(root_device, HH_KIND_BOOL, 1, "skeleton.root_device", "", HH_V(0), 0, 1, HH_UI_SCENE, 0, 1,   \
       "Root follows device", "",                                                                       \
       "The root bone follows the device trajectory through the coupling; the other bones keep their "  \
       "targets' pose relative to the root (off: the root follows its own targets)",                   \

@@ -15,14 +15,16 @@ bpy = pytest.importorskip("bpy")
 from haptic_hand.blender import live, ops_bake, panel, param_props, runtime, scene_export
 from haptic_hand.engine import params
 
-from blender_helpers import FakeSession, draw_panels, labels, open_copy, operators, props
+from blender_helpers import (FakeSession, draw_panels, labels, open_copy, operators, props,
+                             rig_procedural_armature)
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "docs" / "blender.md"
 # emphasised words in docs/blender.md that are Blender's own, not the add-on panel's
 BLENDER_NAMES = {"Mesh Cache", "Graph Editor", "Get Extensions", "Install from Disk...", "Shape Keys",
                  "Object Data", "Custom Properties", "File > Import > Haptic Hand Scene (.json)",
-                 "Edit > Preferences > Get Extensions > ⌄ > Install from Disk...", "Mesh > Clean Up"}
+                 "Edit > Preferences > Get Extensions > ⌄ > Install from Disk...", "Mesh > Clean Up", "Deform",
+                 "Bone Properties", "Weight Paint > Weights > Normalize All"}
 
 
 def test_panels_draw_empty_and_rigged_scenes(addon, built_scenes, tmp_path):
@@ -142,6 +144,10 @@ def drawn_names(context) -> tuple[set, set]:
     runtime.state.stop_all()
     s.bake_frame_end = 3
     assert bpy.ops.haptic_hand.bake() == {"FINISHED"}
+    collect()
+    bpy.ops.haptic_hand.free_bake()
+    arm = rig_procedural_armature(context, s.hand)  # a skeleton, its active bone's settings
+    arm.data.bones.active = arm.data.bones["index_1"]
     collect()
     return controls, shown | controls
 

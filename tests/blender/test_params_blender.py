@@ -1,6 +1,8 @@
 """The parameter table in Blender: every property's default is the engine's, every property has
 a tooltip, a Blender scene with default settings exports to the command line's default scene,
-Blender -> JSON -> Blender -> JSON keeps every parameter, and lengths follow the scene's units."""
+Blender -> JSON -> Blender -> JSON keeps every parameter (and a skeleton: its bones, their
+radii and vertex groups, and the armature's motion or a tracking stream), and lengths follow
+the scene's units."""
 
 import json
 import math
@@ -13,10 +15,11 @@ import numpy as np
 
 from haptic_hand.blender import meshdata, ops_rig, param_props, properties, scene_export, scene_import
 from haptic_hand.engine import mesh as meshing
-from haptic_hand.engine import native, params
+from haptic_hand.engine import native, params, tracking
 from haptic_hand.engine import scene as scenes
+from haptic_hand.engine import skeleton as sk
 
-from blender_helpers import SAMPLES
+from blender_helpers import bone_motion, build_hand, curling_stream, key_finger_curl, rig_procedural_armature
 
 
 def rna_default(settings, name):
@@ -61,30 +64,6 @@ def test_every_operator_and_its_properties_have_a_tooltip(addon):
                 assert prop.description.strip(), f"haptic_hand.{name}'s '{prop.identifier}' has no tooltip"
 
 
-def build_hand(context, scale: float = 1.0):
-    """The procedural hand with its stored tets and a seed at its palm, in a scene whose Blender
-    unit is `scale` metres, all settings at their defaults; 30 fps, 60 frames."""
-    bscene = context.scene
-    bscene.unit_settings.system = "METRIC"
-    bscene.unit_settings.scale_length = scale
-    bscene.render.fps, bscene.render.fps_base = 30, 1.0
-    bscene.frame_start, bscene.frame_end = 1, 61
-    stored = np.load(SAMPLES / "procedural_hand_tets.npz")
-    v, f = meshing.procedural_hand()
-    hand = bpy.data.objects.new("Hand", meshdata.new_mesh("Hand", v / scale, f))
-    bscene.collection.objects.link(hand)
-    ops_rig.make_tet_object(context, hand, stored["nodes"] / scale, stored["tets"])
-    s = bscene.haptic_hand
-    s.hand = hand
-    hand.haptic_hand.role = "HAND"
-    seed = bpy.data.objects.new(ops_rig.SEED_NAME, None)
-    bscene.collection.objects.link(seed)
-    seed.location = meshing.procedural_hand_palm_seed() / scale
-    s.seed = seed
-    context.view_layer.update()
-    return hand
-
-
 def test_a_default_blender_scene_exports_to_the_default_scene(addon):
     build_hand(addon)
     export = scene_export.export(addon)
@@ -123,7 +102,7 @@ def set_all(settings, rows):
     for p in rows:
         value = non_default(p)
         if p.kind == params.KIND_JSON:
-            value = param_props.json_switch_value(p)
+            value = param_props.json_switch_value(p) if p.json in param_props.JSON_SWITCHES else None
         param_props.set_si(settings, p, value)
 
 
@@ -155,19 +134,50 @@ def key_motion(obj, frames, locations, angles):
 
 
 HID_PATH = "/dev/hidraw7"
+F32 = 2e-7  # metres: float32 rounding of coordinates below 1 m, as Blender stores them
+# what the scene refuses without a skeleton (it drives a skeleton's bones, or feeds back per bone)
+NEEDS_SKELETON = {"skeleton.tracking", "skeleton.tracking_map", "skeleton.root_device", "skeleton.drive.prescribed",
+                  "haptics.feedback"}
 
 
-@pytest.mark.parametrize("device", ["PLAYBACK", "HID"])
-def test_blender_json_blender_json_keeps_every_parameter(addon, tmp_path, monkeypatch, device):
+def rig_skeleton(context, hand, drive: str, folder) -> None:
+    """The procedural armature on the hand, one bone holding a vertex group of the tets (the
+    nodes its capsule held), driven by keyed pose bones or by a tracking stream."""
+    from haptic_hand.blender import armature
+
+    arm_obj = rig_procedural_armature(context, hand)
+    held = armature.rig(context.scene).owner == 6  # index_3's nodes
+    group = hand.haptic_hand.tet_object.vertex_groups.new(name="index_3")
+    group.add(np.flatnonzero(held).tolist(), 1.0, "REPLACE")
+    arm_obj.data.bones["index_3"].haptic_hand.capture = "GROUP"
+    arm_obj.data.bones["ring_2"].haptic_hand.bone_drive_scale = 0.5
+    s = context.scene.haptic_hand
+    s.skeleton_tracking, s.tracking_map = "", ""
+    if drive == "action":
+        key_finger_curl(arm_obj, (1, 31), 0.4)
+    else:  # MANO joints onto the procedural bones, the layout's own map given
+        curling_stream(folder / "curl.csv")
+        s.skeleton_tracking = str(folder / "curl.csv")
+        s.tracking_map = json.dumps(tracking.PROCEDURAL_MAPS["mano"])
+
+
+@pytest.mark.parametrize("device, skeleton", [("PLAYBACK", None), ("HID", "action"), ("PLAYBACK", "tracking")])
+def test_blender_json_blender_json_keeps_every_parameter(addon, tmp_path, monkeypatch, device, skeleton):
+    """Every row set to a value other than its default. A skeleton hand runs without the haptic
+    loop (the scene refuses both), and what drives bones needs a skeleton: each variant sets
+    those it can."""
     from haptic_hand.engine import devices
 
     monkeypatch.setattr(devices, "hid_devices", lambda: [{"path": HID_PATH.encode(), "product": "SpaceMouse"}])
     context = addon
     hand = build_hand(context)
     s = context.scene.haptic_hand
-    set_all(s, param_props.rows(params.UI_SCENE))
+    refused = {"haptics.enabled"} if skeleton else NEEDS_SKELETON
+    set_all(s, [p for p in param_props.rows(params.UI_SCENE) if p.json not in refused])
     s.use_kinetic_friction, s.kinetic_friction = True, 0.1  # at most the static friction
     s.coupling_stiffness = 2500.0  # the haptic loop is on: within its tested range
+    if skeleton:
+        rig_skeleton(context, hand, skeleton, tmp_path)
     set_all(hand.haptic_hand, [p for p in param_props.selected(params.UI_OBJECT, prefix="hand.")])
     nodes, tets = meshing.structured_box([0.04, 0.04, 0.04], [2, 2, 2])
     faces = meshing.tet_boundary_faces(tets)
@@ -225,10 +235,37 @@ def test_blender_json_blender_json_keeps_every_parameter(addon, tmp_path, monkey
     for p1, p2 in zip(slider1["trajectory"], slider2["trajectory"], strict=True):
         np.testing.assert_allclose([p1["t"], *p1["position"], *p1["quaternion"]],
                                    [p2["t"], *p2["position"], *p2["quaternion"]], atol=1e-6)
+    skip.add("skeleton.targets")  # sampled from Blender's pose each time: compared as the motion below
     changed = {k: (v1[k], v2.get(k)) for k in v1 if k not in skip and v1[k] != v2.get(k)}
     assert not changed
     assert v1["haptics.device"] == device_json
     assert len(v1) > 80 and set(v1) == set(v2)
+    if skeleton:
+        check_skeleton_round_trip(json1, scene1, scene2, skeleton)
+    else:
+        assert v1["hand.skeleton"] is None and v1["skeleton.targets"] == []
+
+
+def check_skeleton_round_trip(json1: dict, scene1, scene2, drive: str) -> None:
+    """The armature's bones reached the file as the procedural hand's (world metres, single
+    precision), the group bone as its tet nodes, and both exports drive the bones alike."""
+    bones = {b["name"]: b for b in json1["hand"]["skeleton"]}
+    reference = sk.procedural_hand_skeleton()
+    assert list(bones) == list(reference.names)
+    for bone in reference.bones:
+        got = bones[bone.name]
+        np.testing.assert_allclose(got["head"] + got["tail"], np.concatenate([bone.head, bone.tail]), atol=F32)
+        assert got["parent"] == bone.parent
+        if bone.name == "index_3":
+            assert got["radius"] is None and len(got["nodes"]) >= 4
+        else:
+            assert got["radius"] == pytest.approx(bone.radius, rel=1e-7) and got["nodes"] is None
+    assert bones["ring_2"]["drive_scale"] == 0.5
+    assert (json1["skeleton"]["tracking"] is not None) == (drive == "tracking")
+    assert (json1["skeleton"].get("targets", []) != []) == (drive == "action")
+    motion1, motion2 = bone_motion(scene1), bone_motion(scene2)
+    assert np.abs(motion1[-1] - motion1[0]).max() > 0.01, "the fingers curl: the comparison can fail"
+    np.testing.assert_allclose(motion2, motion1, atol=1e-6)
 
 
 def test_lengths_follow_a_centimetre_scene(addon):

@@ -18,6 +18,7 @@ def snapshot():
         "ops": sorted(dir(bpy.ops.haptic_hand)),
         "scene_prop": hasattr(bpy.types.Scene, "haptic_hand"),
         "object_prop": hasattr(bpy.types.Object, "haptic_hand"),
+        "bone_prop": hasattr(bpy.types.Bone, "haptic_hand"),
         "handlers": handlers,
         "menu_draws": menu_draws,
     }
@@ -39,15 +40,16 @@ def test_register_unregister_twice_leaves_nothing():
         haptic_hand.register()
         during = snapshot()
         # what registering adds, so the "after" comparison below can fail
-        assert during["scene_prop"] and during["object_prop"]
-        assert {"bake", "tetrahedralize", "place_seed", "live", "mark_body", "free_bake"} <= set(during["ops"])
+        assert during["scene_prop"] and during["object_prop"] and during["bone_prop"]
+        assert {"bake", "tetrahedralize", "place_seed", "live", "mark_body", "free_bake", "use_armature"} <= \
+            set(during["ops"])
         assert "HAPTIC_HAND_PT_main" in during["types"]
         assert during["menu_draws"] == before["menu_draws"] + 1
-        assert draw._handle is not None
+        assert len(draw._handles) == 2  # the live session's overlay and the skeleton's capsules
         bpy.context.scene.haptic_hand.handle_radius = 0.02  # the properties work
         haptic_hand.unregister()
         assert snapshot() == before
-        assert draw._handle is None and draw.overlay is None
+        assert not draw._handles and draw.overlay is None
         assert not runtime.state.busy()
         assert handlers_added(during, before) == {"load_pre": 1, "load_post": 1}
 
