@@ -29,7 +29,7 @@ import numpy as np
 
 from ..engine import params
 from ..engine import skeleton as sk
-from . import meshdata, param_props
+from . import hand_source, meshdata, param_props
 
 CAPTURES = [
     ("CAPSULE", "Capsule", "The bone holds the tet nodes within its radius of its rest segment (the nearest bone "
@@ -221,12 +221,10 @@ def rig(scene, nodes: np.ndarray | None = None) -> Rig:
     """The armature's bones, what each captures of the hand's tet nodes (world metres; read
     from the scene when not given) and every problem; RigError when there is no skeleton to
     speak of (no armature, no deforming bone, no tets)."""
-    from . import scene_export
-
     s = scene.haptic_hand
     chain = chain_of(scene)
     if nodes is None:
-        nodes, _ = scene_export.hand_tets_world(scene)
+        nodes, _ = hand_source.hand_tets_world(scene)
     hand = s.hand
     heads, tails = rest_segments(s.armature, [b for b, _ in chain], meshdata.unit_scale(scene))
     capsules = radii(scene, [b for b, _ in chain], heads, tails)

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..engine import quaternion as quat
 from ..engine import skeleton as sk
-from . import bake_store, meshdata
+from . import actions, meshdata
 
 # A bone whose head stays within this of where its parent carries it (m) gives no position.
 RIDES = 1e-6
@@ -113,8 +113,8 @@ def key_targets(arm_obj, drive, skeleton: sk.Skeleton, times, frames) -> None:
 def _write_action(arm_obj, frames, rotations: dict, locations: dict) -> None:
     """One key per frame of every bone's rotation (quaternion, w first as Blender keeps it) and
     of the location of those whose head moves on its own."""
-    action, slot, fcurves = bake_store.new_action(arm_obj, f"{arm_obj.name} targets")
-    bake_store.assign_action(arm_obj, action, slot)
+    action, slot, fcurves = actions.new_action(arm_obj, f"{arm_obj.name} targets")
+    actions.assign_action(arm_obj, action, slot)
     for name, q in rotations.items():
         pose_bone = arm_obj.pose.bones[name]
         pose_bone.rotation_mode = "QUATERNION"
@@ -123,8 +123,8 @@ def _write_action(arm_obj, frames, rotations: dict, locations: dict) -> None:
             if wxyz[i] @ wxyz[i - 1] < 0:
                 wxyz[i] = -wxyz[i]
         for i in range(4):
-            bake_store.fcurve(fcurves, f'pose.bones["{name}"].rotation_quaternion', i, frames, wxyz[:, i])
+            actions.fcurve(fcurves, f'pose.bones["{name}"].rotation_quaternion', i, frames, wxyz[:, i])
         loc = np.array(locations[name])
         if np.abs(loc).max() > RIDES:
             for i in range(3):
-                bake_store.fcurve(fcurves, f'pose.bones["{name}"].location', i, frames, loc[:, i])
+                actions.fcurve(fcurves, f'pose.bones["{name}"].location', i, frames, loc[:, i])

@@ -321,11 +321,4 @@ class HAPTIC_HAND_OT_live_stop(bpy.types.Operator):
 classes = (HAPTIC_HAND_OT_live, HAPTIC_HAND_OT_live_stop)
 
 
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)

@@ -289,11 +289,4 @@ classes = (HAPTIC_HAND_OT_bake, HAPTIC_HAND_OT_bake_recording, HAPTIC_HAND_OT_ba
            HAPTIC_HAND_OT_free_bake)
 
 
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)

@@ -358,11 +358,4 @@ classes = (HAPTIC_HAND_OT_use_as_hand, HAPTIC_HAND_OT_tetrahedralize, HAPTIC_HAN
            HAPTIC_HAND_OT_check_rig)
 
 
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)

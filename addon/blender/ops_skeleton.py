@@ -60,11 +60,4 @@ def report_problems(operator, scene) -> bool:
 classes = (HAPTIC_HAND_OT_use_armature,)
 
 
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)

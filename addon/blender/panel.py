@@ -310,11 +310,4 @@ classes = (HAPTIC_HAND_PT_main, HAPTIC_HAND_PT_rig, HAPTIC_HAND_PT_material, HAP
            HAPTIC_HAND_PT_device, HAPTIC_HAND_PT_live, HAPTIC_HAND_PT_bake)
 
 
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)

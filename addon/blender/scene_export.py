@@ -27,6 +27,7 @@ from ..engine import native, native_world
 from ..engine import devices, params
 from ..engine import scene as scenes
 from . import armature, armature_motion, meshdata, param_props
+from .hand_source import ExportError, check_hand, hand_tets_world, seed_world
 
 # Blender's roles as the scene file's body types
 BODY_TYPES = {"SOFT": "soft", "RIGID": "rigid", "MOVING": "kinematic", "STATIC": "static", "PLANE": "plane"}
@@ -52,10 +53,6 @@ def device_from_scene(s, name: str) -> None:
         s.device_file = arg
     elif kind == "hid":
         s.hid_path = arg
-
-
-class ExportError(ValueError):
-    """The Blender scene cannot be simulated; the message names the problem and the fix."""
 
 
 @dataclass
@@ -115,34 +112,6 @@ def _objects_with_roles(scene):
             continue
         out.append((obj, role))
     return out
-
-
-def check_hand(scene, need_seed: bool = True):
-    """The hand, its tet object and the seed, or ExportError naming what is missing."""
-    s = scene.haptic_hand
-    hand = s.hand
-    if hand is None:
-        raise ExportError("No hand mesh is chosen: pick the hand's mesh in Haptic Hand > Rig > Hand")
-    if hand.type != "MESH":
-        raise ExportError(f"The hand '{hand.name}' is not a mesh object: pick a mesh in Haptic Hand > Rig > Hand")
-    tet_obj = hand.haptic_hand.tet_object
-    if not meshdata.has_tets(tet_obj):
-        raise ExportError(f"The hand '{hand.name}' has no tet mesh: press Tetrahedralize in Haptic Hand > Rig")
-    if need_seed and s.seed is None:
-        raise ExportError("No palm seed: press Place Seed in Haptic Hand > Rig (it snaps an empty into the palm)")
-    return hand, tet_obj, s.seed
-
-
-def hand_tets_world(scene):
-    """(nodes m, tets) of the hand's tet mesh, world space."""
-    _, tet_obj, _ = check_hand(scene, need_seed=False)
-    nodes, tets = meshdata.read_tets(tet_obj)
-    return meshdata.transform(meshdata.matrix(tet_obj), nodes) * meshdata.unit_scale(scene), tets
-
-
-def seed_world(scene) -> np.ndarray:
-    s = scene.haptic_hand
-    return np.array(s.seed.matrix_world.translation, dtype=np.float64) * meshdata.unit_scale(scene)
 
 
 def check_seed(scene, nodes, tets, scale_warning: str | None = None) -> np.ndarray:

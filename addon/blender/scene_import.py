@@ -17,7 +17,7 @@ import numpy as np
 from ..engine import bodies as bodies_module
 from ..engine import bone_drive, params
 from ..engine import scene as scenes
-from . import armature_build, armature_motion, bake_store, meshdata, ops_rig, param_props, scene_export
+from . import actions, armature_build, armature_motion, bake_store, meshdata, ops_rig, param_props, scene_export
 
 
 class ImportError_(ValueError):
@@ -33,8 +33,8 @@ def _fcurves_of(obj):
     """The fcurves of obj's action (a new action if it has none)."""
     ad = obj.animation_data
     if ad is None or ad.action is None:
-        action, slot, fcurves = bake_store.new_action(obj, f"{obj.name} motion")
-        bake_store.assign_action(obj, action, slot)
+        action, slot, fcurves = actions.new_action(obj, f"{obj.name} motion")
+        actions.assign_action(obj, action, slot)
         return fcurves
     if hasattr(ad.action, "slots"):
         from bpy_extras import anim_utils
@@ -52,10 +52,10 @@ def _keyed_motion(obj, start_location, points, rate: float, frame_start: int) ->
     quat /= np.linalg.norm(quat, axis=1)[:, None]
     fcurves = _fcurves_of(obj)
     for i in range(3):
-        bake_store.fcurve(fcurves, "location", i, frames, pos[:, i])
+        actions.fcurve(fcurves, "location", i, frames, pos[:, i])
     wxyz = quat[:, [3, 0, 1, 2]]
     for i in range(4):
-        bake_store.fcurve(fcurves, "rotation_quaternion", i, frames, wxyz[:, i])
+        actions.fcurve(fcurves, "rotation_quaternion", i, frames, wxyz[:, i])
 
 
 def build(context, path, frame_start: int = 1) -> dict:

@@ -13,7 +13,7 @@ from . import native_skeleton as ns
 from . import quaternion as quat
 from . import skeleton as sk
 from . import tracking
-from .scene import Trajectory
+from .trajectory import Trajectory
 from .scene_skeleton import SceneSkeleton
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import native_skeleton as ns
-from . import rig_check
+from . import rig_droop
 from . import scene as scenes
 
 #: Relative error of sum_b F_b = M g, once settled, above which the statics do not close.
@@ -28,13 +28,13 @@ def add_bones(add, scene: scenes.Scene, model: ns.SkeletonModel) -> None:
 
 def settle(scene: scenes.Scene, rig: dict) -> tuple[dict, ns.SkeletonSimulation, ns.SkeletonModel]:
     """The hand's static equilibrium under gravity with every bone held at its rest pose
-    (rig_check.settle's damped steps, every bone prescribed)."""
+    (rig_droop.settle's damped steps, every bone prescribed)."""
     model = ns.SkeletonModel(scene.nodes, scene.tets, scene.skeleton.skeleton, scene.skeleton.drive_scales,
-                             **rig_check.settle_params(rig))
+                             **rig_droop.settle_params(rig))
     sim = ns.SkeletonSimulation(model)
     p, q, _, _ = sim.bone_states()
     sim.set_bone_targets(np.full(model.n_bones, ns.PRESCRIBED), p, q)
-    result = rig_check.settle_steps(sim, model.nodes, np.flatnonzero(model.node_bones() >= 0))
+    result = rig_droop.settle_steps(sim, model.nodes, np.flatnonzero(model.node_bones() >= 0))
     return result, sim, model
 
 
@@ -51,7 +51,7 @@ def add_droop(add, scene: scenes.Scene, model: ns.SkeletonModel) -> None:
     bones = [{"name": name, "droop": float(displacement[region == b].max(initial=0.0)),
               "carries": float(forces[b] @ gravity / g**2) if g > 0 else 0.0} for b, name in enumerate(names)]
     worst = max(bones, key=lambda b: b["droop"])
-    rig_check.add_droop_result(add, scene, rig, result, f"with every bone held still (most at {worst['name']}",
+    rig_droop.add_droop_result(add, scene, rig, result, f"with every bone held still (most at {worst['name']}",
                                lambda changed: settle(scene, changed)[0]["droop"], bones=bones)
     if g > 0:
         error = np.linalg.norm(forces.sum(axis=0) - weight) / np.linalg.norm(weight)
@@ -71,6 +71,6 @@ def add_schur(add, model: ns.SkeletonModel) -> None:
     sim.set_bone_targets(np.full(b, ns.COUPLED), p + offsets, q)
     sim.set_bone_states(velocities=0.1 * offsets / 0.003, angular_velocities=0.5 * np.roll(offsets, 1, axis=1) / 0.003)
     diff = sim.compare_solvers()
-    add("schur_vs_monolithic", diff < rig_check.SCHUR_TOLERANCE,
-        f"relative difference {diff:.2e} (tolerance {rig_check.SCHUR_TOLERANCE:.0e}, {b} bones)",
+    add("schur_vs_monolithic", diff < rig_droop.SCHUR_TOLERANCE,
+        f"relative difference {diff:.2e} (tolerance {rig_droop.SCHUR_TOLERANCE:.0e}, {b} bones)",
         relative_difference=diff)

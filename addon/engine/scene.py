@@ -16,9 +16,10 @@ import numpy as np
 from . import bodies as bodies_module
 from . import devices
 from . import mesh as meshing
-from . import native, native_session, native_skeleton, params, quaternion, scene_feedback, scene_skeleton
+from . import native, native_session, native_skeleton, params, scene_feedback, scene_skeleton
 from .embedding import check_embedding
 from .scene_fields import SceneError, check_fields, merge, timed_poses, vector
+from .trajectory import Trajectory
 
 
 @lru_cache(maxsize=None)
@@ -33,31 +34,6 @@ def defaults() -> dict:
 
 def format_name() -> str:
     return json.loads(params.by_json("format").text)
-
-
-@dataclass
-class Trajectory:
-    """Timed device poses; linear in position, slerp in orientation, held at both ends."""
-
-    times: np.ndarray
-    positions: np.ndarray
-    quaternions: np.ndarray
-
-    def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        k = int(np.searchsorted(self.times, t, side="right")) - 1
-        if k < 0:
-            return self.positions[0].copy(), self.quaternions[0].copy()
-        if k >= len(self.times) - 1:
-            return self.positions[-1].copy(), self.quaternions[-1].copy()
-        a = (t - self.times[k]) / (self.times[k + 1] - self.times[k])
-        p = (1 - a) * self.positions[k] + a * self.positions[k + 1]
-        return p, quaternion.slerp(self.quaternions[k], self.quaternions[k + 1], a)
-
-    def velocity(self, t: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Linear and angular velocity over [t - dt, t] (the step that ends at t)."""
-        p1, q1 = self.pose(t)
-        p0, q0 = self.pose(t - dt)
-        return (p1 - p0) / dt, quaternion.rotation_vector(quaternion.multiply(q1, quaternion.conjugate(q0))) / dt
 
 
 def body_trajectory(spec: dict, start: np.ndarray) -> Trajectory:

@@ -22,6 +22,7 @@ import numpy as np
 
 from . import quaternion as quat
 from .skeleton import Skeleton, pose_bones
+from .trajectory import Trajectory
 
 FORMAT = "haptic_hand.tracking/1"
 CSV_HEADER = ("t", "joint", "x", "y", "z", "qx", "qy", "qz", "qw")
@@ -100,8 +101,6 @@ class TrackingStream:
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Every joint's pose at t: linear in position, slerp in orientation, held at the ends."""
-        from .scene import Trajectory  # the scene's device trajectories interpolate the same way
-
         poses = [Trajectory(self.times, self.positions[:, j], self.quaternions[:, j]).pose(t)
                  for j in range(len(self.layout.joints))]
         return np.array([p for p, _ in poses]), np.array([q for _, q in poses])
