@@ -693,3 +693,47 @@ TEST(bone_haptic_step_on_a_wrist_device_never_allocates) {
     CHECK(session.fetch_frame() && session.frame().bone_stiffness[0] != 0);
     check_steps_allocate_nothing(session);
 }
+
+TEST(an_openhaptics_wrist_drives_the_posed_fingers_from_its_servo_loop) {
+    // The wrist glove forwards the driver's servo loop: the stand-in HD library ticks the bar's
+    // session, the fingers ride on the stylus's frame, and stopping stops the driver.
+    void* standin = dlopen(HD_STANDIN_PATH, RTLD_NOW | RTLD_GLOBAL);
+    CHECK(standin != nullptr);
+    if (!standin) return;
+    auto set_position = reinterpret_cast<void (*)(const double*)>(dlsym(standin, "standin_set_position"));
+    auto ticks = reinterpret_cast<long (*)()>(dlsym(standin, "standin_ticks"));
+    BoneRig rig;
+    RestFingers rest(rig);
+    double x[3 * BoneRig::kBones];
+    CHECK(hh_world_bone_states(rig.world, rig.hand, BoneRig::kBones, x, nullptr, nullptr) == HH_OK);
+    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, rest.p, rest.q, 2) == HH_OK);
+    CHECK(hh_session_device_openhaptics(rig.session, HD_STANDIN_PATH, 1.0, x, 3.3) == HH_OK);
+    const double mm[3] = {1, 0, 0};
+    set_position(mm);
+    const long ticks0 = ticks();
+    CHECK(hh_session_start(rig.session) == HH_OK);
+    hh_session_frame f{};
+    int fresh = 0;
+    const auto t0 = std::chrono::steady_clock::now();
+    do {
+        sleep_s(0.05);
+        CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK);
+    } while ((std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(300) || f.time < 0.2) &&
+             std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60));
+    CHECK(hh_session_stop(rig.session) == HH_OK);
+    const long stopped = ticks();
+    hh_session_status st;
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK && st.failed == 0);
+    CHECK(stopped - ticks0 > 100);  // the driver's servo loop ran the haptic steps
+    sleep_s(0.05);
+    CHECK(ticks() == stopped);  // and stopped with the session
+    double devices[7 * BoneRig::kBones];
+    CHECK(hh_session_frame_bones(rig.session, BoneRig::kBones, nullptr, nullptr, devices, nullptr) == HH_OK);
+    CHECK_LT(std::abs(devices[0] - (x[0] + 0.001)), 1e-9);  // the stylus 1 mm along x
+    const hh::Mat3 r = hh::quat_to_matrix(hh::Vec4(devices[3], devices[4], devices[5], devices[6]));
+    for (int b = 1; b < BoneRig::kBones; ++b) {
+        const hh::Vec3 expected = hh::Vec3(devices[0], devices[1], devices[2]) +
+                                  r * hh::Vec3(rest.p[3 * b], rest.p[3 * b + 1], rest.p[3 * b + 2]);
+        CHECK_LT((hh::Vec3(devices[7 * b], devices[7 * b + 1], devices[7 * b + 2]) - expected).norm(), 1e-12);
+    }
+}
