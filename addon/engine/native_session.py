@@ -94,6 +94,7 @@ _lib = binding({
     "hh_session_device_feedback": ([_vp, _i, _pd, _i, _pd, _pd], _i),
     "hh_session_device_simulated_glove": ([_vp, _i, _pd, _pd, _pd, _i, _d, _d, _d, _d], _i),
     "hh_session_device_simulated_glove_arms": ([_vp, _i, _pd, _pd, _pd, _i, _pd, _pi, _d], _i),
+    "hh_session_pose_fingers": ([_vp, _i, _pd, _pd, _pd, _i], _i),
     "hh_session_set_feedback_groups": ([_vp, _i, _pi, _i], _i),
     "hh_session_frame_bones": ([_vp, _i, _pd, _pd, _pd, _pd], _i),
     "hh_session_frame_groups": ([_vp, _i, _pd], _i),
@@ -290,6 +291,18 @@ class NativeSession:
         _check(_lib().hh_session_device_simulated_glove_arms(
             self._handle, b, _ptr(t), _ptr(p), _ptr(q), len(t), _ptr(arms),
             None if flags is None else _ptr(flags, ctypes.c_int), float(fail_at)))
+
+    def pose_fingers(self, times, rel_positions, rel_quaternions) -> None:
+        """Poses bones 1 .. B-1 on a one-frame device on the wrist: each bone's pose relative to
+        the root, T_root^-1 T_b, at times (n,): rel_positions (n, B, 3) in the root's frame,
+        rel_quaternions (n, B, 4) unit (x, y, z, w) (the root's entries unread). A one-frame
+        device given afterwards (device_simulated, _playback, _external, _openhaptics) drives the
+        root and carries the others, and is commanded the whole hand's wrench."""
+        b = self.n_bones
+        t = _f64(times, None, "times").reshape(-1)
+        p = _f64(rel_positions, (len(t), b, 3), "finger positions relative to the root")
+        q = _f64(rel_quaternions, (len(t), b, 4), "finger quaternions relative to the root")
+        _check(_lib().hh_session_pose_fingers(self._handle, b, _ptr(t), _ptr(p), _ptr(q), len(t)))
 
     def set_feedback_groups(self, group_of_bone, n_groups: int | None = None) -> None:
         """Groups of bones whose feedback is summed (each bone's group 0..G-1, or -1 for none;

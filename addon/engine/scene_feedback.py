@@ -1,7 +1,8 @@
 """A skeleton hand's haptic feedback in a scene (docs/skeleton.md, Section 8; docs/haptics.md, "A
 skeleton hand"): what the haptic loop renders (`haptics.feedback`: the palm's wrench, one per
 bone, or one per group of bones), the groups (`haptics.groups`), and which devices a skeleton
-hand's session takes, checked against the hand's skeleton with messages that name the field and
+hand's session takes (a glove of one frame per bone; with skeleton.root_device one frame on the
+wrist, rendering the palm's wrench), checked against the hand's skeleton with messages that name the field and
 the fix."""
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ from .scene_fields import SceneError
 from .scene_skeleton import SKELETON_FIELD, SceneSkeleton
 
 PALM, BONES, GROUPS = "palm", "bones", "groups"
-#: The devices of one frame per bone: the simulated glove user and a glove whose frames a host pushes.
+#: The devices of one frame per bone: the simulated glove user and a glove whose frames a host pushes
+#: (with skeleton.root_device every device is one frame on the wrist, the fingers posed on it).
 GLOVES = ("simulated", "external")
+ROOT_DEVICE = "skeleton.root_device"
 
 
 @dataclass
@@ -41,20 +44,27 @@ def parse(data: dict, rig: SceneSkeleton | None) -> Feedback:
         raise SceneError(f'haptics.feedback = "{mode}" needs a skeleton hand of several bones, and {hand}: set '
                          f'haptics.feedback to "{PALM}", or give {SKELETON_FIELD} its bones')
     if n_bones > 1 and h["enabled"]:
-        check_glove_session(h["device"], rig)
+        check_glove_session(h["device"], rig, mode)
     if mode != GROUPS:
         return Feedback(mode)
     of_bone, names = default_groups(rig.skeleton) if groups is None else listed_groups(groups, rig.skeleton)
     return Feedback(mode, of_bone, names)
 
 
-def check_glove_session(device: str, rig: SceneSkeleton) -> None:
-    """A skeleton hand's session: a device of one frame per bone, and every bone driven."""
+def check_glove_session(device: str, rig: SceneSkeleton, mode: str) -> None:
+    """A skeleton hand's session: a device of one frame per bone, or with skeleton.root_device a
+    one-frame device on the wrist rendering the palm's wrench; and every bone driven."""
     kind = device.split(":", 1)[0]
-    if kind not in GLOVES:
+    if rig.root_device and mode != PALM:
+        raise SceneError(f'haptics.feedback = "{mode}" renders a wrench per bone, but with {ROOT_DEVICE} the device '
+                         f"'{device}' is one frame on the wrist, which renders the whole hand's wrench: set "
+                         f'haptics.feedback to "{PALM}", or set {ROOT_DEVICE} to false for a glove of one frame '
+                         "per bone ('simulated' or 'external')")
+    if not rig.root_device and kind not in GLOVES:
         raise SceneError(f"haptics.device '{device}' has one frame, and a skeleton hand's session has a device frame "
-                         f"per bone: use 'simulated' (the simulated glove user) or 'external' (a glove whose frames a "
-                         f"host pushes), or set haptics.enabled to false")
+                         f"per bone: set {ROOT_DEVICE} to true (the device drives the wrist and the fingers are "
+                         f"posed on it), or use 'simulated' (the simulated glove user) or 'external' (a glove whose "
+                         f"frames a host pushes), or set haptics.enabled to false")
     free = np.flatnonzero(rig.drive_scales == 0)
     if len(free):
         b = int(free[0])

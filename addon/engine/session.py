@@ -34,13 +34,18 @@ def create(world, hand: int, scene: scenes.Scene, log_capacity: int = 1 << 16) -
 def attach_device(session: NativeSession, scene: scenes.Scene, model, name: str | None = None):
     """Gives the session the device named in the scene (or `name`); returns a host-side helper
     that must be stopped with the session (the HID reader), or None. A skeleton hand's is a glove
-    (glove.py): one frame per bone."""
+    of one frame per bone, or with skeleton.root_device this one-frame device on the wrist with
+    the other bones posed on it (glove.py)."""
     h = scene.data["haptics"]
     kind, _, arg = str(name or h["device"]).partition(":")
     fail_at = math.inf if h["fail_at"] is None else float(h["fail_at"])
-    if scene.skeleton is not None and (session.n_bones > 1 or kind == "simulated"):
-        if session.n_bones > 1:
-            scene_feedback.check_glove_session(kind, scene.skeleton)
+    if scene.skeleton is not None and session.n_bones > 1:
+        scene_feedback.check_glove_session(kind, scene.skeleton, scene.feedback.mode)
+        if not scene.skeleton.root_device:
+            glove.attach(session, scene, model, kind, fail_at)
+            return None
+        glove.pose_fingers(session, scene, model)  # the device below drives the wrist and carries them
+    elif scene.skeleton is not None and kind == "simulated":
         glove.attach(session, scene, model, kind, fail_at)
         return None
     handle_com = np.array(model.info()["handle_com"])

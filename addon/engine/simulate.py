@@ -155,8 +155,16 @@ def run(scene: scenes.Scene, progress=None) -> dict:
                 bp, bq, _, _ = world.pose(b.index)
                 body_frames[b.name].append(np.concatenate([bp, bq]))
 
+    kind = str(scene.data["haptics"]["device"]).partition(":")[0]
+    read_frames = felt is not None and scene.skeleton.root_device and kind != "simulated"
+
     def bone_targets(t: float):
-        """The bones' targets at t: with haptics, the glove's scripts (glove.py)."""
+        """The bones' targets at t: with haptics, the glove's scripts (glove.py); for a device
+        with no script (a playback, OpenHaptics, HID, external on the wrist), the frames it read."""
+        if read_frames:
+            haptics.fetch_frame()
+            devices = haptics.frame_bones()["devices"]
+            return devices[:, :3], devices[:, 3:]
         if haptics is not None:
             return glove.targets(inputs.bones, t)
         start = world.bone_states(hand)

@@ -520,9 +520,11 @@ int hh_session_coupling_model(hh_session* session, double wrench0[6], double sti
  * with contacts held (hh_world_bone_coupling_model); the haptic loop steps one proxy per bone,
  * each held by its own virtual coupling (the session's gains) to its own device frame, against
  * that 6B x 6B model, and commands a wrench per bone and per group of bones. Its device has one
- * frame per bone: an external glove or the simulated glove user (a one-frame device is refused;
- * and a glove on a one-handle hand's session). The log and the palm fields of hh_session_frame
- * hold the root bone's. Arrays are bones in skeleton order, poses (position, quaternion
+ * frame per bone: an external glove or the simulated glove user; or, with the fingers posed
+ * (hh_session_pose_fingers), any one-frame device on the wrist (a one-frame device without posed
+ * fingers is refused; and a glove on a one-handle hand's session). The log and the palm fields
+ * of hh_session_frame hold the root bone's frame and proxy, and the wrench the device was
+ * commanded (the root's; with posed fingers the whole hand's). Arrays are bones in skeleton order, poses (position, quaternion
  * (x, y, z, s)), wrenches (force N, torque N m). */
 int hh_session_bone_count(hh_session* session, int* out);
 /* A glove whose frames the host pushes (one pose per bone, hh_session_push_device_frames) and
@@ -548,6 +550,17 @@ int hh_session_device_simulated_glove(hh_session* session, int n_bones, const do
 int hh_session_device_simulated_glove_arms(hh_session* session, int n_bones, const double* times,
                                            const double* positions, const double* quaternions, int n,
                                            const double* arms, const int* posed, double fail_at);
+/* The fingers posed on a one-frame device on the wrist (docs/skeleton.md, Section 6): bone b's pose
+ * relative to the root, rel_b = T_root,anim^-1 T_b,anim, at each time (times[n] strictly
+ * increasing, s; rel_positions[n][B][3] in the root's frame, m; rel_quaternions[n][B][4] unit,
+ * (x, y, z, s); the root's entries, b = 0, are not read). Every one-frame device given to the
+ * session after this (hh_session_device_simulated, _playback, _external, _openhaptics; one already
+ * given takes the new poses) drives the root, and bone b's frame is the device's carried by rel_b;
+ * the device is commanded the whole hand's wrench: every bone's force, and its torque plus the
+ * force's moment about the device's frame, summed, clamped to the session's and the device's
+ * limits. Set while stopped. */
+int hh_session_pose_fingers(hh_session* session, int n_bones, const double* times, const double* rel_positions,
+                            const double* rel_quaternions, int n);
 /* Groups of bones whose feedback is summed (a glove's actuators: e.g. the wrist and each digit):
  * group_of_bone[B] in 0 .. n_groups-1, or -1 for none; every group holds a bone. A group's force
  * is its bones' sum, its torque their torques plus each bone's force's moment about the device

@@ -460,7 +460,9 @@
     X(root_device, HH_KIND_BOOL, 1, "skeleton.root_device", "", HH_V(0), 0, 1, HH_UI_SCENE, 0, 1,   \
       "Root follows device", "",                                                                       \
       "The root bone follows the device trajectory through the coupling; the other bones keep their "  \
-      "targets' pose relative to the root (off: the root follows its own targets)",                   \
+      "targets' pose relative to the root (off: the root follows its own targets). In a haptic "      \
+      "session the device, of any kind, is one frame on the wrist carrying the other bones, and it "   \
+      "feels the whole hand's wrench",                                                                 \
       "true or false")
 
 #endif

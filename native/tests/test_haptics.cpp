@@ -17,11 +17,13 @@
 #include "capi/guard.h"
 #include "check.h"
 #include "device/openhaptics.h"
+#include "device/playback.h"
 #include "device/simulated_arm.h"
 #include "device/simulated_glove.h"
 #include "haptic_hand.h"
 #include "haptics/haptic_log.h"
 #include "haptics/session.h"
+#include "rigid/quaternion.h"
 #include "common/triple_buffer.h"
 
 // Every allocation of this test program goes through here, so a test can count them.
@@ -578,5 +580,160 @@ TEST(live_bone_session_with_an_external_glove) {
     for (int d = 0; d < 3; ++d) {
         CHECK(std::abs(sums[d] - bones[d]) <= 1e-12 * (1 + std::abs(bones[d])));
         CHECK(std::abs(sums[6 + d] - bones[6 + d] - bones[12 + d]) <= 1e-12 * (1 + std::abs(sums[6 + d])));
+    }
+}
+
+namespace {
+// The bar's bones 1 and 2 relative to its root at rest, over 0 .. 1 s: rel_b = T_0^-1 T_b as
+// the [n][B][.] arrays of hh_session_pose_fingers (the root's entries unread)
+struct RestFingers {
+    double t[2] = {0.0, 1.0};
+    double p[2 * 3 * BoneRig::kBones] = {0}, q[2 * 4 * BoneRig::kBones] = {0};
+    explicit RestFingers(const BoneRig& rig) {
+        double x[3 * BoneRig::kBones], r[4 * BoneRig::kBones];
+        CHECK(hh_world_bone_states(rig.world, rig.hand, BoneRig::kBones, x, r, nullptr) == HH_OK);
+        const hh::Vec4 q0(r[0], r[1], r[2], r[3]);
+        for (int k = 0; k < 2; ++k)
+            for (int b = 0; b < BoneRig::kBones; ++b) {
+                const hh::Vec3 d = hh::quat_to_matrix(q0).transpose() * hh::Vec3(x[3 * b] - x[0], x[3 * b + 1] - x[1],
+                                                                                  x[3 * b + 2] - x[2]);
+                const hh::Vec4 qb = hh::quat_multiply(hh::quat_conjugate(q0), hh::Vec4(r[4 * b], r[4 * b + 1],
+                                                                                       r[4 * b + 2], r[4 * b + 3]));
+                for (int i = 0; i < 3; ++i) p[3 * (k * BoneRig::kBones + b) + i] = d[i];
+                for (int i = 0; i < 4; ++i) q[4 * (k * BoneRig::kBones + b) + i] = qb[i];
+            }
+    }
+};
+}  // namespace
+
+TEST(a_one_frame_device_drives_a_skeleton_hand_with_its_fingers_posed) {
+    // The bar's root on a playback wrist that presses it 4 mm into the ground, bones 1 and 2
+    // posed at rest on it: each finger frame is the wrist's carried by its rest pose relative to
+    // the root, and the device is commanded (the log and the palm fields) the whole hand's
+    // wrench, every bone's force summed with its moment about the wrist frame's point.
+    BoneRig rig;
+    const std::vector<double> x = rig.frames(-0.004);
+    const double t[2] = {0.0, 0.2};
+    const double root[6] = {x[0], x[1], x[2], x[9], x[10], x[11]};
+    CHECK(hh_session_device_playback(rig.session, t, root, nullptr, 2, 1e300) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("or pose its fingers (hh_session_pose_fingers) for a one-frame device on "
+                                            "the wrist") != std::string::npos);
+    RestFingers rest(rig);
+    double bad_q[sizeof rest.q / sizeof(double)];
+    std::copy(std::begin(rest.q), std::end(rest.q), bad_q);
+    bad_q[4 * (BoneRig::kBones + 2)] += 0.1;  // bone 2's second quaternion, off the unit sphere
+    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, rest.p, bad_q, 2) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("bone 2's quaternion relative to the root at time index 1 has norm") !=
+          std::string::npos);
+    double bad_p[sizeof rest.p / sizeof(double)];
+    std::copy(std::begin(rest.p), std::end(rest.p), bad_p);
+    bad_p[3] = NAN;
+    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, bad_p, rest.q, 2) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("bone 1's pose relative to the root at time index 0 has NaN") !=
+          std::string::npos);
+    CHECK(hh_session_pose_fingers(rig.session, 2, rest.t, rest.p, rest.q, 2) == HH_ERR_INVALID_ARGUMENT);
+    LiveRig palm;
+    CHECK(hh_session_pose_fingers(palm.session, 1, rest.t, rest.p, rest.q, 2) == HH_ERR_INVALID_ARGUMENT);
+
+    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, rest.p, rest.q, 2) == HH_OK);
+    CHECK(hh_session_device_playback(rig.session, t, root, nullptr, 2, 1e300) == HH_OK);
+    CHECK(hh_session_run_offline(rig.session, 45) == HH_OK);
+    int fresh = 0;
+    hh_session_frame f;
+    CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK && fresh);
+    double devices[7 * BoneRig::kBones], feedback[6 * BoneRig::kBones];
+    CHECK(hh_session_frame_bones(rig.session, BoneRig::kBones, nullptr, nullptr, devices, feedback) == HH_OK);
+    const hh::Vec3 p0(devices[0], devices[1], devices[2]);
+    const hh::Vec4 q0(devices[3], devices[4], devices[5], devices[6]);
+    CHECK_LT((p0 - hh::Vec3(x[9], x[10], x[11])).norm(), 1e-15);  // the wrist holds where the playback ends
+    hh::Vec3 force = hh::Vec3::Zero(), torque = hh::Vec3::Zero();
+    for (int b = 0; b < BoneRig::kBones; ++b) {
+        const hh::Vec3 pb(devices[7 * b], devices[7 * b + 1], devices[7 * b + 2]);
+        const hh::Vec3 expected = p0 + hh::quat_to_matrix(q0) * hh::Vec3(rest.p[3 * b], rest.p[3 * b + 1], rest.p[3 * b + 2]);
+        CHECK_LT((pb - expected).norm(), 1e-12);
+        const hh::Vec3 fb(feedback[6 * b], feedback[6 * b + 1], feedback[6 * b + 2]);
+        force += fb;
+        torque += hh::Vec3(feedback[6 * b + 3], feedback[6 * b + 4], feedback[6 * b + 5]) + (pb - p0).cross(fb);
+    }
+    CHECK(feedback[6 + 2] > 0.1 && feedback[12 + 2] > 0.1);  // the ground pushes the fingers up too
+    CHECK_LT((hh::Vec3(f.feedback[0], f.feedback[1], f.feedback[2]) - force).norm(), 1e-12 * force.norm());
+    CHECK_LT((hh::Vec3(f.feedback[3], f.feedback[4], f.feedback[5]) - torque).norm(), 1e-12 * (1 + torque.norm()));
+    CHECK(force.z() > feedback[2] + 0.2);  // more than the root's own
+
+    // the host pushes the wrist's pose to a one-frame external device carrying the fingers
+    CHECK(hh_session_device_external(rig.session, 5.0) == HH_OK);
+    const double pose_q[4] = {0, 0, 0, 1};
+    CHECK(hh_session_push_device_pose(rig.session, root + 3, pose_q) == HH_OK);
+    CHECK(hh_session_run_offline(rig.session, 2) == HH_OK);
+    // a wrist device that disconnects stops the session with its message
+    CHECK(hh_session_device_playback(rig.session, t, root, nullptr, 2, 0.01) == HH_OK);
+    CHECK(hh_session_run_offline(rig.session, 3) == HH_ERR_INVALID_ARGUMENT);
+    hh_session_status st;
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK && st.failed);
+    CHECK(std::string(st.message).find("the playback device was told to disconnect") != std::string::npos);
+}
+
+TEST(bone_haptic_step_on_a_wrist_device_never_allocates) {
+    BoneRig rig;
+    hh::SessionParams p;
+    hh::Session session(rig.world->w, rig.hand, p);
+    const std::vector<double> x = rig.frames(-0.004);
+    const double t[2] = {0.0, 0.2};
+    const double root[6] = {x[0], x[1], x[2], x[9], x[10], x[11]};
+    RestFingers rest(rig);
+    std::vector<hh::Keyframes> fingers;
+    for (int b = 1; b < BoneRig::kBones; ++b) {
+        const double pb[6] = {rest.p[3 * b], rest.p[3 * b + 1], rest.p[3 * b + 2], rest.p[3 * b], rest.p[3 * b + 1],
+                              rest.p[3 * b + 2]};
+        fingers.emplace_back(t, pb, nullptr, 2);
+    }
+    session.pose_fingers(std::move(fingers));
+    session.set_device(std::make_unique<hh::Playback>(hh::Keyframes(t, root, nullptr, 2), 1e300));
+    session.run_offline(10);
+    CHECK(session.fetch_frame() && session.frame().bone_stiffness[0] != 0);
+    check_steps_allocate_nothing(session);
+}
+
+TEST(an_openhaptics_wrist_drives_the_posed_fingers_from_its_servo_loop) {
+    // The wrist glove forwards the driver's servo loop: the stand-in HD library ticks the bar's
+    // session, the fingers ride on the stylus's frame, and stopping stops the driver.
+    void* standin = dlopen(HD_STANDIN_PATH, RTLD_NOW | RTLD_GLOBAL);
+    CHECK(standin != nullptr);
+    if (!standin) return;
+    auto set_position = reinterpret_cast<void (*)(const double*)>(dlsym(standin, "standin_set_position"));
+    auto ticks = reinterpret_cast<long (*)()>(dlsym(standin, "standin_ticks"));
+    BoneRig rig;
+    RestFingers rest(rig);
+    double x[3 * BoneRig::kBones];
+    CHECK(hh_world_bone_states(rig.world, rig.hand, BoneRig::kBones, x, nullptr, nullptr) == HH_OK);
+    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, rest.p, rest.q, 2) == HH_OK);
+    CHECK(hh_session_device_openhaptics(rig.session, HD_STANDIN_PATH, 1.0, x, 3.3) == HH_OK);
+    const double mm[3] = {1, 0, 0};
+    set_position(mm);
+    const long ticks0 = ticks();
+    CHECK(hh_session_start(rig.session) == HH_OK);
+    hh_session_frame f{};
+    int fresh = 0;
+    const auto t0 = std::chrono::steady_clock::now();
+    do {
+        sleep_s(0.05);
+        CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK);
+    } while ((std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(300) || f.time < 0.2) &&
+             std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60));
+    CHECK(hh_session_stop(rig.session) == HH_OK);
+    const long stopped = ticks();
+    hh_session_status st;
+    CHECK(hh_session_get_status(rig.session, &st) == HH_OK && st.failed == 0);
+    CHECK(stopped - ticks0 > 100);  // the driver's servo loop ran the haptic steps
+    sleep_s(0.05);
+    CHECK(ticks() == stopped);  // and stopped with the session
+    double devices[7 * BoneRig::kBones];
+    CHECK(hh_session_frame_bones(rig.session, BoneRig::kBones, nullptr, nullptr, devices, nullptr) == HH_OK);
+    CHECK_LT(std::abs(devices[0] - (x[0] + 0.001)), 1e-9);  // the stylus 1 mm along x
+    const hh::Mat3 r = hh::quat_to_matrix(hh::Vec4(devices[3], devices[4], devices[5], devices[6]));
+    for (int b = 1; b < BoneRig::kBones; ++b) {
+        const hh::Vec3 expected = hh::Vec3(devices[0], devices[1], devices[2]) +
+                                  r * hh::Vec3(rest.p[3 * b], rest.p[3 * b + 1], rest.p[3 * b + 2]);
+        CHECK_LT((hh::Vec3(devices[7 * b], devices[7 * b + 1], devices[7 * b + 2]) - expected).norm(), 1e-12);
     }
 }

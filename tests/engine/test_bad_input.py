@@ -370,8 +370,19 @@ BAD_HAPTIC_SKELETONS = [
      "leaving a root), but no bone of hand.skeleton has a parent, so it has no digit: list the groups in "
      'haptics.groups, e.g. {"palm": ["palm"], "index": ["index"]}, or set haptics.feedback to "bones"'),
     ("a one-frame device on a skeleton", lambda d, s: felt(s, enabled=True, device="openhaptics"),
-     "haptics.device 'openhaptics' has one frame, and a skeleton hand's session has a device frame per bone: use "
+     "haptics.device 'openhaptics' has one frame, and a skeleton hand's session has a device frame per bone: set "
+     "skeleton.root_device to true (the device drives the wrist and the fingers are posed on it), or use "
      "'simulated' (the simulated glove user) or 'external'"),
+    ("a wrench per bone on a one-frame wrist device",
+     lambda d, s: put(felt(s, enabled=True, device="openhaptics", feedback="bones"), "skeleton", {"root_device": True}),
+     'haptics.feedback = "bones" renders a wrench per bone, but with skeleton.root_device the device \'openhaptics\' '
+     "is one frame on the wrist, which renders the whole hand's wrench: set haptics.feedback to \"palm\", or set "
+     "skeleton.root_device to false for a glove of one frame per bone ('simulated' or 'external')"),
+    ("groups on a one-frame wrist device",
+     lambda d, s: put(felt(s, enabled=True, device="playback:x.csv", feedback="groups"), "skeleton",
+                      {"root_device": True}),
+     'haptics.feedback = "groups" renders a wrench per bone, but with skeleton.root_device the device '
+     "'playback:x.csv' is one frame on the wrist"),
     ("a free bone in a haptic session", lambda d, s: felt(s, bones(b1={"drive_scale": 0}), enabled=True),
      "hand.skeleton[1] ('index').drive_scale = 0 frees the bone, but in a haptic session every bone follows its own "
      "device frame: set its drive_scale above 0, or haptics.enabled to false"),

@@ -1,6 +1,7 @@
 // C entry points of a haptic session on a skeleton hand (docs/skeleton.md, Section 6; see
 // haptic_hand.h): its gloves (external frames, the simulated glove user), the feedback groups,
 // and the fetched frame's bones, groups and model.
+#include <cmath>
 #include <cstring>
 #include <memory>
 #include <string>
@@ -137,6 +138,37 @@ int hh_session_device_simulated_glove_arms(hh_session* session, int n_bones, con
                                            const double* positions, const double* quaternions, int n,
                                            const double* arms, const int* posed, double fail_at) {
     return guard([&] { return simulated_glove(session, n_bones, times, positions, quaternions, n, arms, posed, fail_at); });
+}
+
+int hh_session_pose_fingers(hh_session* session, int n_bones, const double* times, const double* rel_positions,
+                            const double* rel_quaternions, int n) {
+    return guard([&] {
+        hh_session& s = bones_session(session, n_bones, "the posed fingers (one script per bone)");
+        require_stopped(s);
+        require(n_bones > 1, "the hand has one handle: posed fingers ride on a skeleton hand's root");
+        require(times && rel_positions && rel_quaternions && n >= 1,
+                "hh_session_pose_fingers: null pointer, or no timed pose (give at least one)");
+        std::vector<hh::Keyframes> fingers;
+        std::vector<double> p(3 * n), q(4 * n);
+        for (int b = 1; b < n_bones; ++b) {  // bone b's poses, out of the [n][B][.] arrays
+            for (int k = 0; k < n; ++k) {
+                const double* pk = rel_positions + 3 * (k * n_bones + b);
+                const double* qk = rel_quaternions + 4 * (k * n_bones + b);
+                const double norm = std::sqrt(qk[0] * qk[0] + qk[1] * qk[1] + qk[2] * qk[2] + qk[3] * qk[3]);
+                require(std::isfinite(pk[0]) && std::isfinite(pk[1]) && std::isfinite(pk[2]) && std::isfinite(norm),
+                        "bone " + std::to_string(b) + "'s pose relative to the root at time index " +
+                            std::to_string(k) + " has NaN or infinite values");
+                require(std::abs(norm - 1) < 1e-6, "bone " + std::to_string(b) + "'s quaternion relative to the root "
+                        "at time index " + std::to_string(k) + " has norm " + std::to_string(norm) +
+                        ": give unit quaternions (x, y, z, s)");
+                std::memcpy(&p[3 * k], pk, 3 * sizeof(double));
+                std::memcpy(&q[4 * k], qk, 4 * sizeof(double));
+            }
+            fingers.emplace_back(times, p.data(), q.data(), n);  // checks the times
+        }
+        s.s.pose_fingers(std::move(fingers));
+        return HH_OK;
+    });
 }
 
 int hh_session_set_feedback_groups(hh_session* session, int n_bones, const int* group_of_bone, int n_groups) {

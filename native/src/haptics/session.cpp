@@ -123,16 +123,44 @@ double Session::advance_clock() {
 
 void Session::set_device(std::unique_ptr<Device> device) {
     if (running()) throw InvalidArgument("stop the session before changing its device");
+    if (device && bones_ && device->frames() == 1 && !posed_fingers_.empty()) device = wrap_wrist(std::move(device));
     if (device && device->frames() != n_bones())
         throw InvalidArgument(bones_ ? "this session's hand has " + std::to_string(n_bones()) +
                                            " bones: give it a device of one frame per bone (an external glove or "
-                                           "the simulated glove)"
+                                           "the simulated glove), or pose its fingers (hh_session_pose_fingers) "
+                                           "for a one-frame device on the wrist"
                                      : std::string("this session's hand has one handle: a glove of ") +
                                            std::to_string(device->frames()) +
                                            " frames drives a skeleton hand's session; give it a one-frame device");
     device_ = std::move(device);
-    external_ = dynamic_cast<ExternalDevice*>(device_.get());
+    wrist_ = dynamic_cast<WristGlove*>(device_.get());
+    Device* one = wrist_ ? &wrist_->wrist() : device_.get();  // the host pushes the wrist's pose
+    external_ = dynamic_cast<ExternalDevice*>(one);
     external_frames_ = dynamic_cast<ExternalFrames*>(device_.get());
+}
+
+std::unique_ptr<Device> Session::wrap_wrist(std::unique_ptr<Device> device) {
+    auto glove = std::make_unique<WristGlove>(std::move(device), posed_fingers_);
+    // the summed wrench is clamped to the session's limits and the wrist device's
+    glove->max_force = std::min(glove->max_force, p_.max_force);
+    glove->max_torque = std::min(glove->max_torque, p_.max_torque);
+    return glove;
+}
+
+void Session::pose_fingers(std::vector<Keyframes> fingers) {
+    if (running()) throw InvalidArgument("stop the session before posing its fingers");
+    if (!bones_)
+        throw InvalidArgument("this session's hand has one handle: posed fingers ride on a skeleton hand's root");
+    if (static_cast<int>(fingers.size()) != n_bones() - 1)
+        throw InvalidArgument("the posed fingers need one script per bone but the root: the hand has " +
+                              std::to_string(n_bones()) + " bones");
+    posed_fingers_ = std::move(fingers);
+    if (wrist_) {
+        std::unique_ptr<Device> wrist = wrist_->release_wrist();
+        device_.reset();
+        wrist_ = nullptr;
+        set_device(std::move(wrist));
+    }
 }
 
 Pose Session::handle_pose() const {

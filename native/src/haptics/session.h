@@ -17,6 +17,7 @@
 #include "device/device.h"
 #include "device/external.h"
 #include "device/external_frames.h"
+#include "device/wrist_glove.h"
 #include "haptics/bone_proxies.h"
 #include "haptics/coupling_model.h"
 #include "haptics/haptic_log.h"
@@ -83,14 +84,22 @@ public:
     Session(const Session&) = delete;
     Session& operator=(const Session&) = delete;
 
-    // Throws InvalidArgument unless the device has one frame per bone (one: the palm handle).
+    // Throws InvalidArgument unless the device has one frame per bone (one: the palm handle), or
+    // is a one-frame device on a skeleton hand whose fingers are posed (pose_fingers): that one
+    // is wrapped in a WristGlove (device/wrist_glove.h), the wrist's device feeling the whole hand.
     void set_device(std::unique_ptr<Device> device);
+    // A skeleton hand's bones 1 .. B-1 posed relative to the root (fingers[b - 1]: T_root^-1 T_b
+    // over time, set while stopped): a one-frame device then drives the root and carries them.
+    // A wrist glove already attached takes the new poses.
+    void pose_fingers(std::vector<Keyframes> fingers);
+    bool fingers_posed() const { return !posed_fingers_.empty(); }
     // A skeleton hand's session: its bones (1 for the palm handle's), and the groups its feedback
     // is summed in (FeedbackGroups; set while stopped).
     int n_bones() const;
     std::vector<Pose> bone_poses() const;  // every bone's pose now (a stopped session)
     void set_feedback_groups(const FeedbackGroups& groups);
     int n_groups() const;
+    // the host-pushed one-frame device, also when it is the wrist of a wrist glove
     ExternalDevice* external_device() { return external_; }
     ExternalFrames* external_frames() { return external_frames_; }
     // The handle's pose now (a stopped session): where a device that has not spoken yet holds it.
@@ -160,6 +169,9 @@ private:
     std::unique_ptr<Device> device_;
     ExternalDevice* external_ = nullptr;
     ExternalFrames* external_frames_ = nullptr;
+    WristGlove* wrist_ = nullptr;             // the device when it is a one-frame device with the fingers posed
+    std::vector<Keyframes> posed_fingers_;    // pose_fingers'
+    std::unique_ptr<Device> wrap_wrist(std::unique_ptr<Device> device);
 
     // haptic side
     ProxyHandle proxy_;

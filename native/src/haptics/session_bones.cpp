@@ -101,8 +101,10 @@ bool Session::bones_haptic_step(double t, double start) noexcept {
         out.feedback[b] = s.feedback[b];
     }
     for (int g = 0; g < s.groups.n(); ++g) out.groups[g] = s.group_out[g];
+    // the log and the palm fields hold what the device felt: a wrist glove's whole-hand wrench
+    out.commanded = wrist_ ? wrist_->commanded() : s.feedback[0];
     s.samples.publish();
-    log_step(t, start, s.devices[0], s.proxies.state[0], s.feedback[0]);
+    log_step(t, start, s.devices[0], s.proxies.state[0], out.commanded);
     return true;
 }
 
@@ -168,8 +170,9 @@ void Session::bones_publish_frame(Frame& f) {
     // the root's in the palm handle's fields
     put_pose(f.proxy, s.sample.proxies[0].x_com, s.sample.proxies[0].q);
     put_pose(f.device, s.sample.devices[0].position, s.sample.devices[0].quaternion);
+    Eigen::Map<Vec3>(f.feedback) = s.sample.commanded.force;
+    Eigen::Map<Vec3>(f.feedback + 3) = s.sample.commanded.torque;
     for (int i = 0; i < 6; ++i) {
-        f.feedback[i] = f.bone_feedback[i];
         f.wrench[i] = s.last_model.wrench[i];
         for (int j = 0; j < 6; ++j) f.stiffness[6 * i + j] = s.last_model.stiffness(i, j);
     }

@@ -17,6 +17,7 @@ struct BoneSample {
     std::vector<HandleState> proxies;
     std::vector<Pose> devices;
     std::vector<Feedback> feedback, groups;  // per bone, per group (up to one per bone)
+    Feedback commanded;                      // what the device was commanded: the root's, or a wrist glove's sum
 };
 
 // The model of a step not linearized (or none yet): the bones where they are, no wrench.
