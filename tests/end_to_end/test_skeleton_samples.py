@@ -7,7 +7,9 @@ run through the command line, and do what they show (docs/skeleton.md, Section 8
 - grasp_ball: the two-finger hand lifts a soft ball off the ground by the palm's lift and
   holds it where the palm carries it;
 - pinch_letter: the thumb and the index finger pinch a soft letter with equal and opposite
-  forces (gravity off), and the letter stays put.
+  forces (gravity off), and the letter stays put;
+- pinch_letter_hand: the grasping hand's index finger and thumb (16 bones) pinch a soft letter
+  between their pads: equal and opposite forces, each finger's read force its contact force.
 """
 
 import json
@@ -28,8 +30,15 @@ def results(tmp_path_factory):
     """Each sample, run once through `simulate`."""
     out = {}
     d = tmp_path_factory.mktemp("samples")
-    for name in ("procedural_hand_close", "grasp_ball", "pinch_letter"):
-        proc = subprocess.run([sys.executable, "-m", "haptic_hand", "simulate", str(SAMPLES / f"{name}.json"), "--out",
+    tare = json.loads((SAMPLES / "pinch_letter_hand.json").read_text())
+    # the same bones' poses with nothing held: the tare a force-sensing glove takes
+    tare["bodies"] = []
+    for key in ("mesh", "tets"):
+        tare["hand"][key] = str(SAMPLES / tare["hand"][key])
+    (d / "pinch_letter_hand_tare.json").write_text(json.dumps(tare))
+    for name in ("procedural_hand_close", "grasp_ball", "pinch_letter", "pinch_letter_hand", "pinch_letter_hand_tare"):
+        scene = d / f"{name}.json" if name.endswith("_tare") else SAMPLES / f"{name}.json"
+        proc = subprocess.run([sys.executable, "-m", "haptic_hand", "simulate", str(scene), "--out",
                                str(d / f"{name}.npz"), "--quiet"], capture_output=True, text=True, timeout=600)
         assert proc.returncode == 0, proc.stderr
         out[name] = dict(np.load(d / f"{name}.npz"))
@@ -104,4 +113,30 @@ def test_the_pinched_letter_is_held_between_equal_and_opposite_finger_forces(res
     # still and in place: the letter's centre within 1 mm of its start, no longer moving
     letter = r["body_letter_positions"].mean(axis=1)
     assert np.linalg.norm(letter[-1] - letter[0]) < 0.001
+    assert np.linalg.norm(letter[-1] - letter[-6]) < 1e-5
+
+
+def finger(result, digit: str) -> list:
+    return [bone(result, f"{digit}_{k}") for k in (1, 2, 3)]
+
+
+def test_the_grasping_hand_pinches_a_letter_between_its_index_and_thumb_pads(results):
+    """Gravity off and the letter touched by the index finger and the thumb only: once still, the
+    letter's momentum balance makes the two fingers' pushes equal and opposite. The bones are
+    prescribed, so the run with nothing held has the same poses; by superposition (small strains)
+    each finger's springs' force less that tare is its contact force on the letter, within 2 %."""
+    r, tare = results["pinch_letter_hand"], results["pinch_letter_hand_tare"]
+    assert json.loads(str(r["scene"]))["gravity"] == [0.0, 0.0, 0.0]
+    assert len(r["bone_names"]) == 16 and r["inverted_tets"].max() == 0
+    contact = {d: r["bone_contact_force"][-1, finger(r, d)].sum(axis=0) for d in ("index", "thumb")}
+    assert np.linalg.norm(contact["thumb"]) > 1.0  # a real pinch, newtons
+    assert np.linalg.norm(contact["thumb"] + contact["index"]) < 0.03 * np.linalg.norm(contact["thumb"])
+    others = [b for b in range(16) if not str(r["bone_names"][b]).startswith(("index", "thumb"))]
+    assert np.abs(r["bone_contact_force"][-1, others]).max() == 0.0
+    assert np.abs(tare["bone_pose"][-1] - r["bone_pose"][-1]).max() < 1e-9  # the same poses
+    for digit in ("index", "thumb"):
+        read = (r["bone_wrench"][-1, finger(r, digit), :3] - tare["bone_wrench"][-1, finger(r, digit), :3]).sum(axis=0)
+        assert np.linalg.norm(read - contact[digit]) < 0.02 * np.linalg.norm(contact[digit]), digit
+    # still: no longer moving
+    letter = r["body_letter_positions"].mean(axis=1)
     assert np.linalg.norm(letter[-1] - letter[-6]) < 1e-5
