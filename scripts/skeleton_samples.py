@@ -6,13 +6,16 @@
   bone list) closes on a soft ball resting on the ground, lifts it 3 cm and holds it;
 - pinch_letter.json: the same hand pinches a soft letter I, gravity off, and holds it;
 - pinch_letter_hand.json: the grasping hand (16 bones, docs/skeleton.md Section 9) bends its
-  index finger and thumb onto a small soft letter I between their pads, gravity off.
+  index finger and thumb onto a small soft letter I between their pads, gravity off;
+- grasp_ball_hand.json: the grasping hand closes its index finger and thumb on a soft 4 cm ball
+  on the ground, lifts it 3 cm, holds it 2 s by friction (gravity square to the squeeze) and
+  opens, dropping it.
 
     .venv/bin/python scripts/skeleton_samples.py [--meshes]
 
 --meshes also writes the meshes the scenes read (two_finger_hand.obj and _tets.npz, ball.obj
-and ball_tets.npz, grasping_hand.obj and _tets.npz, pinch_letter_I.obj and _tets.npz); the ball
-and the grasping hand are tetrahedralized by pytetwild, which is not deterministic, so the
+and ball_tets.npz, grasping_hand.obj and _tets.npz, pinch_letter_I.obj and _tets.npz, hand_ball.obj
+and _tets.npz); the balls and the grasping hand are tetrahedralized by pytetwild, which is not deterministic, so the
 stored files are what the scenes replay.
 """
 
@@ -231,8 +234,7 @@ def pinch_letter_hand() -> dict:
     centre, _, _ = pinch_frame(skeleton)
     closed = {**curled(skeleton, "index", PINCH_INDEX), **curled_about(thumb_axis(skeleton), "thumb", PINCH_THUMB)}
     still = {name: {"quaternion": [0.0, 0.0, 0.0, 1.0]} for name in closed}
-    bones = [{"name": b.name, "parent": b.parent, "head": rounded(b.head), "tail": rounded(b.tail),
-              "radius": round(b.radius, 6)} for b in skeleton.bones]
+    bones = grasping_bones(skeleton)
     letter = {"name": "letter", "type": "soft", "mesh": "pinch_letter_I.obj", "tets": "pinch_letter_I_tets.npz",
               "position": rounded(centre), "material": {"young_modulus": 5e4, "poisson_ratio": 0.3, "density": 1000.0},
               "friction": 0.8}
@@ -244,6 +246,102 @@ def pinch_letter_hand() -> dict:
             "skeleton": {"targets": [{"t": 0.0, "bones": still}, {"t": 0.5, "bones": closed}],
                          "drive": {"prescribed": True}},
             "bodies": [letter]}
+
+
+# --------------------------------------------------------------------------------------------
+# The grasping hand (16 bones): ball grasp
+# --------------------------------------------------------------------------------------------
+
+HAND_BALL_RADIUS = 0.02  # m: a 4 cm soft ball
+# The pose (degrees, proximal first) at which the index finger's last phalanx and the thumb's
+# touch a ball HAND_BALL_RADIUS across set between them (their axes 46 mm apart less the two
+# digits' radii: the ball clears the open hand by 3 mm); the grasp bends both GRASP_SQUEEZE
+# further at each joint, each pad moving about 5 mm into the ball.
+GRASP_INDEX, GRASP_THUMB, GRASP_SQUEEZE = (10.0, 10.0, 5.0), (0.0, 0.0, 0.0), 4.0
+# Keyed times (s): closed by, lift starts, lifted by, opening starts, open by; the end
+GRASP_TIMES, GRASP_END = (0.5, 0.7, 1.2, 3.2, 3.5), 4.0
+
+
+def digit_radius(skeleton: sk.Skeleton, digit: str) -> float:
+    """The digit's own radius (its bones' capsules are 0.6 of it)."""
+    return skeleton.bones[skeleton.index(f"{digit}_3")].radius / 0.6
+
+
+def squeezed(angles) -> tuple:
+    return tuple(a + GRASP_SQUEEZE for a in angles)
+
+
+def ball_grasp_frame(skeleton: sk.Skeleton, hand_nodes):
+    """Where the ball goes and which way is up: the ball's centre midway between the index's
+    and the thumb's last phalanges at the touch pose (n: from the index pad to the thumb's), and
+    `up` square to n (so the squeeze cannot hold the ball's weight: friction must), turned about
+    n so that the hand at rest and its digits at the grasp pose stand highest above the ground
+    under the ball."""
+    index = posed_digit(skeleton, "index", flexion_axis(skeleton, "index"), GRASP_INDEX)[2]
+    thumb = posed_digit(skeleton, "thumb", thumb_axis(skeleton), GRASP_THUMB)[2]
+    on_thumb, on_index = closest_points(*thumb, *index)
+    n = (on_thumb - on_index) / np.linalg.norm(on_thumb - on_index)
+    centre = 0.5 * ((on_index + n * digit_radius(skeleton, "index")) + (on_thumb - n * digit_radius(skeleton, "thumb")))
+    digits = [(d, posed_digit(skeleton, d, thumb_axis(skeleton) if d == "thumb" else flexion_axis(skeleton, d),
+                              squeezed(GRASP_THUMB if d == "thumb" else GRASP_INDEX) if d in ("index", "thumb")
+                              else (0.0, 0.0, 0.0))) for d in sk.DIGITS]
+
+    def clearance(up):
+        ground = centre @ up - HAND_BALL_RADIUS
+        lowest = [min(min(p @ up for p in bone) for bone in bones) - digit_radius(skeleton, d) for d, bones in digits]
+        return min([(hand_nodes @ up).min()] + lowest) - ground
+
+    e1 = np.cross(n, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    ups = [math.cos(a) * e1 + math.sin(a) * np.cross(n, e1) for a in np.radians(np.arange(360))]
+    return centre, n, max(ups, key=clearance)
+
+
+def grasp_ball_hand() -> dict:
+    """Gravity square to the squeeze: the index finger and the thumb close on the ball over 1/2 s,
+    the palm lifts it LIFT over the next 1/2 s (after 0.2 s still), holds it 2 s, then the fingers
+    open over 0.3 s and the ball drops."""
+    skeleton = sk.grasping_hand_skeleton()
+    nodes = np.load(SAMPLES / "grasping_hand_tets.npz")["nodes"]
+    centre, _, up = ball_grasp_frame(skeleton, nodes)
+    closed = {**curled(skeleton, "index", squeezed(GRASP_INDEX)),
+              **curled_about(thumb_axis(skeleton), "thumb", squeezed(GRASP_THUMB))}
+    open_ = {name: {"quaternion": [0.0, 0.0, 0.0, 1.0]} for name in closed}
+
+    def key(t, bones, lift):
+        return {"t": t, "bones": {**bones, "palm": {"position": rounded(up * lift)}}}
+
+    t_closed, t_lift, t_lifted, t_open, t_opened = GRASP_TIMES
+    targets = [key(0.0, open_, 0.0), key(t_closed, closed, 0.0), key(t_lift, closed, 0.0),
+               key(t_lifted, closed, LIFT), key(t_open, closed, LIFT), key(t_opened, open_, LIFT)]
+    ground = centre @ up - HAND_BALL_RADIUS - 0.0005  # the ball 0.5 mm into the 1 mm contact thickness
+    bodies = [{"name": "ground", "type": "plane", "point": rounded(up * ground), "normal": rounded(up),
+               "friction": 0.8},
+              {"name": "ball", "type": "soft", "mesh": "hand_ball.obj", "tets": "hand_ball_tets.npz",
+               "position": rounded(centre), "material": {"young_modulus": 3e4, "poisson_ratio": 0.3, "density": 500.0},
+               "friction": 0.8}]
+    return {"format": FORMAT,
+            "hand": {"mesh": "grasping_hand.obj", "tets": "grasping_hand_tets.npz", "skeleton": grasping_bones(skeleton),
+                     "friction": 0.8, "self_collision": False},
+            "material": HAND_MATERIAL, "springs": {"stiffness": 1e4, "damping": 10.0},
+            "dt": DT, "frames": round(GRASP_END / DT), "gravity": rounded(-9.81 * up),
+            "skeleton": {"targets": targets, "drive": {"prescribed": True}},
+            "bodies": bodies}
+
+
+def grasping_bones(skeleton: sk.Skeleton) -> list:
+    return [{"name": b.name, "parent": b.parent, "head": rounded(b.head), "tail": rounded(b.tail),
+             "radius": round(b.radius, 6)} for b in skeleton.bones]
+
+
+def hand_ball_mesh():
+    """A soft ball HAND_BALL_RADIUS across: an icosphere's surface, pytetwild's tets."""
+    import pyvista
+
+    sphere = pyvista.Icosphere(radius=HAND_BALL_RADIUS, nsub=2)
+    v, f = np.asarray(sphere.points), np.asarray(sphere.faces).reshape(-1, 4)[:, 1:].astype(np.int32)
+    nodes, tets = mesh.tetrahedralize(v, f, edge_length_fac=0.5, coarsen=True, epsilon=0.01)
+    return v, f, nodes, tets
 
 
 def grasping_hand_tets():
@@ -287,6 +385,13 @@ def write_meshes() -> None:
     nodes, tets, v, f = pinch_letter_mesh()
     mesh.save_obj(SAMPLES / "pinch_letter_I.obj", v, f)
     np.savez_compressed(SAMPLES / "pinch_letter_I_tets.npz", nodes=nodes, tets=tets)
+    write_hand_ball()
+
+
+def write_hand_ball() -> None:
+    v, f, nodes, tets = hand_ball_mesh()
+    mesh.save_obj(SAMPLES / "hand_ball.obj", v, f)
+    np.savez_compressed(SAMPLES / "hand_ball_tets.npz", nodes=nodes, tets=tets)
 
 
 def main(argv=None) -> int:
@@ -296,7 +401,8 @@ def main(argv=None) -> int:
     if args.meshes:
         write_meshes()
     for name, scene in (("procedural_hand_close", procedural_hand_close()), ("grasp_ball", grasp_ball()),
-                        ("pinch_letter", pinch_letter()), ("pinch_letter_hand", pinch_letter_hand())):
+                        ("pinch_letter", pinch_letter()), ("pinch_letter_hand", pinch_letter_hand()),
+                        ("grasp_ball_hand", grasp_ball_hand())):
         (SAMPLES / f"{name}.json").write_text(json.dumps(scene, indent=1) + "\n")
     return 0
 
