@@ -21,7 +21,9 @@ SAMPLE_SCENE = SAMPLES / "hand_wave.json"
 # the skeleton samples the demo runs, each with the title of its per-finger force plot
 SKELETON_SAMPLES = {"procedural_hand_close": "The 16-bone procedural hand closing its fingers",
                     "grasp_ball": "A two-finger hand grasping a soft ball and lifting it 3 cm",
-                    "pinch_letter": "A two-finger hand pinching a soft letter I (gravity off)"}
+                    "pinch_letter": "A two-finger hand pinching a soft letter I (gravity off)",
+                    "pinch_letter_hand": "The 16-bone grasping hand pinching a soft letter I (gravity off)",
+                    "grasp_ball_hand": "The 16-bone grasping hand lifting a soft 4 cm ball by friction, then dropping it"}
 USER_ERRORS = rig_check.USER_ERRORS
 EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_INTERRUPTED = 2, 3, 130
 

@@ -1,12 +1,17 @@
 #!/usr/bin/env python3
-"""The grasp scene's visual loop (issue 40's target: 60 Hz or more on one core).
+"""The grasp scenes' visual loop (issue 40's target: 60 Hz or more on one core).
 
-The two-finger soft gripper (`haptic_hand.engine.gripper`, 3 bones) closes on a soft ball on the
-ground, lifts it 3 cm, holds it 2 s and opens: the scene of tests/engine/test_grasp.py, at the
-visual loop's 1/30 s step, the world on one thread (`contact.threads` 1) and on two, the two runs
-alternating step by step in the same process so that the machine's load falls on both alike.
-Prints the median and the slowest step, their frame rates, the median's split (dynamics, contact)
-and the machine.
+- `hand`: the 16-bone grasping hand's ball grasp, `addon/engine/sample_scenes/grasp_ball_hand.json`
+  (index finger and thumb close on a soft 4 cm ball, the palm lifts it 3 cm, holds it 2 s, opens);
+- `gripper`: the two-finger soft gripper (`haptic_hand.engine.gripper`, 3 bones) on a soft ball,
+  the scene of tests/engine/test_grasp.py;
+- `one handle`: the grasping hand's tets on the palm handle alone, no bodies, held still: the
+  one-handle step the ratios are taken against.
+
+Each at the visual loop's 1/30 s step, the world on one thread (`contact.threads` 1) and on two,
+all runs alternating step by step in the same process so that the machine's load falls on each
+alike. Prints the median, 95th percentile and slowest step, their frame rates, the median's split
+(dynamics, contact), the ratios to the one-handle step and the machine.
 
     .venv/bin/python bench/bench_grasp.py [--repeats 3]
 """
@@ -14,42 +19,89 @@ and the machine.
 from __future__ import annotations
 
 import argparse
+import copy
 import time
+from pathlib import Path
 
 import numpy as np
 
 from machine import machine_info, print_machine
 from haptic_hand.engine import gripper as gr
 from haptic_hand.engine import native_skeleton as ns
+from haptic_hand.engine import scene as scenes
+from haptic_hand.engine.scene_world import build_world
+from haptic_hand.engine.simulate import ScriptedInputs
+
+SCENE = Path(__file__).resolve().parents[1] / "addon" / "engine" / "sample_scenes" / "grasp_ball_hand.json"
+THREADS = (1, 2)
+
+
+def scene_stepper(data: dict, threads: int):
+    """A step function of a scene's world (its inputs, then the world's step); returns its stats."""
+    data = copy.deepcopy(data)
+    data["contact"] = {**data.get("contact", {}), "threads": threads}
+    scene = scenes.from_dict(data, SCENE.parent)
+    world, hand, model, _, _ = build_world(scene)
+    inputs, clock = ScriptedInputs(scene, world, hand, model), [0]
+
+    def step():
+        clock[0] += 1
+        inputs.apply(clock[0] * scene.dt, scene.dt)
+        return world.step()
+    return step, world
+
+
+def gripper_stepper(threads: int):
+    w, hand, _ = gr.grasp_world(0.8, threads=threads)
+    p0, q0 = w.bone_states(hand)[:2]
+    clock = [0]
+
+    def step():
+        w.set_bone_targets(hand, np.full(3, ns.PRESCRIBED), gr.grasp_targets(p0, clock[0]), q0)
+        clock[0] += 1
+        return w.step()
+    return step, w
+
+
+def one_handle(data: dict) -> dict:
+    """The grasping hand on its palm handle alone: no bones, no bodies, held at rest."""
+    data = copy.deepcopy(data)
+    data["hand"]["skeleton"], data["skeleton"], data["bodies"] = None, {}, []
+    data["hand"]["palm_seed"] = [0.0, 0.0, -0.03]  # inside the palm slab (mesh.procedural_hand)
+    return data
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repeats", type=int, default=3, help="runs of the whole scene per thread count")
+    ap.add_argument("--repeats", type=int, default=3, help="runs of each whole scene per thread count")
     args = ap.parse_args()
     print_machine(machine_info())
-    walls = {1: [], 2: []}
-    split = {1: [], 2: []}
+    hand = scenes.load(SCENE).data
+    steps = {"hand": hand["frames"], "gripper": gr.HELD + gr.OPEN_FOR, "one handle": hand["frames"]}
+    walls, split = {}, {}
     for _ in range(args.repeats):
-        runs = {threads: gr.grasp_world(0.8, threads=threads) for threads in walls}
-        rest = {threads: runs[threads][0].bone_states(runs[threads][1])[:2] for threads in walls}
-        for k in range(gr.HELD + gr.OPEN_FOR):
-            for threads, (w, hand, _) in runs.items():
-                p0, q0 = rest[threads]
-                w.set_bone_targets(hand, np.full(3, ns.PRESCRIBED), gr.grasp_targets(p0, k), q0)
+        runs = {}
+        for threads in THREADS:
+            runs["hand", threads] = scene_stepper(hand, threads)[0]
+            runs["gripper", threads] = gripper_stepper(threads)[0]
+        runs["one handle", 1] = scene_stepper(one_handle(hand), 1)[0]
+        for k in range(max(steps.values())):
+            for key, step in runs.items():
+                if k >= steps[key[0]]:
+                    continue
                 t0 = time.perf_counter()
-                stats = w.step()
-                walls[threads].append(time.perf_counter() - t0)
-                split[threads].append((stats["t_dynamics"], stats["t_contact"]))
-    print(f"grasp scene, {gr.HELD + gr.OPEN_FOR} steps of {gr.DT:.4f} s, x {args.repeats}")
-    for threads, wall in walls.items():
+                stats = step()
+                walls.setdefault(key, []).append(time.perf_counter() - t0)
+                split.setdefault(key, []).append((stats["t_dynamics"], stats["t_contact"]))
+    base = np.median(walls["one handle", 1])
+    print(f"steps of 1/30 s, x {args.repeats}: hand {steps['hand']}, gripper {steps['gripper']}")
+    for (name, threads), wall in walls.items():
         median, p95, worst = np.median(wall), np.percentile(wall, 95), np.max(wall)
-        slowest_step = int(np.argmax(wall)) % (gr.HELD + gr.OPEN_FOR)
-        dynamics, contact = np.median(np.array(split[threads]), axis=0)
-        print(f"  {threads} thread(s): median {1e3 * median:.2f} ms ({1 / median:.0f} Hz), 95th percentile "
-              f"{1e3 * p95:.2f} ms ({1 / p95:.0f} Hz), slowest {1e3 * worst:.2f} ms ({1 / worst:.0f} Hz, step "
-              f"{slowest_step}); dynamics {1e3 * dynamics:.2f} ms, contact {1e3 * contact:.2f} ms")
-    print(f"  ratio 1 thread / 2 threads (median): {np.median(walls[1]) / np.median(walls[2]):.2f}")
+        dynamics, contact = np.median(np.array(split[name, threads]), axis=0)
+        print(f"  {name}, {threads} thread(s): median {1e3 * median:.2f} ms ({1 / median:.0f} Hz, "
+              f"{median / base:.2f}x one handle), 95th percentile {1e3 * p95:.2f} ms ({1 / p95:.0f} Hz), slowest "
+              f"{1e3 * worst:.2f} ms (step {int(np.argmax(wall)) % steps[name]}); dynamics {1e3 * dynamics:.2f} ms, "
+              f"contact {1e3 * contact:.2f} ms")
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import pathlib
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -75,6 +76,24 @@ _THUMB_RADIUS = 0.0105
 _THUMB_BLEND = 0.015
 
 
+class Thumb(NamedTuple):
+    """The thumb's capsule: its root inside the palm (m), the direction it points, its axis
+    length from the root (m) and its radius (m)."""
+
+    root: tuple
+    direction: tuple
+    length: float
+    radius: float
+
+
+#: The default hand's thumb: out to the side, its tip 60 mm from a root high on the palm.
+THUMB = Thumb(tuple(_THUMB_ROOT), tuple(_THUMB_DIRECTION), _THUMB_LENGTH, _THUMB_RADIUS)
+#: A thumb that opposes the index finger: 85 mm long from a root 20 mm lower on the palm, pointing
+#: in front of the palm and down, so that its pad meets the index finger's pad with the index bent
+#: about 30/30/20 degrees at its three joints and the thumb 20/20/15 (docs/skeleton.md, Section 9).
+GRASPING_THUMB = Thumb((-0.006, 0.032, -0.045), (-0.5, 0.5, -0.7), 0.085, 0.0105)
+
+
 def _rounded_box_distance(p, centre, half_extents, rounding):
     q = np.abs(p - centre) - (half_extents - rounding)
     outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
@@ -94,8 +113,9 @@ def smooth_union(d1, d2, k):
     return np.minimum(d1, d2) - h * h * k / 4.0
 
 
-def _finger_segments():
-    """Capsule axis end points (root, tip centre) and radius of each finger and the thumb."""
+def _finger_segments(thumb: Thumb = THUMB):
+    """Capsule axis end points (root, tip centre), radius and blend width of each finger
+    (little, ring, middle, index) and the thumb."""
     segments = []
     for root_y, radius, length, angle in _FINGERS:
         root = np.array([0.0, root_y, _FINGER_ROOT_Z])
@@ -103,31 +123,32 @@ def _finger_segments():
         # The tip reaches `length` below the knuckle line, measured along the finger.
         axis_length = (_FINGER_ROOT_Z - _KNUCKLE_Z) + length - radius
         segments.append((root, root + axis_length * direction, radius, _FINGER_BLEND))
-    direction = _THUMB_DIRECTION / np.linalg.norm(_THUMB_DIRECTION)
-    segments.append(
-        (_THUMB_ROOT, _THUMB_ROOT + _THUMB_LENGTH * direction, _THUMB_RADIUS, _THUMB_BLEND)
-    )
+    root = np.asarray(thumb.root, dtype=np.float64)
+    direction = np.asarray(thumb.direction, dtype=np.float64)
+    direction = direction / np.linalg.norm(direction)
+    segments.append((root, root + thumb.length * direction, thumb.radius, _THUMB_BLEND))
     return segments
 
 
-def _hand_distance(p):
+def _hand_distance(p, thumb: Thumb = THUMB):
     palm = _rounded_box_distance(p, _PALM_CENTRE, _PALM_HALF_EXTENTS, _PALM_ROUNDING)
     # Each finger is blended with the palm only, never with its neighbours, so the gaps
     # between fingers stay open.
     return np.min(
         [
             smooth_union(palm, capsule_distance(p, a, b, r), k)
-            for a, b, r, k in _finger_segments()
+            for a, b, r, k in _finger_segments(thumb)
         ],
         axis=0,
     )
 
 
-def procedural_hand(resolution: float = 0.004):
+def procedural_hand(resolution: float = 0.004, thumb: Thumb = THUMB):
     """Closed, outward-wound, genus-0 triangle surface of a right hand (about 19 cm long).
 
     The hand is a smooth union of a rounded palm slab and five capsules, sampled as a signed
-    distance field on a grid of spacing `resolution` (m) and contoured by marching cubes.
+    distance field on a grid of spacing `resolution` (m) and contoured by marching cubes;
+    `thumb` is the thumb's capsule (THUMB, or GRASPING_THUMB for a hand that pinches).
     Returns (V float64 (n, 3), F int32 (m, 3)); the same arguments give the same mesh.
     """
     import pyvista
@@ -140,7 +161,7 @@ def procedural_hand(resolution: float = 0.004):
         )
     lower = np.full(3, np.inf)
     upper = np.full(3, -np.inf)
-    for a, b, radius, _ in _finger_segments():
+    for a, b, radius, _ in _finger_segments(thumb):
         lower = np.minimum(lower, np.minimum(a, b) - radius)
         upper = np.maximum(upper, np.maximum(a, b) + radius)
     lower = np.minimum(lower, _PALM_CENTRE - _PALM_HALF_EXTENTS)
@@ -150,7 +171,7 @@ def procedural_hand(resolution: float = 0.004):
     dims = np.ceil((upper + 2 * resolution - lower) / resolution).astype(int) + 1
 
     grid = pyvista.ImageData(dimensions=dims, spacing=(resolution,) * 3, origin=lower)
-    distance = _hand_distance(np.asarray(grid.points, dtype=np.float64))
+    distance = _hand_distance(np.asarray(grid.points, dtype=np.float64), thumb)
     # Keep samples off the zero level so marching cubes makes no zero-length edges.
     tiny = 1e-6 * resolution
     distance[np.abs(distance) < tiny] = tiny

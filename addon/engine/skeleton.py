@@ -300,16 +300,25 @@ _PALM_TAIL = np.array([0.0, 0.0, -0.075])
 _PALM_RADIUS = 0.03
 
 
+# The grasping hand's bones (docs/skeleton.md, Section 9): capsules 0.6 times each digit's radius
+# (its finer tets hold 10-36 nodes in each, off one line), and a palm bone that ends 15 mm short of
+# the knuckle line, so that a layer of flesh at each knuckle bends.
+_GRASPING_BONE_RADIUS = 0.6
+_GRASPING_PALM_TAIL = np.array([0.0, 0.0, -0.06])
+_GRASPING_PALM_RADIUS = 0.02
+
+
 def _cut(root, tip, cuts):
     return [root + c * (tip - root) for c in cuts]
 
 
-def procedural_hand_skeleton() -> Skeleton:
-    """16 bones fitted to mesh.procedural_hand(): 'palm' (the root), 'thumb_1..3' and
-    '<finger>_1..3' (proximal to distal) for index, middle, ring and little."""
+def procedural_hand_skeleton(thumb=None, bone_radius: float = _FINGER_BONE_RADIUS) -> Skeleton:
+    """16 bones fitted to mesh.procedural_hand(thumb=thumb): 'palm' (the root), 'thumb_1..3'
+    and '<finger>_1..3' (proximal to distal) for index, middle, ring and little; each digit's
+    capsules `bone_radius` times its own radius."""
     from . import mesh
 
-    segments = mesh._finger_segments()  # little, ring, middle, index, thumb: (root, tip, radius, blend)
+    segments = mesh._finger_segments(mesh.THUMB if thumb is None else thumb)  # little, ring, middle, index, thumb: (root, tip, radius, blend)
     by_digit = dict(zip(("little", "ring", "middle", "index", "thumb"), segments))
     bones = [Bone("palm", None, _PALM_HEAD.copy(), _PALM_TAIL.copy(), _PALM_RADIUS)]
     for digit in DIGITS:
@@ -323,6 +332,17 @@ def procedural_hand_skeleton() -> Skeleton:
         parent = "palm"
         for k in range(3):
             name = f"{digit}_{k + 1}"
-            bones.append(Bone(name, parent, points[k], points[k + 1], _FINGER_BONE_RADIUS * radius))
+            bones.append(Bone(name, parent, points[k], points[k + 1], bone_radius * radius))
             parent = name
     return Skeleton(bones)
+
+
+def grasping_hand_skeleton() -> Skeleton:
+    """16 bones fitted to mesh.procedural_hand(thumb=mesh.GRASPING_THUMB), named as
+    procedural_hand_skeleton()'s: thinner digit bones and a shorter palm bone, for the finer
+    tets of sample_scenes/grasping_hand_tets.npz (docs/skeleton.md, Section 9)."""
+    from . import mesh
+
+    digits = procedural_hand_skeleton(mesh.GRASPING_THUMB, _GRASPING_BONE_RADIUS).bones[1:]
+    palm = Bone("palm", None, _PALM_HEAD.copy(), _GRASPING_PALM_TAIL.copy(), _GRASPING_PALM_RADIUS)
+    return Skeleton([palm, *digits])

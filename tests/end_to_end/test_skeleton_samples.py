@@ -7,7 +7,11 @@ run through the command line, and do what they show (docs/skeleton.md, Section 8
 - grasp_ball: the two-finger hand lifts a soft ball off the ground by the palm's lift and
   holds it where the palm carries it;
 - pinch_letter: the thumb and the index finger pinch a soft letter with equal and opposite
-  forces (gravity off), and the letter stays put.
+  forces (gravity off), and the letter stays put;
+- pinch_letter_hand: the grasping hand's index finger and thumb (16 bones) pinch a soft letter
+  between their pads: equal and opposite forces, each finger's read force its contact force;
+- grasp_ball_hand: the grasping hand's index finger and thumb lift a soft ball off the ground,
+  hold it by friction where the palm carries it, and drop it when they open.
 """
 
 import json
@@ -28,8 +32,16 @@ def results(tmp_path_factory):
     """Each sample, run once through `simulate`."""
     out = {}
     d = tmp_path_factory.mktemp("samples")
-    for name in ("procedural_hand_close", "grasp_ball", "pinch_letter"):
-        proc = subprocess.run([sys.executable, "-m", "haptic_hand", "simulate", str(SAMPLES / f"{name}.json"), "--out",
+    tare = json.loads((SAMPLES / "pinch_letter_hand.json").read_text())
+    # the same bones' poses with nothing held: the tare a force-sensing glove takes
+    tare["bodies"] = []
+    for key in ("mesh", "tets"):
+        tare["hand"][key] = str(SAMPLES / tare["hand"][key])
+    (d / "pinch_letter_hand_tare.json").write_text(json.dumps(tare))
+    for name in ("procedural_hand_close", "grasp_ball", "pinch_letter", "pinch_letter_hand", "pinch_letter_hand_tare",
+                 "grasp_ball_hand"):
+        scene = d / f"{name}.json" if name.endswith("_tare") else SAMPLES / f"{name}.json"
+        proc = subprocess.run([sys.executable, "-m", "haptic_hand", "simulate", str(scene), "--out",
                                str(d / f"{name}.npz"), "--quiet"], capture_output=True, text=True, timeout=600)
         assert proc.returncode == 0, proc.stderr
         out[name] = dict(np.load(d / f"{name}.npz"))
@@ -105,3 +117,85 @@ def test_the_pinched_letter_is_held_between_equal_and_opposite_finger_forces(res
     letter = r["body_letter_positions"].mean(axis=1)
     assert np.linalg.norm(letter[-1] - letter[0]) < 0.001
     assert np.linalg.norm(letter[-1] - letter[-6]) < 1e-5
+
+
+def finger(result, digit: str) -> list:
+    return [bone(result, f"{digit}_{k}") for k in (1, 2, 3)]
+
+
+def test_the_grasping_hand_pinches_a_letter_between_its_index_and_thumb_pads(results):
+    """Gravity off and the letter touched by the index finger and the thumb only: once still, the
+    letter's momentum balance makes the two fingers' pushes equal and opposite. The bones are
+    prescribed, so the run with nothing held has the same poses; by superposition (small strains)
+    each finger's springs' force less that tare is its contact force on the letter, within 2 %."""
+    r, tare = results["pinch_letter_hand"], results["pinch_letter_hand_tare"]
+    assert json.loads(str(r["scene"]))["gravity"] == [0.0, 0.0, 0.0]
+    assert len(r["bone_names"]) == 16 and r["inverted_tets"].max() == 0
+    contact = {d: r["bone_contact_force"][-1, finger(r, d)].sum(axis=0) for d in ("index", "thumb")}
+    assert np.linalg.norm(contact["thumb"]) > 1.0  # a real pinch, newtons
+    assert np.linalg.norm(contact["thumb"] + contact["index"]) < 0.03 * np.linalg.norm(contact["thumb"])
+    others = [b for b in range(16) if not str(r["bone_names"][b]).startswith(("index", "thumb"))]
+    assert np.abs(r["bone_contact_force"][-1, others]).max() == 0.0
+    assert np.abs(tare["bone_pose"][-1] - r["bone_pose"][-1]).max() < 1e-9  # the same poses
+    for digit in ("index", "thumb"):
+        read = (r["bone_wrench"][-1, finger(r, digit), :3] - tare["bone_wrench"][-1, finger(r, digit), :3]).sum(axis=0)
+        assert np.linalg.norm(read - contact[digit]) < 0.02 * np.linalg.norm(contact[digit]), digit
+    # still: no longer moving
+    letter = r["body_letter_positions"].mean(axis=1)
+    assert np.linalg.norm(letter[-1] - letter[-6]) < 1e-5
+
+
+def test_the_grasping_hand_lifts_a_ball_by_friction_and_opening_drops_it(results):
+    """Gravity is square to the squeeze and nothing but the index finger and the thumb touches the
+    ball while it is held (not the palm, not the ground): the ball's weight m g is carried by the
+    two fingers' forces along the vertical, within the Coulomb cone of their squeeze (|F_up| <=
+    mu |F_squeeze|). Held, it stays where the palm carries it; open, it falls free to the ground
+    within sqrt(2 h / g) of the fingers' opening."""
+    r = results["grasp_ball_hand"]
+    scene = json.loads(str(r["scene"]))
+    assert len(r["bone_names"]) == 16 and r["inverted_tets"].max() == 0 and "WARNING" not in r["stdout"]
+    dt, gravity = scene["dt"], np.array(scene["gravity"])
+    g = np.linalg.norm(gravity)
+    up = -gravity / g
+    times = [key["t"] for key in scene["skeleton"]["targets"]]
+    lifted, opening, opened = (round(t / dt) for t in times[3:6])  # the keys: lifted, held until, open
+    lift = np.linalg.norm(scene["skeleton"]["targets"][3]["bones"]["palm"]["position"])
+    ball, palm = r["body_ball_positions"], r["bone_pose"][:, 0, :3]
+    ground = r["body_ground_plane"]
+    height = (ball - ground[:3]) @ ground[3:]  # each node's height above the ground
+    assert np.allclose(ground[3:], up, atol=1e-6)
+    assert (palm[lifted] - palm[0]) @ up == pytest.approx(lift, abs=1e-4)
+    # lifted with the palm: off the ground by about the palm's lift while held
+    centre = ball.mean(axis=1)
+    assert abs((centre[opening] - centre[0]) @ up - lift) < 0.003
+    assert height[lifted:opening + 1].min() > 0.9 * lift
+    # held 2 s: within 3 mm of where the palm carries it
+    assert (opening - lifted) * dt == pytest.approx(2.0)
+    carried = centre[lifted:opening + 1] - palm[lifted:opening + 1]
+    assert np.linalg.norm(carried - carried[0], axis=1).max() < 0.003
+    # by the index finger and the thumb alone, by friction
+    mass = scene["bodies"][1]["material"]["density"] * tet_volume(ball[0], r["body_ball_tets"])
+    mu = np.sqrt(scene["hand"]["friction"] * scene["bodies"][1]["friction"])
+    others = [b for b in range(16) if not str(r["bone_names"][b]).startswith(("index", "thumb"))]
+    for k in range(lifted, opening + 1, 5):
+        assert np.abs(r["bone_contact_force"][k, others]).max() == 0.0
+        index, thumb = (r["bone_contact_force"][k, finger(r, d)].sum(axis=0) for d in ("index", "thumb"))
+        # the ball still: the fingers take its weight (the reaction of their pushes on it)
+        assert np.linalg.norm(index + thumb - mass * gravity) < 0.05 * mass * g
+        squeeze = thumb - index
+        squeeze -= (squeeze @ up) * up
+        squeeze /= np.linalg.norm(squeeze)
+        for force in (index, thumb):
+            assert abs(force @ up) <= mu * abs(force @ squeeze)
+        assert min(-index @ squeeze, thumb @ squeeze) > mass * g / (2 * mu)  # squeezed enough to hold it
+    # open: it falls free (h = g t^2 / 2) and lands on the ground (within the 1 mm contact
+    # thickness) by the time the fingers are open plus the fall time, and stays there
+    fall = np.sqrt(2 * height[opening].min() / g)
+    landed = opened + int(np.ceil(fall / dt)) + 1
+    assert height[landed:].min(axis=1).max() < scene.get("contact", {}).get("thickness", 0.001) + 0.0005
+    assert (centre[opening] - centre[-1]) @ up > 0.9 * lift
+
+
+def tet_volume(nodes, tets) -> float:
+    a, b, c, d = (nodes[tets[:, k]] for k in range(4))
+    return float(np.abs(np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a)).sum() / 6)
