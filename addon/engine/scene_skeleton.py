@@ -80,6 +80,11 @@ def _refuse_drive_without_skeleton(section: dict) -> None:
     if given:
         raise SceneError(f"skeleton.{given[0]} drives a skeleton's bones, but hand.skeleton is null (the palm "
                          f'handle): set hand.skeleton ("{PROCEDURAL}" or a list of bones) or remove it')
+    joints = [name for name in ("stiffness", "damping") if section["joints"][name] != 0]
+    if joints:  # the table's rows reach the model as they are; the palm handle has no joints to give them to
+        raise SceneError(f"skeleton.joints.{joints[0]} ties bones to their parents, but hand.skeleton is null (the "
+                         f'palm handle, one bone): set hand.skeleton ("{PROCEDURAL}" or a list of bones) or set '
+                         f"it to 0")
 
 
 # --------------------------------------------------------------------------------------------

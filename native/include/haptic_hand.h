@@ -219,7 +219,8 @@ int hh_coupling_model(const hh_model* model, const hh_data* data, double wrench0
 /* --- observables --- */
 /* Total force and torque (about the handle's centre of mass) the springs apply on the handle. */
 int hh_coupling_wrench(const hh_model* model, const hh_data* data, double force[3], double torque[3]);
-/* Kinetic energy of flesh and handle, elastic energy of the flesh, spring energy (J). */
+/* Kinetic energy of flesh and handle (every bone), elastic energy of the flesh, spring energy (J):
+ * the flesh springs' and a skeleton's ball joints' (docs/skeleton.md Section 5). */
 int hh_energies(const hh_model* model, const hh_data* data, double* kinetic, double* elastic,
                 double* spring);
 /* Linear momentum of flesh plus handle (kg m/s). */

@@ -175,7 +175,17 @@
     X(drive_damping_ratio, HH_KIND_DOUBLE, 1, "skeleton.drive.damping_ratio", "", HH_V(1), 0, HH_INF,  \
       HH_UI_SCENE | HH_UI_ADVANCED, 0, 4, "Bone drive damping ratio", "",                              \
       "Damping ratio of the non-root bones' virtual couplings (1: critically damped)",                 \
-      "about 1; 0 leaves the fingers ringing about their targets")
+      "about 1; 0 leaves the fingers ringing about their targets")                                     \
+    X(joint_stiffness, HH_KIND_DOUBLE, 1, "skeleton.joints.stiffness", "N/m", HH_V(0), 0, HH_INF,      \
+      HH_UI_SCENE | HH_UI_ADVANCED, 0, 1e5, "Joint stiffness", "",                                     \
+      "Ball joints: a zero-rest-length spring ties each bone's head to the same point of its parent "  \
+      "(docs/skeleton.md, Section 5); 0 with zero joint damping: no joints",                           \
+      "0 (no joints), or about the flesh springs' stiffness (1e3 to 1e4 N/m) to keep a pushed finger " \
+      "on its knuckle")                                                                                \
+    X(joint_damping, HH_KIND_DOUBLE, 1, "skeleton.joints.damping", "N s/m", HH_V(0), 0, HH_INF,        \
+      HH_UI_SCENE | HH_UI_ADVANCED, 0, 100, "Joint damping", "",                                       \
+      "Damping of the ball joints' springs (on the relative velocity of the two bones' joint points)", \
+      "zero or positive; about the flesh springs' damping")
 
 /* hh_world_params: the visual loop's world (contact and Coulomb friction). */
 #define HH_WORLD_PARAMS_ROWS(X)                                                                        \

@@ -1,12 +1,14 @@
 // The skeleton of many handles (docs/skeleton.md): each bone's spring blocks of Eq. 7 (Eqs. 8,
 // 10, 11) against central finite differences of its springs' forces (Eqs. 4-5), no bone's
 // wrench depending on another bone's state, and the Schur solve for B bones against the
-// monolithic reference.
+// monolithic reference, with and without the ball joints of Section 5 (their wrenches'
+// Jacobians against central differences as well).
 #include <functional>
 #include <random>
 
 #include "box_mesh.h"
 #include "check.h"
+#include "coupling/joints.h"
 #include "rigid/quaternion.h"
 #include "sim/skeleton_step.h"
 
@@ -14,11 +16,13 @@ using namespace hh;
 
 namespace {
 // A 6 x 2 x 2 cm bar of 1 cm cubes with three bones on its axis (a chain), flesh between them.
-Model three_bone_bar() {
+Model three_bone_bar(double joint_stiffness = 0, double joint_damping = 0) {
     const BoxMesh box = make_box(6, 2, 2, 0.01);
     hh_params p;
     hh_default_params(&p);
     p.rayleigh_alpha = 0.5;
+    p.joint_stiffness = joint_stiffness;
+    p.joint_damping = joint_damping;
     std::vector<BoneDesc> bones(3);
     const double x[3][2] = {{0.0, 0.01}, {0.025, 0.035}, {0.05, 0.06}};
     for (int b = 0; b < 3; ++b) {
@@ -183,6 +187,103 @@ TEST(schur_for_b_bones_equals_the_monolithic_solve) {
     CHECK_LT((d.skeleton.s - mono).cwiseAbs().maxCoeff() / mono.cwiseAbs().maxCoeff(), 1e-11);
     // the prescribed bone's rows: v_b is its target velocity relative to the frame
     CHECK_LT((d.skeleton.s.segment<6>(6) - d.skeleton.r.segment<6>(6)).norm(), 1e-14 * d.skeleton.r.segment<6>(6).norm());
+}
+
+TEST(joint_jacobians_match_finite_differences) {
+    // A ball joint between two turned, moving, spinning bones whose joint points are apart:
+    // dW_s/d(x_t, theta_t) and dW_s/d(v_t, omega_t) for both ends s, t (Eq. 11's with the
+    // rotation terms on both sides) against central differences of the joint's wrenches.
+    std::mt19937 rng(21);
+    std::normal_distribution<double> g(0, 1);
+    auto rv = [&](double s) { return Vec3(s * g(rng), s * g(rng), s * g(rng)); };
+    const double k = 3e3, d = 7.0;
+    HandleState state[2];
+    for (HandleState& h : state) {
+        h.x_com = rv(0.02);
+        h.q = quat_from_rotation_vector(rv(0.5));
+        h.v_com = rv(0.1);
+        h.omega = rv(2.0);
+    }
+    const Vec3 r_parent = rv(0.02), r_child = rv(0.01);
+    auto wrenches = [&](const HandleState* h) {
+        const JointForce f = joint_force(k, d, h[kParent], r_parent, h[kChild], r_child);
+        Eigen::Matrix<double, 12, 1> w;
+        w << f.wrench[kParent], f.wrench[kChild];
+        return w;
+    };
+    const JointJacobian j = joint_jacobian(k, d, state[kParent], r_parent, state[kChild], r_child);
+    double worst = 0;
+    for (int t = 0; t < 2; ++t)
+        for (int c = 0; c < 12; ++c) {
+            const double step = c < 6 ? 1e-7 : 1e-6;
+            auto moved = [&](double sgn) {
+                HandleState h[2] = {state[0], state[1]};
+                Vec3 u = Vec3::Zero();
+                u[c % 3] = sgn * step;
+                if (c < 3) h[t].x_com += u;
+                else if (c < 6) h[t].q = quat_multiply(quat_from_rotation_vector(u), h[t].q);  // a world-frame turn
+                else if (c < 9) h[t].v_com += u;
+                else h[t].omega += u;
+                return wrenches(h);
+            };
+            const Eigen::Matrix<double, 12, 1> num = (moved(1) - moved(-1)) / (2 * step);
+            for (int s = 0; s < 2; ++s) {
+                const Vec6 analytic = c < 6 ? Vec6(j.dw_dx[s][t].col(c)) : Vec6(j.dw_dv[s][t].col(c - 6));
+                const double scale = c < 6 ? j.dw_dx[s][t].norm() : j.dw_dv[s][t].norm();
+                worst = std::max(worst, (num.segment<6>(6 * s) - analytic).norm() / scale);
+            }
+        }
+    // the wrenches are equal and opposite forces at the joint points, and F = -k e - d de/dt
+    const JointForce f = joint_force(k, d, state[kParent], r_parent, state[kChild], r_child);
+    CHECK((f.wrench[kParent].head<3>() + f.wrench[kChild].head<3>()).norm() == 0);
+    const Vec3 lp = quat_to_matrix(state[kParent].q) * r_parent, lc = quat_to_matrix(state[kChild].q) * r_child;
+    const Vec3 gap = state[kChild].x_com + lc - state[kParent].x_com - lp;
+    const Vec3 rate = state[kChild].v_com + state[kChild].omega.cross(lc) - state[kParent].v_com -
+                      state[kParent].omega.cross(lp);
+    CHECK_LT((f.on_child - (-k * gap - d * rate)).norm(), 1e-12 * f.on_child.norm());
+    CHECK_LT(std::abs(f.energy - 0.5 * k * gap.squaredNorm()), 1e-15 * f.energy);
+    std::printf("joint wrench Jacobians against central differences: %.2g relative\n", worst);
+    CHECK_LT(worst, 1e-7);
+}
+
+TEST(joint_blocks_enter_the_step_between_parent_and_child) {
+    // The three-bone chain with joints, bone 1 prescribed: the step's A_h gains, per joint, the
+    // joint's blocks in the non-prescribed bones' rows (diagonal into Ah, the other end as a link),
+    // and nothing else changes against the same step without joints; Schur = monolithic.
+    const double k = 5e3, d = 4.0;
+    const Model on = three_bone_bar(k, d), off = three_bone_bar();
+    Data a(on), b(off);
+    moving_state(on, a, 13);
+    moving_state(off, b, 13);
+    formulate_skeleton(on, a);
+    formulate_skeleton(off, b);
+    const SkeletonSystem &sa = a.skeleton, &sb = b.skeleton;
+    // bone 1 (prescribed) sits between its parent 0 and its child 2: each joint has one free end
+    CHECK(sa.links.size() == 2 && sb.links.empty());
+    Mat6 expected_ah[3] = {sb.Ah[0], sb.Ah[1], sb.Ah[2]};
+    VecX expected_r = sb.r;
+    for (int c = 1; c < 3; ++c) {
+        const int p = c - 1;
+        const JointBlocks jb = joint_blocks(k, d, on.params.dt, a.carried[p], on.skeleton.joint_on_parent[c],
+                                            a.carried[c], on.skeleton.joint_on_child[c]);
+        const int free_end = p == 1 ? kChild : kParent, bone = free_end == kChild ? c : p;
+        expected_ah[bone] += jb.ah[free_end][free_end];
+        expected_r.segment<6>(6 * bone) += jb.bh[free_end];
+        bool found = false;
+        for (const SkeletonSystem::Link& l : sa.links)
+            if (l.row == bone && l.col == (bone == c ? p : c)) found = l.block == jb.ah[free_end][1 - free_end];
+        CHECK(found);
+    }
+    for (int bone = 0; bone < 3; ++bone) CHECK(sa.Ah[bone] == expected_ah[bone]);
+    CHECK(sa.r == expected_r);
+    // the joint offsets are the child's rest head from each centre of mass
+    CHECK((on.skeleton.joint_on_parent[1] - (Vec3(0.025, 0.01, 0.01) - on.skeleton.bones[0].rest_com)).norm() < 1e-15);
+    CHECK((on.skeleton.joint_on_child[1] - (Vec3(0.025, 0.01, 0.01) - on.skeleton.bones[1].rest_com)).norm() < 1e-15);
+    a.skeleton.solve();
+    const VecX mono = solve_monolithic(a.skeleton, a.skeleton.r);
+    const double rel = (a.skeleton.s - mono).cwiseAbs().maxCoeff() / mono.cwiseAbs().maxCoeff();
+    std::printf("three bones with joints, Schur against monolithic: %.2g relative\n", rel);
+    CHECK_LT(rel, 1e-11);
 }
 
 TEST(the_b_bone_step_with_one_bone_is_todays_step) {

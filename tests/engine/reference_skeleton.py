@@ -18,6 +18,12 @@ K = R K_e R^T; gravity on the flesh only (a bone's mass is its nodes' counted ag
 inertia); the gyroscopic torque -omega x (I omega) explicit; the coupling to the target taken
 at the end of the step, implicit in the bone's own state only; the rotation advanced by the
 exponential map q <- exp(dt omega) q. docs/skeleton.md lists them with what the tests found.
+
+Ball joints (docs/skeleton.md Section 5), when the rig has joint_k or joint_d: per joint a
+zero-rest-length damped spring between the child's rest head as a point of the parent and of the
+child, written here with each point's velocity Jacobian J = [I, -[R r]x] (v_point = J (v, omega)):
+F = -k e - d de/dt on the child, wrench J^T F on the child and -J^T F on the parent, implicit in
+both bones (their diagonal blocks of A_h and the blocks between them).
 """
 
 from __future__ import annotations
@@ -118,7 +124,11 @@ class Rig:
     dt: float = 1.0 / 30.0
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     bone_nodes: list = field(default_factory=list)  # one node index list per bone
+    joint_k: float = 0.0   # ball joints (docs/skeleton.md Section 5): 0 and 0, none
+    joint_d: float = 0.0
+    joint_heads: list = field(default_factory=list)  # (parent, child, the child's rest head) per joint
     bones: list = field(default_factory=list, init=False)
+    joints: list = field(default_factory=list, init=False)  # (parent, child, r on parent, r on child)
 
     def __post_init__(self):
         self.rest = np.asarray(self.rest, dtype=float)
@@ -142,6 +152,8 @@ class Rig:
         self.masses = np.zeros(self.n)
         np.add.at(self.masses, self.tets.ravel(), np.repeat(0.25 * self.density * self.volume, 4))  # Eq. 2
         self.bones = [make_bone(self.rest, self.masses, nodes) for nodes in self.bone_nodes]
+        self.joints = [(p, c, np.asarray(head, float) - self.bones[p].com, np.asarray(head, float) - self.bones[c].com)
+                       for p, c, head in self.joint_heads]
 
 
 @dataclass
@@ -329,8 +341,61 @@ def assemble(rig: Rig, state: State, drive: Drive, still_jacobians: bool = False
             add(off + 3 * i, 6 * b, ath[j])
             add(off + 3 * i, off + 3 * i, (dt * rig.d + dt * dt * rig.k) * np.eye(3))
         bt.reshape(n, 3)[nodes] += dt * s_rest.f_node
+    if rig.joint_k or rig.joint_d:
+        _joint_blocks(rig, state, drive, still_jacobians, add, bh)
     a = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(off + 3 * n,) * 2)
     return a, np.concatenate([bh, bt])
+
+
+def point_jacobian(q, r) -> np.ndarray:
+    """J (3 x 6) of the material point R r of a bone: its velocity is J (v, omega) = v + omega x R r."""
+    return np.hstack([np.eye(3), -skew(quat_matrix(q) @ r)])
+
+
+def joint(k: float, d: float, parent: tuple, child: tuple):
+    """A ball joint between two bones, each end (x, q, v, omega, r): its wrenches on (parent,
+    child) about their centres (2, 6), and the blocks dW_s/d(x_t, theta_t), dW_s/d(v_t, omega_t)
+    (2, 2, 6, 6). With e = p_child - p_parent, de = sum_t sign_t J_t d(x_t, theta_t) and
+    d(de/dt) = sum_t sign_t (J_t d(v_t, omega_t) + [0 | -[omega_t]x [R_t r_t]x] d(x_t, theta_t))."""
+    ends = (parent, child)
+    sign = (-1.0, 1.0)
+    jac = [point_jacobian(q, r) for _, q, _, _, r in ends]
+    point = [x + quat_matrix(q) @ r for x, q, _, _, r in ends]
+    velocity = [j @ np.concatenate([v, w]) for j, (_, _, v, w, _) in zip(jac, ends)]
+    force = -k * (point[1] - point[0]) - d * (velocity[1] - velocity[0])   # on the child
+    wrench = np.array([sign[s] * jac[s].T @ force for s in range(2)])
+    dx, dv = np.zeros((2, 2, 6, 6)), np.zeros((2, 2, 6, 6))
+    for t in range(2):
+        _, q, _, w, r = ends[t]
+        turn = np.hstack([np.zeros((3, 3)), -skew(w) @ skew(quat_matrix(q) @ r)])
+        df_dx = -sign[t] * (k * jac[t] + d * turn)
+        df_dv = -sign[t] * d * jac[t]
+        for s in range(2):
+            dx[s, t] = sign[s] * jac[s].T @ df_dx
+            dv[s, t] = sign[s] * jac[s].T @ df_dv
+    for s in range(2):  # J_s^T F's torque [R r]x F turns with the bone: d/dtheta = [F]x [R r]x
+        _, q, _, _, r = ends[s]
+        dx[s, s, 3:, 3:] += skew(sign[s] * force) @ skew(quat_matrix(q) @ r)
+    return wrench, dx, dv
+
+
+def _joint_blocks(rig: Rig, state: State, drive: Drive, still_jacobians: bool, add, bh: np.ndarray) -> None:
+    """Every joint's blocks of Eq. 7 and its elastic wrench in b_h, in the rows of the bones that
+    are not prescribed (a prescribed bone's rows are v_b = target)."""
+    dt = rig.dt
+    for p, c, rp, rc in rig.joints:
+        def end(b, r, moving):
+            v, w = (state.bv[b], state.bw[b]) if moving else (np.zeros(3), np.zeros(3))
+            return state.bx[b], state.bq[b], v, w, r
+        _, dx, dv = joint(rig.joint_k, rig.joint_d, end(p, rp, not still_jacobians), end(c, rc, not still_jacobians))
+        elastic_wrench, _, _ = joint(rig.joint_k, rig.joint_d, end(p, rp, False), end(c, rc, False))
+        bones = (p, c)
+        for s in range(2):
+            if drive.mode[bones[s]] == PRESCRIBED:
+                continue
+            bh[6 * bones[s]:6 * bones[s] + 6] += dt * elastic_wrench[s]
+            for t in range(2):
+                add(6 * bones[s], 6 * bones[t], -dt * dv[s, t] - dt * dt * dx[s, t])
 
 
 def solve_monolithic(a: sp.spmatrix, rhs: np.ndarray, refinements: int = 2) -> np.ndarray:

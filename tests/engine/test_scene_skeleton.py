@@ -58,6 +58,24 @@ def test_a_bone_list_builds_the_same_rig_by_capsules_or_by_explicit_nodes(scene_
     assert np.array_equal(owner, rig.capture(by_capsules.nodes))
 
 
+def test_the_scenes_joint_stiffness_reaches_the_model(scene_dir):
+    """skeleton.joints.stiffness (docs/skeleton.md Section 5) builds the model's ball joints: the
+    bone index_1 moved 1 mm off its rest pose stretches two joints (its own to the palm and
+    index_2's on it) by 1 mm each, which adds 2 * k (1 mm)^2 / 2 to the springs' energy against
+    the same scene without joints."""
+    k = 4e3
+    energies = []
+    for joints in ({}, {"stiffness": k}):
+        model = scenes.build_model(procedural_scene(scene_dir, joints=joints))
+        sim = ns.SkeletonSimulation(model)
+        p, q, v, w = sim.bone_states()
+        index_1 = model.skeleton.names.index("index_1")
+        p[index_1] += [1e-3, 0.0, 0.0]
+        sim.set_bone_states(p, q, v, w)
+        energies.append(sim.energies()["spring"])
+    assert energies[1] - energies[0] == pytest.approx(2 * 0.5 * k * 1e-3 ** 2, rel=1e-9)
+
+
 def drive_of(scene: scenes.Scene, device=None) -> BoneDrive:
     model = scenes.build_model(scene)
     coms = np.array([model.bone_info(b)["com"] for b in range(model.n_bones)])

@@ -335,6 +335,7 @@ int hh_energies(const hh_model* model, const hh_data* data, double* kinetic, dou
                 se += 0.5 * m.params.spring_stiffness * e.squaredNorm();
             }
         }
+        se += hh::joint_energy(m, d);  // the ball joints' springs (docs/skeleton.md Section 5)
         if (kinetic) *kinetic = ke;
         if (elastic) *elastic = ee;
         if (spring) *spring = se;

@@ -142,6 +142,14 @@ SkeletonModel build_skeleton(const VecX& rest, const VecX& node_masses, const st
         s.names.push_back(bones[b].name);
         s.drive_scale.push_back(bones[b].drive_scale);
     }
+    // after every bone's centre of mass: a parent may be listed after its child
+    s.joint_on_parent.assign(bones.size(), Vec3::Zero());
+    s.joint_on_child.assign(bones.size(), Vec3::Zero());
+    for (size_t b = 0; b < bones.size(); ++b) {
+        if (bones[b].parent < 0) continue;
+        s.joint_on_parent[b] = bones[b].head - s.bones[bones[b].parent].rest_com;
+        s.joint_on_child[b] = bones[b].head - s.bones[b].rest_com;
+    }
     return s;
 }
 
@@ -151,6 +159,7 @@ SkeletonModel palm_skeleton(const HandleModel& handle, int n_nodes) {
     s.parents = {-1};
     s.names = {"palm"};
     s.drive_scale = {1.0};
+    s.joint_on_parent = s.joint_on_child = {Vec3::Zero()};
     s.node_bone.assign(n_nodes, -1);
     for (int i : handle.nodes) s.node_bone[i] = 0;
     return s;

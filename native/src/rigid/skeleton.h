@@ -28,6 +28,10 @@ struct SkeletonModel {
     std::vector<std::string> names;
     std::vector<double> drive_scale;
     std::vector<int> node_bone;  // per tet node: its bone, -1 for flesh only
+    // Per bone with a parent, its ball joint (docs/skeleton.md, Section 5): the bone's rest head
+    // as a point of its parent (head - parent's rest centre of mass) and of itself (head - its
+    // own); zero for a root. Body frames are the world frame at rest, as the springs' r_B.
+    std::vector<Vec3> joint_on_parent, joint_on_child;
 };
 
 // Distance of p to the segment [head, tail]; |p - head| exactly when head == tail (so a

@@ -3,6 +3,7 @@
 #include <chrono>
 
 #include "common/clock.h"
+#include "coupling/joints.h"
 #include "rigid/quaternion.h"
 #include "sim/skeleton_frame.h"
 
@@ -47,6 +48,30 @@ void bone_block(const Model& model, Data& data, int b, const CouplingBlocks& cb)
         sys.r.segment<3>(6 * b) = (target.position - c.x_com) / dt;
         sys.r.segment<3>(6 * b + 3) = rot_error / dt;
         for (Mat63& block : sys.Aht[b]) block.setZero();
+    }
+}
+
+// The ball joints (docs/skeleton.md Section 5): each bone with a parent is tied to it at its
+// head, implicit in both bones' states. A prescribed bone's rows stay v_b = target (its
+// velocity is known), so it gets no joint terms; the other end's rows still see it through
+// their link block.
+void joint_terms(const Model& model, Data& data) {
+    const hh_params& p = model.params;
+    if (p.joint_stiffness == 0 && p.joint_damping == 0) return;  // no joints: the step without them, bit for bit
+    SkeletonSystem& sys = data.skeleton;
+    const SkeletonModel& sk = model.skeleton;
+    for (int b = 0; b < model.n_bones(); ++b) {
+        const int a = sk.parents[b];
+        if (a < 0) continue;
+        const JointBlocks jb = joint_blocks(p.joint_stiffness, p.joint_damping, p.dt, data.carried[a],
+                                            sk.joint_on_parent[b], data.carried[b], sk.joint_on_child[b]);
+        const int bone[2] = {a, b};
+        for (int s = 0; s < 2; ++s) {
+            if (bone_target(data, bone[s]).prescribed) continue;
+            sys.Ah[bone[s]] += jb.ah[s][s];
+            sys.r.segment<6>(6 * bone[s]) += jb.bh[s];
+            sys.links.push_back({bone[s], bone[1 - s], jb.ah[s][1 - s]});
+        }
     }
 }
 }  // namespace
@@ -95,6 +120,7 @@ void formulate_skeleton_end(const Model& model, Data& data) {
         sys.nodes[b] = &bone.nodes;
         bone_block(model, data, b, cb);
     }
+    joint_terms(model, data);
 }
 
 void integrate_skeleton(const Model& model, Data& data, const VecX& s) {
@@ -152,6 +178,19 @@ std::vector<Vec6> bone_wrenches(const Model& model, const Data& data) {
         }
     }
     return out;
+}
+
+double joint_energy(const Model& model, const Data& data) {
+    const SkeletonModel& sk = model.skeleton;
+    double e = 0;
+    for (int b = 0; b < model.n_bones(); ++b) {
+        const int a = sk.parents[b];
+        if (a < 0 || model.params.joint_stiffness == 0) continue;
+        e += joint_force(model.params.joint_stiffness, 0, bone_state(data, a), sk.joint_on_parent[b],
+                         bone_state(data, b), sk.joint_on_child[b])
+                 .energy;
+    }
+    return e;
 }
 
 }  // namespace hh

@@ -13,6 +13,7 @@ void SkeletonSystem::resize(int n_bones) {
     nodes.assign(n_bones, nullptr);
     Ath.resize(n_bones);
     Aht.resize(n_bones);
+    links.clear();
 }
 
 void SkeletonSystem::solve() {
@@ -41,6 +42,7 @@ void SkeletonSystem::solve() {
     t0 = clock::now();
     schur.setZero(nh, nh);
     for (int b = 0; b < nb; ++b) schur.block<6, 6>(6 * b, 6 * b) = Ah[b];
+    for (const Link& l : links) schur.block<6, 6>(6 * l.row, 6 * l.col) += l.block;
     VecX rh = r.head(nh);
     // column by column, so each solved column is read in order (nodes ascending) with fixed-size
     // 6x3 products (by 3 x 6B row blocks, striding across all the columns, the 16-bone hand's
@@ -80,7 +82,10 @@ VecX solve_monolithic(const SkeletonSystem& system, const VecX& rhs) {
     const int nb = system.n_bones();
     const Eigen::Index nh = 6 * nb, n3 = at.rows();
     std::vector<Eigen::Triplet<double>> trip;
-    trip.reserve(at.nonZeros() + 36 * nb);
+    trip.reserve(at.nonZeros() + 36 * (nb + system.links.size()));
+    for (const SkeletonSystem::Link& l : system.links)
+        for (int i = 0; i < 6; ++i)
+            for (int j = 0; j < 6; ++j) trip.emplace_back(6 * l.row + i, 6 * l.col + j, l.block(i, j));
     for (int b = 0; b < nb; ++b) {
         for (int i = 0; i < 6; ++i)
             for (int j = 0; j < 6; ++j) trip.emplace_back(6 * b + i, 6 * b + j, system.Ah[b](i, j));

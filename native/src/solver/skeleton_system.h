@@ -1,6 +1,7 @@
 // The coupled system of Eq. 7 for a hand of B rigid bones (docs/skeleton.md, Section 3):
-// unknowns (v_h, v_t), v_h = (v_1, omega_1, ..., v_B, omega_B). A_h is block diagonal (one 6x6
-// block per bone); bone b's rows of A_ht and columns of A_th are non-zero only at its own nodes
+// unknowns (v_h, v_t), v_h = (v_1, omega_1, ..., v_B, omega_B). A_h has one 6x6 block per bone
+// and, with ball joints (docs/skeleton.md Section 5), a 6x6 block each way between a bone and its
+// parent (links): block-sparse along the tree, and S, dense anyway, stays 6B x 6B; bone b's rows of A_ht and columns of A_th are non-zero only at its own nodes
 // N_b (Eq. 9), and the N_b are disjoint. solve() is the Schur complement of A_t (Eqs. 12-13)
 // with the flesh solver a black box: one batch of 1 + 6B right-hand sides on one factor of
 // A_t (b_t and the columns of A_th, each built from its bone's nodes only), the dense 6B x 6B
@@ -24,6 +25,13 @@ public:
     std::vector<const std::vector<int>*> nodes;
     std::vector<std::vector<Mat36>> Ath;
     std::vector<std::vector<Mat63>> Aht;
+    // A_h's off-diagonal blocks: block (row, col) couples bone row's equations to bone col's
+    // velocities (a joint's; none without joints)
+    struct Link {
+        int row, col;
+        Mat6 block;
+    };
+    std::vector<Link> links;
     VecX r, s;  // (b_h, b_t) and (v_h, v_t)
     int n_bones() const { return static_cast<int>(Ah.size()); }
     void resize(int n_bones);

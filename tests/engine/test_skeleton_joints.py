@@ -1,0 +1,307 @@
+"""The skeleton's ball joints (docs/skeleton.md Section 5; skeleton.joints.stiffness, .damping):
+off, the step without them; on, the native step against the numpy reference's joint terms
+(reference_skeleton.joint, written apart from the native code), Schur against monolithic, the
+statics of a free bone hanging from its parent by its joint, and the energy of a free spinning
+hand with undamped joints."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import reference_skeleton as ref
+from haptic_hand.engine import mesh, native
+from haptic_hand.engine import native_skeleton as ns
+from haptic_hand.engine import quaternion as quat
+from haptic_hand.engine import skeleton as sk
+
+from test_skeleton_native import hand_turn, sixteen_bone_rig
+
+SAMPLES = Path(sk.__file__).resolve().parent / "sample_scenes"
+
+
+@pytest.fixture(scope="module")
+def sample_hand():
+    stored = np.load(SAMPLES / "procedural_hand_tets.npz")
+    return stored["nodes"], stored["tets"]
+
+
+def joint_heads(skeleton: sk.Skeleton) -> list:
+    """(parent, child, the child's rest head) per bone with a parent."""
+    return [(p, c, np.asarray(skeleton.bones[c].head, float)) for c, p in enumerate(skeleton.parents) if p >= 0]
+
+
+def joint_gaps(model, sim) -> np.ndarray:
+    """e = p_child - p_parent per joint at the current bone poses, the joint points placed from
+    the bones' rest heads and rest centres of mass (bone_info)."""
+    x, q, _, _ = sim.bone_states()
+    coms = [model.bone_info(b)["com"] for b in range(model.n_bones)]
+    out = []
+    for p, c, head in joint_heads(model.skeleton):
+        on_child = x[c] + quat.to_matrix(q[c]) @ (head - coms[c])
+        on_parent = x[p] + quat.to_matrix(q[p]) @ (head - coms[p])
+        out.append(on_child - on_parent)
+    return np.array(out)
+
+
+# --------------------------------------------------------------------------------------------
+# Off: the step without joints
+# --------------------------------------------------------------------------------------------
+
+
+def test_a_root_has_no_joint_so_one_bone_with_joint_settings_is_todays_step():
+    """One bone is a root: joint settings leave today's single-handle step bit for bit (==)."""
+    nodes, tets = mesh.structured_box((0.06, 0.03, 0.03), (6, 3, 3), (-0.03, -0.015, -0.015))
+    seed, radius = np.zeros(3), 0.012
+    today = native.HandModel(nodes, tets, palm_seed=seed, handle_radius=radius, rayleigh_alpha=0.5)
+    one = ns.SkeletonModel(nodes, tets, sk.palm_handle_skeleton(seed, radius), rayleigh_alpha=0.5,
+                           joint_stiffness=1e4, joint_damping=5.0)
+    sims = [native.HandSimulation(today), ns.SkeletonSimulation(one)]
+    rng = np.random.default_rng(4)
+    x = nodes + 1e-3 * rng.standard_normal(nodes.shape)
+    v = 0.05 * rng.standard_normal(nodes.shape)
+    for sim in sims:
+        sim.set_state(x, v, today.info()["handle_com"], quat.from_rotation_vector([0.2, 0.1, -0.3]),
+                      [0.02, 0.0, -0.01], [0.5, 1.0, -1.0])
+        sim.set_device([0.002, 0.0, 0.0], [0, 0, 0, 1], [0.03, 0, 0], [0.3, 0, 0], enabled=1)
+    for _ in range(6):
+        for sim in sims:
+            sim.step()
+        assert np.array_equal(sims[0].positions(), sims[1].positions())
+        assert np.array_equal(sims[0].velocities(), sims[1].velocities())
+
+
+def test_joints_off_sixteen_bones_is_the_reference_step_without_joint_terms(sample_hand):
+    """Stiffness and damping 0 (the defaults): the 16-bone step is the reference's step with no
+    joint terms, and the energies count no joint (a check that 0 means off, not a weak joint)."""
+    model, rig = sixteen_bone_rig(sample_hand, joint_stiffness=0.0, joint_damping=0.0)
+    state, drive = moving_hand(rig, model, np.random.default_rng(12))
+    after = ref.step(rig, state, drive, still_jacobians=True)
+    sim = stepped(model, state, drive)
+    assert np.abs(sim.velocities() - after.v).max() < 1e-10 * np.abs(after.v).max()
+    assert np.abs(sim.bone_states()[3] - after.bw).max() < 1e-10 * np.abs(after.bw).max()
+
+
+# --------------------------------------------------------------------------------------------
+# On: the native step against the reference's joint terms
+# --------------------------------------------------------------------------------------------
+
+
+def moving_hand(rig, model, rng):
+    """The 16-bone hand deformed and moving, every finger bone turned and spinning, coupled to
+    moving targets (bone 3 prescribed, bone 5 free), not turning as a whole (the native step's
+    frame is then the identity: reference_skeleton.assemble's still_jacobians)."""
+    b = 16
+    state = ref.rest_state(rig)
+    state.x = rig.rest + 5e-4 * rng.standard_normal(rig.rest.shape)
+    state.v = 0.05 * rng.standard_normal(rig.rest.shape)
+    state.bx = state.bx + 1e-3 * rng.standard_normal((b, 3))  # the joints stretched
+    state.bq = np.array([quat.from_rotation_vector(0.05 * rng.standard_normal(3)) for _ in range(b)])
+    state.bv = 0.05 * rng.standard_normal((b, 3))
+    state.bw = 0.5 * rng.standard_normal((b, 3))
+    state.bw[0] = 0.0
+    state.v -= np.cross(hand_turn(rig, state), state.x - state.bx[0])
+    assert np.linalg.norm(hand_turn(rig, state)) < 1e-12
+    gains = np.array([model.bone_info(i)["drive"] for i in range(b)])
+    drive = ref.Drive(np.full(b, ref.COUPLED), state.bx + 0.005 * rng.standard_normal((b, 3)),
+                      np.array([quat.from_rotation_vector(0.1 * rng.standard_normal(3)) for _ in range(b)]),
+                      0.1 * rng.standard_normal((b, 3)), rng.standard_normal((b, 3)), gains)
+    drive.mode[3], drive.mode[5] = ref.PRESCRIBED, ref.FREE
+    return state, drive
+
+
+def stepped(model, state, drive, monolithic=False):
+    sim = ns.SkeletonSimulation(model)
+    sim.set_state(state.x, state.v)
+    sim.set_bone_states(state.bx, state.bq, state.bv, state.bw)
+    sim.set_bone_targets(drive.mode, drive.position, drive.quaternion, drive.velocity, drive.angular_velocity)
+    sim.step(monolithic=monolithic)
+    return sim
+
+
+def test_reference_joint_jacobians_match_finite_differences():
+    """The reference's own joint blocks against central differences of its wrenches (so the
+    native comparison below compares two checked derivations)."""
+    rng = np.random.default_rng(8)
+    ends = [[0.02 * rng.standard_normal(3), quat.from_rotation_vector(0.5 * rng.standard_normal(3)),
+             0.1 * rng.standard_normal(3), 2.0 * rng.standard_normal(3), 0.02 * rng.standard_normal(3)]
+            for _ in range(2)]
+    k, d = 3e3, 7.0
+    _, dx, dv = ref.joint(k, d, *ends)
+    worst = 0.0
+    for t in range(2):
+        for c in range(12):
+            h = 1e-7 if c < 6 else 1e-6
+
+            def moved(sign):
+                e = [list(end) for end in ends]
+                u = np.zeros(3)
+                u[c % 3] = sign * h
+                if c < 3:
+                    e[t][0] = e[t][0] + u
+                elif c < 6:
+                    e[t][1] = quat.multiply(quat.from_rotation_vector(u), e[t][1])
+                elif c < 9:
+                    e[t][2] = e[t][2] + u
+                else:
+                    e[t][3] = e[t][3] + u
+                return ref.joint(k, d, *e)[0]
+
+            num = (moved(1) - moved(-1)) / (2 * h)
+            for s in range(2):
+                analytic = dx[s, t][:, c] if c < 6 else dv[s, t][:, c - 6]
+                scale = np.linalg.norm(dx[s, t] if c < 6 else dv[s, t])
+                worst = max(worst, np.linalg.norm(num[s] - analytic) / scale)
+    print("reference joint blocks against central differences:", worst)
+    assert worst < 1e-7
+
+
+def test_native_sixteen_bones_with_joints_match_reference(sample_hand):
+    """Joints on (k 2e3 N/m, d 3 N s/m), the moving 16-bone hand with stretched joints, one
+    bone prescribed and one free: the native Schur step and its monolithic solve against the
+    reference's monolithic solve of Eq. 7 with its own joint terms; Schur against monolithic."""
+    model, rig = sixteen_bone_rig(sample_hand, joint_stiffness=2e3, joint_damping=3.0)
+    rig.joint_k, rig.joint_d = 2e3, 3.0
+    rig.joint_heads = joint_heads(model.skeleton)
+    rig.__post_init__()
+    assert len(rig.joints) == 15
+    state, drive = moving_hand(rig, model, np.random.default_rng(11))
+    after = ref.step(rig, state, drive, still_jacobians=True)
+
+    def rel(a, b):
+        return np.abs(a - b).max() / np.abs(b).max()
+
+    expected = (after.v, after.x - state.x, after.bx - state.bx, after.bq, after.bv, after.bw)
+    results = []
+    for monolithic in (False, True):
+        sim = stepped(model, state, drive, monolithic)
+        x, q, v, w = sim.bone_states()
+        results.append((sim.velocities(), sim.positions() - state.x, x - state.bx, q, v, w))
+        diffs = [rel(g, e) for g, e in zip(results[-1], expected)]
+        print("with joints, relative differences from the reference:", diffs)
+        assert max(diffs) < 1e-10, diffs
+    schur, mono = results
+    print("with joints, Schur against monolithic:", max(rel(s, m) for s, m in zip(schur, mono)))
+    assert max(rel(s, m) for s, m in zip(schur, mono)) < 1e-9
+    # the joints changed the step: the same step without them differs well beyond the agreement
+    plain, _ = sixteen_bone_rig(sample_hand)
+    free_bw = stepped(plain, state, drive).bone_states()[3]
+    assert rel(free_bw, after.bw) > 1e-4
+
+
+def test_compare_solvers_with_joints_sixteen_bones(sample_hand):
+    """hh_compare_solvers on the 16-bone hand with joints: Schur (6B x 6B with the joints' blocks
+    between parents and children) against the monolithic sparse LU, to 1e-8."""
+    model, rig = sixteen_bone_rig(sample_hand, joint_stiffness=1e4, joint_damping=10.0)
+    state, drive = moving_hand(rig, model, np.random.default_rng(3))
+    sim = stepped(model, state, drive)
+    sim.set_bone_targets(drive.mode, drive.position, drive.quaternion, drive.velocity, drive.angular_velocity)
+    assert sim.compare_solvers() < 1e-8
+
+
+# --------------------------------------------------------------------------------------------
+# Physics: a free bone hanging from its parent by its joint
+# --------------------------------------------------------------------------------------------
+
+
+def two_bone_bar(**params):
+    """An 8 x 2 x 2 cm bar along x: a root bone holding its left end, a child bone holding its
+    right end (head at x = 0.01 m), flesh between them."""
+    nodes, tets = mesh.structured_box((0.08, 0.02, 0.02), (8, 2, 2), (-0.04, -0.01, -0.01))
+    bones = sk.Skeleton([sk.Bone("root", None, np.array([-0.04, 0, 0]), np.array([-0.025, 0, 0]), 0.012),
+                         sk.Bone("child", "root", np.array([0.01, 0, 0]), np.array([0.035, 0, 0]), 0.011)])
+    base = dict(rayleigh_alpha=8.0, young_modulus=2e4)
+    base.update(params)
+    return ns.SkeletonModel(nodes, tets, bones, drive_scales=[1.0, 0.0], **base)
+
+
+def hang(model, steps=200):
+    """The root prescribed at its rest pose, the child free (drive_scale 0), gravity: settle."""
+    sim = ns.SkeletonSimulation(model)
+    p, q, _, _ = sim.bone_states()
+    sim.set_bone_targets([ns.PRESCRIBED, ns.FREE], p, q)
+    for _ in range(steps):
+        sim.step()
+    return sim
+
+
+@pytest.mark.parametrize("stiffness", [3e3, 1e6])
+def test_a_free_bone_hangs_from_its_parent_by_its_joint_and_its_flesh(stiffness):
+    """At rest the free child bone (no weight: gravity acts on the flesh) is held by two wrenches
+    only, its flesh springs' and its joint's: they cancel, force and torque, and the joint's
+    force is k_joint times its gap (the gap from the bone poses, the joint points from the rest
+    heads). The joint carries what the flesh hangs on the child, at most the bar's weight, so the
+    gap is at most M g / k_joint; and the child droops less than it does without the joint."""
+    model = two_bone_bar(joint_stiffness=stiffness)
+    sim = hang(model)
+    assert np.abs(sim.velocities()).max() < 1e-6  # at rest
+    gap = joint_gaps(model, sim)[0]
+    x, q, _, _ = sim.bone_states()
+    com = model.bone_info(1)["com"]
+    lever = quat.to_matrix(q[1]) @ (np.array([0.01, 0.0, 0.0]) - com)
+    joint_force = -stiffness * gap  # on the child, at rest
+    joint_wrench = np.concatenate([joint_force, np.cross(lever, joint_force)])
+    springs = sim.bone_wrenches()[1]
+    print("child: springs' wrench", springs, "joint's", joint_wrench)
+    assert np.abs(springs + joint_wrench).max() < 1e-6 * np.abs(springs).max()
+    weight = model.lumped_masses().sum() * 9.81
+    assert np.linalg.norm(gap) <= weight / stiffness
+    assert np.linalg.norm(joint_force) > 0.05 * weight  # the joint does carry the child
+    plain = hang(two_bone_bar())
+    drop, plain_drop = com[2] - x[1][2], com[2] - plain.bone_states()[0][1][2]
+    print(f"child's drop: {drop:.3g} m with the joint, {plain_drop:.3g} m without")
+    assert 0 < drop < plain_drop
+
+
+# --------------------------------------------------------------------------------------------
+# Energy: a free spinning hand with undamped joints
+# --------------------------------------------------------------------------------------------
+
+
+def turn_trade(omega: float, dt: float, elastic: float) -> float:
+    """test_dynamics.turn_trade: what a step of a turning, stretched hand may hand back from its
+    stretch to its motion, (omega dt)^2 of the elastic energy."""
+    return (omega * dt) ** 2 * elastic
+
+
+@pytest.mark.parametrize("stiffness", [0.0, 1e4])
+def test_a_free_spinning_hand_with_undamped_joints_keeps_its_energy(sample_hand, stiffness):
+    """The 16-bone hand spinning freely at 3 rad/s about z through its centre of mass, no
+    damping (flesh springs, joints, Rayleigh), no gravity, dt 1/30, the finger bones also
+    spinning about their own axes at 1 rad/s so the joints stretch: as test_dynamics' free
+    spinning hand, no step gains beyond the co-rotational trade of the elastic energy (the
+    flesh's plus the springs' and joints'), and after 1 s at least 0.99 of the energy is left
+    (the rigid spin) and the joints hold the fingers on: no joint gap beyond 1 mm."""
+    nodes, tets = sample_hand
+    model = ns.SkeletonModel(nodes, tets, sk.procedural_hand_skeleton(), gravity=[0.0, 0.0, 0.0],
+                             rayleigh_alpha=0.0, rayleigh_beta=0.0, spring_damping=0.0, joint_stiffness=stiffness,
+                             joint_damping=0.0, dt=1.0 / 30.0)
+    sim = ns.SkeletonSimulation(model)
+    masses = model.lumped_masses()
+    w = np.array([0.0, 0.0, 3.0])
+    c = masses @ nodes / masses.sum()
+    sim.set_state(nodes, np.cross(w, nodes - c))
+    p, q, _, _ = sim.bone_states()
+    spin = np.tile(w, (16, 1))
+    rng = np.random.default_rng(6)
+    spin[1:] += rng.standard_normal((15, 3))
+    sim.set_bone_states(p, q, np.cross(w, p - c), spin)
+
+    def energy():
+        e = sim.energies()
+        return e["kinetic"] + e["elastic"] + e["spring"], e["elastic"] + e["spring"]
+
+    e0, _ = energy()
+    energies, stored = [e0], []
+    for _ in range(30):
+        sim.step()
+        total, potential = energy()
+        energies.append(total)
+        stored.append(potential)
+    gains = np.diff(energies)
+    bound = turn_trade(3.0, 1 / 30, max(stored))
+    print(f"joints {stiffness:g}: largest gain {gains.max():.3g} J against {bound:.3g} J; E/E0 {energies[-1] / e0:.4f}")
+    assert gains.max() <= bound
+    assert energies[-1] / e0 >= 0.99
+    if stiffness:
+        assert np.linalg.norm(joint_gaps(model, sim), axis=1).max() < 1e-3
