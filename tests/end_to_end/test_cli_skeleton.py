@@ -108,3 +108,40 @@ def test_with_the_root_on_the_device_the_hand_follows_it_and_the_fingers_keep_th
     # holds it back most), the little finger, not keyed, carried 2 cm or more with the palm
     assert np.linalg.norm(r["bone_pose"][-1, :, :3] - r["bone_target"][-1, :, :3], axis=1).max() < 0.003
     assert np.linalg.norm(r["bone_pose"][-1, rig.index("little_3"), :3] - rest[rig.index("little_3")]) > 0.02
+
+
+def joint_gaps(result) -> np.ndarray:
+    """Per frame and joint, |p_child - p_parent| of the child's rest head carried by each bone's
+    pose (frame 0: the rest centres of mass)."""
+    rig = sk.procedural_hand_skeleton()
+    pose = result["bone_pose"]
+    rest = pose[0, :, :3]
+    gaps = []
+    for c, p in enumerate(rig.parents):
+        if p < 0:
+            continue
+        head = np.asarray(rig.bones[c].head, float)
+        ends = [pose[:, b, :3] + Rotation.from_quat(pose[:, b, 3:]).apply(head - rest[b]) for b in (p, c)]
+        gaps.append(np.linalg.norm(ends[1] - ends[0], axis=1))
+    return np.array(gaps).T
+
+
+def test_ball_joints_from_the_scene_hold_the_curling_finger_to_its_parents(scene_dir):
+    """skeleton.joints.stiffness through `simulate` (the world's step, docs/skeleton.md Section 5):
+    the curling index finger's joints open less than without joints, and the run is the same
+    hand otherwise (the finger still follows its key)."""
+    scene = json.loads((scene_dir / "scene.json").read_text())
+    scene["skeleton"]["joints"] = {"stiffness": 2e4, "damping": 5.0}
+    (scene_dir / "joints.json").write_text(json.dumps(scene))
+    runs = []
+    for name in ("scene.json", "joints.json"):
+        out = scene_dir / f"{name}.npz"
+        proc = run_cli("simulate", str(scene_dir / name), "--out", str(out), "--quiet")
+        assert proc.returncode == 0, proc.stderr
+        runs.append(np.load(out))
+    plain, joints = (joint_gaps(r) for r in runs)
+    print(f"largest joint gap: {plain.max() * 1e3:.3g} mm without joints, {joints.max() * 1e3:.3g} mm with")
+    assert joints.max() < 0.5 * plain.max()
+    i3 = sk.procedural_hand_skeleton().index("index_3")
+    angle = 2 * np.arccos(np.clip(np.abs(runs[1]["bone_pose"][-1, i3, 6]), 0, 1))
+    assert angle > 0.5 * 0.4
