@@ -135,9 +135,10 @@ def key_motion(obj, frames, locations, angles):
 
 HID_PATH = "/dev/hidraw7"
 F32 = 2e-7  # metres: float32 rounding of coordinates below 1 m, as Blender stores them
-# what the scene refuses without a skeleton (it drives a skeleton's bones, or feeds back per bone)
+# what the scene refuses without a skeleton (it drives a skeleton's bones, feeds back per bone, or
+# ties bones to their parents)
 NEEDS_SKELETON = {"skeleton.tracking", "skeleton.tracking_map", "skeleton.root_device", "skeleton.drive.prescribed",
-                  "haptics.feedback"}
+                  "haptics.feedback", "skeleton.joints.stiffness", "skeleton.joints.damping"}
 
 
 def rig_skeleton(context, hand, drive: str, folder) -> None:
