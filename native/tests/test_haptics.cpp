@@ -26,27 +26,7 @@
 #include "rigid/quaternion.h"
 #include "common/triple_buffer.h"
 
-// Every allocation of this test program goes through here, so a test can count them.
-// ThreadSanitizer needs its own operator new from the first instant, so its build does not
-// count (the normal and AddressSanitizer builds do).
-static std::atomic<long> g_allocations{0};
-#if defined(__SANITIZE_THREAD__)
-constexpr bool kCountsAllocations = false;
-#else
-constexpr bool kCountsAllocations = true;
-void* operator new(std::size_t n) {
-    g_allocations.fetch_add(1, std::memory_order_relaxed);
-    if (void* p = std::malloc(n ? n : 1)) return p;
-    throw std::bad_alloc();
-}
-void* operator new(std::size_t n, const std::nothrow_t&) noexcept {  // std::stable_sort's buffer, e.g.
-    g_allocations.fetch_add(1, std::memory_order_relaxed);
-    return std::malloc(n ? n : 1);
-}
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete(void* p, const std::nothrow_t&) noexcept { std::free(p); }
-#endif
+#include "count_allocations.h"
 
 #if defined(__SANITIZE_THREAD__) || defined(__SANITIZE_ADDRESS__)
 constexpr bool kSanitized = true;  // their shadow memory takes faults of its own

@@ -15,7 +15,7 @@ from haptic_hand.engine import native_skeleton as ns
 from haptic_hand.engine import quaternion as quat
 from haptic_hand.engine import skeleton as sk
 
-from test_skeleton_native import hand_turn, sixteen_bone_rig
+from test_skeleton_native import moving_hand, sixteen_bone_rig
 
 SAMPLES = Path(sk.__file__).resolve().parent / "sample_scenes"
 
@@ -75,7 +75,7 @@ def test_joints_off_sixteen_bones_is_the_reference_step_without_joint_terms(samp
     """Stiffness and damping 0 (the defaults): the 16-bone step is the reference's step with no
     joint terms, and the energies count no joint (a check that 0 means off, not a weak joint)."""
     model, rig = sixteen_bone_rig(sample_hand, joint_stiffness=0.0, joint_damping=0.0)
-    state, drive = moving_hand(rig, model, np.random.default_rng(12))
+    state, drive = moving_hand(rig, model, np.random.default_rng(12), stretch=1e-3)
     after = ref.step(rig, state, drive, still_jacobians=True)
     sim = stepped(model, state, drive)
     assert np.abs(sim.velocities() - after.v).max() < 1e-10 * np.abs(after.v).max()
@@ -85,29 +85,6 @@ def test_joints_off_sixteen_bones_is_the_reference_step_without_joint_terms(samp
 # --------------------------------------------------------------------------------------------
 # On: the native step against the reference's joint terms
 # --------------------------------------------------------------------------------------------
-
-
-def moving_hand(rig, model, rng):
-    """The 16-bone hand deformed and moving, every finger bone turned and spinning, coupled to
-    moving targets (bone 3 prescribed, bone 5 free), not turning as a whole (the native step's
-    frame is then the identity: reference_skeleton.assemble's still_jacobians)."""
-    b = 16
-    state = ref.rest_state(rig)
-    state.x = rig.rest + 5e-4 * rng.standard_normal(rig.rest.shape)
-    state.v = 0.05 * rng.standard_normal(rig.rest.shape)
-    state.bx = state.bx + 1e-3 * rng.standard_normal((b, 3))  # the joints stretched
-    state.bq = np.array([quat.from_rotation_vector(0.05 * rng.standard_normal(3)) for _ in range(b)])
-    state.bv = 0.05 * rng.standard_normal((b, 3))
-    state.bw = 0.5 * rng.standard_normal((b, 3))
-    state.bw[0] = 0.0
-    state.v -= np.cross(hand_turn(rig, state), state.x - state.bx[0])
-    assert np.linalg.norm(hand_turn(rig, state)) < 1e-12
-    gains = np.array([model.bone_info(i)["drive"] for i in range(b)])
-    drive = ref.Drive(np.full(b, ref.COUPLED), state.bx + 0.005 * rng.standard_normal((b, 3)),
-                      np.array([quat.from_rotation_vector(0.1 * rng.standard_normal(3)) for _ in range(b)]),
-                      0.1 * rng.standard_normal((b, 3)), rng.standard_normal((b, 3)), gains)
-    drive.mode[3], drive.mode[5] = ref.PRESCRIBED, ref.FREE
-    return state, drive
 
 
 def stepped(model, state, drive, monolithic=False):
@@ -165,7 +142,7 @@ def test_native_sixteen_bones_with_joints_match_reference(sample_hand):
     rig.joint_heads = joint_heads(model.skeleton)
     rig.__post_init__()
     assert len(rig.joints) == 15
-    state, drive = moving_hand(rig, model, np.random.default_rng(11))
+    state, drive = moving_hand(rig, model, np.random.default_rng(11), stretch=1e-3)
     after = ref.step(rig, state, drive, still_jacobians=True)
 
     def rel(a, b):
@@ -193,7 +170,7 @@ def test_compare_solvers_with_joints_sixteen_bones(sample_hand):
     """hh_compare_solvers on the 16-bone hand with joints: Schur (6B x 6B with the joints' blocks
     between parents and children) against the monolithic sparse LU, to 1e-8."""
     model, rig = sixteen_bone_rig(sample_hand, joint_stiffness=1e4, joint_damping=10.0)
-    state, drive = moving_hand(rig, model, np.random.default_rng(3))
+    state, drive = moving_hand(rig, model, np.random.default_rng(3), stretch=1e-3)
     sim = stepped(model, state, drive)
     sim.set_bone_targets(drive.mode, drive.position, drive.quaternion, drive.velocity, drive.angular_velocity)
     assert sim.compare_solvers() < 1e-8

@@ -182,6 +182,31 @@ def point_inertias(m, r):
     return m[:, None, None] * ((r * r).sum(1)[:, None, None] * np.eye(3) - r[:, :, None] * r[:, None, :])
 
 
+def moving_hand(rig, model, rng, stretch: float = 0.0):
+    """The 16-bone hand deformed and moving, every finger bone turned and spinning, coupled to
+    moving targets (bone 3 prescribed, bone 5 free), not turning as a whole (the native step's
+    frame is then the identity: reference_skeleton.assemble's still_jacobians); `stretch` (m)
+    moves the bones off their rest centres at random (their joints stretched)."""
+    b = 16
+    state = ref.rest_state(rig)
+    state.x = rig.rest + 5e-4 * rng.standard_normal(rig.rest.shape)
+    state.v = 0.05 * rng.standard_normal(rig.rest.shape)
+    if stretch:
+        state.bx = state.bx + stretch * rng.standard_normal((b, 3))
+    state.bq = np.array([quat.from_rotation_vector(0.05 * rng.standard_normal(3)) for _ in range(b)])
+    state.bv = 0.05 * rng.standard_normal((b, 3))
+    state.bw = 0.5 * rng.standard_normal((b, 3))
+    state.bw[0] = 0.0
+    state.v -= np.cross(hand_turn(rig, state), state.x - state.bx[0])
+    assert np.linalg.norm(hand_turn(rig, state)) < 1e-12
+    gains = np.array([model.bone_info(i)["drive"] for i in range(b)])
+    drive = ref.Drive(np.full(b, ref.COUPLED), state.bx + 0.005 * rng.standard_normal((b, 3)),
+                      np.array([quat.from_rotation_vector(0.1 * rng.standard_normal(3)) for _ in range(b)]),
+                      0.1 * rng.standard_normal((b, 3)), rng.standard_normal((b, 3)), gains)
+    drive.mode[3], drive.mode[5] = ref.PRESCRIBED, ref.FREE
+    return state, drive
+
+
 def hand_turn(rig, state):
     """The angular velocity that the hand's flesh would need, added to its velocities, to give the
     whole hand (flesh and bones) no angular momentum about the root's centre relative to the
@@ -204,21 +229,7 @@ def test_native_sixteen_bones_match_reference(sample_hand):
     model, rig = sixteen_bone_rig(sample_hand)
     assert np.allclose(rig.masses, model.lumped_masses(), rtol=1e-13, atol=0)
     rng = np.random.default_rng(11)
-    b = 16
-    state = ref.rest_state(rig)
-    state.x = rig.rest + 5e-4 * rng.standard_normal(rig.rest.shape)
-    state.v = 0.05 * rng.standard_normal(rig.rest.shape)
-    state.bq = np.array([quat.from_rotation_vector(0.05 * rng.standard_normal(3)) for _ in range(b)])
-    state.bv = 0.05 * rng.standard_normal((b, 3))
-    state.bw = 0.5 * rng.standard_normal((b, 3))
-    state.bw[0] = 0.0
-    state.v -= np.cross(hand_turn(rig, state), state.x - state.bx[0])
-    assert np.linalg.norm(hand_turn(rig, state)) < 1e-12
-    gains = np.array([model.bone_info(i)["drive"] for i in range(b)])
-    drive = ref.Drive(np.full(b, ref.COUPLED), state.bx + 0.005 * rng.standard_normal((b, 3)),
-                      np.array([quat.from_rotation_vector(0.1 * rng.standard_normal(3)) for _ in range(b)]),
-                      0.1 * rng.standard_normal((b, 3)), rng.standard_normal((b, 3)), gains)
-    drive.mode[3], drive.mode[5] = ref.PRESCRIBED, ref.FREE
+    state, drive = moving_hand(rig, model, rng)
     after = ref.step(rig, state, drive, still_jacobians=True)
 
     results = []
