@@ -301,6 +301,21 @@ TEST(openhaptics_without_its_library_says_how_to_install_it) {
     CHECK(std::string(hh_last_error()).find("OpenHaptics is not installed") != std::string::npos);
 }
 
+// Lets a started session run for `seconds` of wall time and until its visual loop has simulated
+// as long (sanitizer builds are slow; at most a minute); the newest frame.
+hh_session_frame run_for(hh_session* session, double seconds) {
+    hh_session_frame f{};
+    int fresh = 0;
+    const auto t0 = std::chrono::steady_clock::now();
+    const auto wall = std::chrono::duration<double>(seconds);
+    do {
+        sleep_s(0.05);
+        CHECK(hh_session_fetch_frame(session, &fresh, &f) == HH_OK);
+    } while ((std::chrono::steady_clock::now() - t0 < wall || f.time < seconds) &&
+             std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60));
+    return f;
+}
+
 TEST(openhaptics_backend_drives_the_session_from_the_servo_loop) {
     void* standin = dlopen(HD_STANDIN_PATH, RTLD_NOW | RTLD_GLOBAL);
     CHECK(standin != nullptr);
@@ -316,15 +331,7 @@ TEST(openhaptics_backend_drives_the_session_from_the_servo_loop) {
     set_position(mm);
     const long ticks0 = ticks();
     CHECK(hh_session_start(rig.session) == HH_OK);
-    // 0.5 s, and until the visual loop has simulated 0.5 s (sanitizer builds are slow)
-    hh_session_frame f{};
-    int fresh = 0;
-    const auto t0 = std::chrono::steady_clock::now();
-    do {
-        sleep_s(0.05);
-        CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK);
-    } while ((std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(500) || f.time < 0.5) &&
-             std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60));
+    const hh_session_frame f = run_for(rig.session, 0.5);
     double force[3];
     get_force(force);
     hh_session_status st;
@@ -692,14 +699,7 @@ TEST(an_openhaptics_wrist_drives_the_posed_fingers_from_its_servo_loop) {
     set_position(mm);
     const long ticks0 = ticks();
     CHECK(hh_session_start(rig.session) == HH_OK);
-    hh_session_frame f{};
-    int fresh = 0;
-    const auto t0 = std::chrono::steady_clock::now();
-    do {
-        sleep_s(0.05);
-        CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK);
-    } while ((std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(300) || f.time < 0.2) &&
-             std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60));
+    run_for(rig.session, 0.3);
     CHECK(hh_session_stop(rig.session) == HH_OK);
     const long stopped = ticks();
     hh_session_status st;
