@@ -90,7 +90,8 @@ class Thumb(NamedTuple):
 THUMB = Thumb(tuple(_THUMB_ROOT), tuple(_THUMB_DIRECTION), _THUMB_LENGTH, _THUMB_RADIUS)
 #: A thumb that opposes the index finger: 85 mm long from a root 20 mm lower on the palm, pointing
 #: in front of the palm and down, so that its pad meets the index finger's pad with the index bent
-#: about 30/30/20 degrees at its three joints and the thumb 20/20/15 (docs/skeleton.md, Section 9).
+#: 24/24/14 degrees at its three joints and the thumb 16/16/10 (the pinch sample; docs/skeleton.md,
+#: Section 9).
 GRASPING_THUMB = Thumb((-0.006, 0.032, -0.045), (-0.5, 0.5, -0.7), 0.085, 0.0105)
 
 

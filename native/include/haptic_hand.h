@@ -525,8 +525,8 @@ int hh_session_coupling_model(hh_session* session, double wrench0[6], double sti
  * (hh_session_pose_fingers), any one-frame device on the wrist (a one-frame device without posed
  * fingers is refused; and a glove on a one-handle hand's session). The log and the palm fields
  * of hh_session_frame hold the root bone's frame and proxy, and the wrench the device was
- * commanded (the root's; with posed fingers the whole hand's). Arrays are bones in skeleton order, poses (position, quaternion
- * (x, y, z, s)), wrenches (force N, torque N m). */
+ * commanded (the root's; with posed fingers the whole hand's). Arrays are bones in skeleton order,
+ * poses (position, quaternion (x, y, z, s)), wrenches (force N, torque N m). */
 int hh_session_bone_count(hh_session* session, int* out);
 /* A glove whose frames the host pushes (one pose per bone, hh_session_push_device_frames) and
  * whose feedback it reads (hh_session_device_feedback). Until the first push the frames hold the
@@ -558,8 +558,9 @@ int hh_session_device_simulated_glove_arms(hh_session* session, int n_bones, con
  * session after this (hh_session_device_simulated, _playback, _external, _openhaptics; one already
  * given takes the new poses) drives the root, and bone b's frame is the device's carried by rel_b;
  * the device is commanded the whole hand's wrench: every bone's force, and its torque plus the
- * force's moment about the device's frame, summed, clamped to the session's and the device's
- * limits. Set while stopped. */
+ * force's moment about the device's frame, summed (each bone's unclamped), the sum clamped to the
+ * session's and the device's limits. Quaternions within 1e-4 of unit norm are normalized. Refused
+ * while feedback groups are set (they need a glove of one frame per bone). Set while stopped. */
 int hh_session_pose_fingers(hh_session* session, int n_bones, const double* times, const double* rel_positions,
                             const double* rel_quaternions, int n);
 /* Groups of bones whose feedback is summed (a glove's actuators: e.g. the wrist and each digit):

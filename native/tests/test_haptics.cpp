@@ -416,7 +416,7 @@ struct BoneRig {
     hh_world* world = nullptr;
     hh_session* session = nullptr;
     int hand = -1;
-    BoneRig() {
+    explicit BoneRig(double max_force = 1e9) {
         hh_params p;
         hh_default_params(&p);
         const int parents[kBones] = {-1, 0, 1};
@@ -443,6 +443,7 @@ struct BoneRig {
         CHECK(hh_world_add_plane(world, ground, up, 0.5, &plane) == HH_OK);
         hh_session_params sp;
         hh_default_session_params(&sp);
+        sp.max_force = max_force;
         CHECK(hh_session_create(world, hand, &sp, &session) == HH_OK);
     }
     // every bone's rest pose moved by dz over 0.2 s, then held
@@ -593,6 +594,35 @@ struct RestFingers {
 };
 }  // namespace
 
+TEST(a_wrist_device_feels_the_clamped_sum_not_the_sum_of_clamped_bones) {
+    // The bar held 1 cm above the ground by a playback wrist, its last bone posed 2 mm towards the
+    // root: the flesh between them pushes the two ends apart (~0.6 N), more than the session's
+    // 0.4 N limit, but the squeeze is inside the hand: the stylus carries the bar's weight only
+    // (0.24 N, under the limit), and each bone's feedback is its own, unclamped.
+    const double limit = 0.4;
+    BoneRig rig(limit);
+    const std::vector<double> x = rig.frames(0.01);
+    const double t[2] = {0.0, 0.2};
+    const double root[6] = {x[0], x[1], x[2], x[9], x[10], x[11]};
+    RestFingers rest(rig);
+    rest.p[3 * (BoneRig::kBones + 2)] -= 0.002;  // bone 2's second pose, 2 mm towards the root
+    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, rest.p, rest.q, 2) == HH_OK);
+    CHECK(hh_session_device_playback(rig.session, t, root, nullptr, 2, 1e300) == HH_OK);
+    CHECK(hh_session_run_offline(rig.session, 120) == HH_OK);
+    int fresh = 0;
+    hh_session_frame f;
+    CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK && fresh);
+    double feedback[6 * BoneRig::kBones];
+    CHECK(hh_session_frame_bones(rig.session, BoneRig::kBones, nullptr, nullptr, nullptr, feedback) == HH_OK);
+    hh_model_info info;
+    CHECK(hh_model_info_get(rig.model, &info) == HH_OK);
+    const double weight = 9.81 * info.total_mass;
+    CHECK(std::abs(feedback[0]) > limit && std::abs(feedback[12]) > limit);  // each end's squeeze, unclamped
+    const hh::Vec3 commanded(f.feedback[0], f.feedback[1], f.feedback[2]);
+    CHECK_LT(weight, limit);
+    CHECK_LT((commanded - hh::Vec3(0, 0, -weight)).norm(), 0.02 * weight);
+}
+
 TEST(a_one_frame_device_drives_a_skeleton_hand_with_its_fingers_posed) {
     // The bar's root on a playback wrist that presses it 4 mm into the ground, bones 1 and 2
     // posed at rest on it: each finger frame is the wrist's carried by its rest pose relative to
@@ -622,6 +652,16 @@ TEST(a_one_frame_device_drives_a_skeleton_hand_with_its_fingers_posed) {
     LiveRig palm;
     CHECK(hh_session_pose_fingers(palm.session, 1, rest.t, rest.p, rest.q, 2) == HH_ERR_INVALID_ARGUMENT);
 
+    const double same_times[2] = {0.0, 0.0};
+    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, same_times, rest.p, rest.q, 2) ==
+          HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("hh_session_pose_fingers: the posed fingers' times: ") != std::string::npos);
+    const int one_group[BoneRig::kBones] = {-1, 0, 0}, no_group[BoneRig::kBones] = {-1, -1, -1};
+    CHECK(hh_session_set_feedback_groups(rig.session, BoneRig::kBones, one_group, 1) == HH_OK);
+    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, rest.p, rest.q, 2) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("this session has feedback groups") != std::string::npos);
+    CHECK(hh_session_set_feedback_groups(rig.session, BoneRig::kBones, no_group, 0) == HH_OK);
+
     CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, rest.p, rest.q, 2) == HH_OK);
     CHECK(hh_session_device_playback(rig.session, t, root, nullptr, 2, 1e300) == HH_OK);
     CHECK(hh_session_run_offline(rig.session, 45) == HH_OK);
@@ -647,11 +687,24 @@ TEST(a_one_frame_device_drives_a_skeleton_hand_with_its_fingers_posed) {
     CHECK_LT((hh::Vec3(f.feedback[3], f.feedback[4], f.feedback[5]) - torque).norm(), 1e-12 * (1 + torque.norm()));
     CHECK(force.z() > feedback[2] + 0.2);  // more than the root's own
 
-    // the host pushes the wrist's pose to a one-frame external device carrying the fingers
+    // feedback groups need a glove of one frame per bone: refused on posed fingers
+    const int groups[BoneRig::kBones] = {0, 0, 0};
+    CHECK(hh_session_set_feedback_groups(rig.session, BoneRig::kBones, groups, 1) == HH_ERR_INVALID_ARGUMENT);
+    CHECK(std::string(hh_last_error()).find("renders one wrench, the whole hand's") != std::string::npos);
+
+    // the host pushes the wrist's pose (turned 90 degrees about z) to a one-frame external device
+    // carrying the fingers: the frames are the pushed pose and the fingers on it
     CHECK(hh_session_device_external(rig.session, 5.0) == HH_OK);
-    const double pose_q[4] = {0, 0, 0, 1};
+    const double pose_q[4] = {0, 0, std::sqrt(0.5), std::sqrt(0.5)};
     CHECK(hh_session_push_device_pose(rig.session, root + 3, pose_q) == HH_OK);
     CHECK(hh_session_run_offline(rig.session, 2) == HH_OK);
+    CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK && fresh);
+    CHECK(hh_session_frame_bones(rig.session, BoneRig::kBones, nullptr, nullptr, devices, nullptr) == HH_OK);
+    for (int b = 0; b < BoneRig::kBones; ++b) {  // (x, y) turned to (-y, x)
+        const hh::Vec3 expected = hh::Vec3(root[3], root[4], root[5]) +
+                                  hh::Vec3(-rest.p[3 * b + 1], rest.p[3 * b], rest.p[3 * b + 2]);
+        CHECK_LT((hh::Vec3(devices[7 * b], devices[7 * b + 1], devices[7 * b + 2]) - expected).norm(), 1e-12);
+    }
     // a wrist device that disconnects stops the session with its message
     CHECK(hh_session_device_playback(rig.session, t, root, nullptr, 2, 0.01) == HH_OK);
     CHECK(hh_session_run_offline(rig.session, 3) == HH_ERR_INVALID_ARGUMENT);

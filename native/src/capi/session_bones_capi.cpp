@@ -158,13 +158,18 @@ int hh_session_pose_fingers(hh_session* session, int n_bones, const double* time
                 require(std::isfinite(pk[0]) && std::isfinite(pk[1]) && std::isfinite(pk[2]) && std::isfinite(norm),
                         "bone " + std::to_string(b) + "'s pose relative to the root at time index " +
                             std::to_string(k) + " has NaN or infinite values");
-                require(std::abs(norm - 1) < 1e-6, "bone " + std::to_string(b) + "'s quaternion relative to the root "
+                // float32 sources round a unit quaternion's norm to ~1e-7: within 1e-4 it is normalized
+                require(std::abs(norm - 1) < 1e-4, "bone " + std::to_string(b) + "'s quaternion relative to the root "
                         "at time index " + std::to_string(k) + " has norm " + std::to_string(norm) +
                         ": give unit quaternions (x, y, z, s)");
                 std::memcpy(&p[3 * k], pk, 3 * sizeof(double));
-                std::memcpy(&q[4 * k], qk, 4 * sizeof(double));
+                for (int i = 0; i < 4; ++i) q[4 * k + i] = qk[i] / norm;
             }
-            fingers.emplace_back(times, p.data(), q.data(), n);  // checks the times
+            try {
+                fingers.emplace_back(times, p.data(), q.data(), n);  // checks the times
+            } catch (const hh::InvalidArgument& e) {
+                throw hh::InvalidArgument(std::string("hh_session_pose_fingers: the posed fingers' times: ") + e.what());
+            }
         }
         s.s.pose_fingers(std::move(fingers));
         return HH_OK;
@@ -177,6 +182,9 @@ int hh_session_set_feedback_groups(hh_session* session, int n_bones, const int* 
         require_stopped(s);
         require(group_of_bone != nullptr && n_groups >= 0 && n_groups <= n_bones,
                 "hh_session_set_feedback_groups: null groups, or a group count below 0 or above the bones'");
+        require(n_groups == 0 || !s.s.fingers_posed(),
+                "this session's fingers are posed on a one-frame wrist device (hh_session_pose_fingers), which "
+                "renders one wrench, the whole hand's: feedback groups need a glove of one frame per bone");
         s.s.set_feedback_groups(hh::FeedbackGroups(std::vector<int>(group_of_bone, group_of_bone + n_bones), n_groups));
         return HH_OK;
     });

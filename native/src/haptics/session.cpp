@@ -151,6 +151,10 @@ void Session::pose_fingers(std::vector<Keyframes> fingers) {
     if (running()) throw InvalidArgument("stop the session before posing its fingers");
     if (!bones_)
         throw InvalidArgument("this session's hand has one handle: posed fingers ride on a skeleton hand's root");
+    if (bones_->groups.n() > 0)
+        throw InvalidArgument("this session has feedback groups, which need a glove of one frame per bone: a "
+                              "one-frame wrist device renders one wrench, the whole hand's; clear the groups "
+                              "(hh_session_set_feedback_groups with 0 groups) to pose the fingers");
     if (static_cast<int>(fingers.size()) != n_bones() - 1)
         throw InvalidArgument("the posed fingers need one script per bone but the root: the hand has " +
                               std::to_string(n_bones()) + " bones");
@@ -204,7 +208,7 @@ bool Session::haptic_step(double t) noexcept {
     return true;
 }
 
-bool Session::limit_feedback(Feedback& fb) noexcept {
+bool Session::limit_feedback(Feedback& fb, bool clamp) noexcept {
     const double f_max = std::min(p_.max_force, device_->max_force);
     const double t_max = std::min(p_.max_torque, device_->max_torque);
     const double fn = fb.force.norm(), tn = fb.torque.norm();
@@ -212,6 +216,7 @@ bool Session::limit_feedback(Feedback& fb) noexcept {
         fail("the haptic step produced a non-finite force: lower the virtual coupling stiffness or check the device");
         return false;
     }
+    if (!clamp) return true;
     if (fn > f_max) fb.force *= f_max / fn;
     if (tn > t_max) fb.torque *= t_max / tn;
     return true;

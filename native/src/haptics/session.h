@@ -144,9 +144,10 @@ private:
     struct Bones;
     std::unique_ptr<Bones> bones_;
     bool bones_haptic_step(double t, double start) noexcept;
-    // the feedback clamped to the session's and the device's limits (false, the session failed:
-    // not finite), and the step's log row (the root's device frame, proxy and feedback)
-    bool limit_feedback(Feedback& fb) noexcept;
+    // the feedback clamped to the session's and the device's limits (clamp false: only checked;
+    // false, the session failed: not finite), and the step's log row (the root's device frame,
+    // proxy and feedback)
+    bool limit_feedback(Feedback& fb, bool clamp = true) noexcept;
     void log_step(double t, double start, const Pose& dev, const HandleState& proxy, const Feedback& fb) noexcept;
     void bones_visual_step();
     void bones_publish_frame(Frame& f);

@@ -86,8 +86,10 @@ bool Session::bones_haptic_step(double t, double start) noexcept {
         return false;
     }
     s.proxies.step(dt_haptic_, t - dt_haptic_, s.models.front(), p_.linearized, s.devices.data(), s.feedback.data());
+    // A wrist glove clamps the whole hand's wrench it sums (device/wrist_glove.h), not each bone's:
+    // a squeeze inside the hand, each finger over the device's limit, sums to no force on the stylus.
     for (Feedback& fb : s.feedback)
-        if (!limit_feedback(fb)) return false;
+        if (!limit_feedback(fb, wrist_ == nullptr)) return false;
     group_feedback(s.groups, s.devices.data(), s.feedback.data(), s.group_out.data());
     for (int g = 0; g < s.groups.n(); ++g)
         if (!limit_feedback(s.group_out[g])) return false;
