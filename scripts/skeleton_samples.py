@@ -206,9 +206,7 @@ def pinch_frame(skeleton: sk.Skeleton):
     thumb = posed_digit(skeleton, "thumb", thumb_axis(skeleton), PINCH_THUMB)[2]
     on_thumb, on_index = closest_points(*thumb, *index)
     n = (on_thumb - on_index) / np.linalg.norm(on_thumb - on_index)
-    r_index, r_thumb = skeleton.bones[skeleton.index("index_3")].radius, skeleton.bones[skeleton.index("thumb_3")].radius
-    r_index, r_thumb = r_index / 0.6, r_thumb / 0.6  # the digits' own radii (the bones are 0.6 of them)
-    centre = 0.5 * ((on_index + n * r_index) + (on_thumb - n * r_thumb))
+    centre = 0.5 * ((on_index + n * digit_radius(skeleton, "index")) + (on_thumb - n * digit_radius(skeleton, "thumb")))
     u = index[1] - index[0]
     h = u - (u @ n) * n
     return centre, n, h / np.linalg.norm(h)
@@ -263,8 +261,8 @@ GRASP_TIMES, GRASP_END = (0.5, 0.7, 1.2, 3.2, 3.5), 4.0
 
 
 def digit_radius(skeleton: sk.Skeleton, digit: str) -> float:
-    """The digit's own radius (its bones' capsules are 0.6 of it)."""
-    return skeleton.bones[skeleton.index(f"{digit}_3")].radius / 0.6
+    """The digit's own radius (its bones' capsules are sk.GRASPING_BONE_RADIUS of it)."""
+    return skeleton.bones[skeleton.index(f"{digit}_3")].radius / sk.GRASPING_BONE_RADIUS
 
 
 def squeezed(angles) -> tuple:
@@ -334,11 +332,11 @@ def grasping_bones(skeleton: sk.Skeleton) -> list:
              "radius": round(b.radius, 6)} for b in skeleton.bones]
 
 
-def hand_ball_mesh():
-    """A soft ball HAND_BALL_RADIUS across: an icosphere's surface, pytetwild's tets."""
+def ball_mesh(radius: float):
+    """A soft ball of `radius`: an icosphere's surface, pytetwild's tets."""
     import pyvista
 
-    sphere = pyvista.Icosphere(radius=HAND_BALL_RADIUS, nsub=2)
+    sphere = pyvista.Icosphere(radius=radius, nsub=2)
     v, f = np.asarray(sphere.points), np.asarray(sphere.faces).reshape(-1, 4)[:, 1:].astype(np.int32)
     nodes, tets = mesh.tetrahedralize(v, f, edge_length_fac=0.5, coarsen=True, epsilon=0.01)
     return v, f, nodes, tets
@@ -347,21 +345,15 @@ def hand_ball_mesh():
 def grasping_hand_tets():
     """The grasping hand's tets by pytetwild with a sizing field: GRASPING_EDGE outside the palm
     slab (the digits, where the joints bend), growing to GRASPING_PALM_EDGE 8 mm inside it."""
-    import pytetwild
-
     v, f = mesh.procedural_hand(thumb=mesh.GRASPING_THUMB)
     lower, upper = v.min(axis=0) - 0.01, v.max(axis=0) + 0.01
     background, background_tets = mesh.structured_box(upper - lower, np.ceil((upper - lower) / 0.004).astype(int),
                                                       lower)
     depth = -mesh._rounded_box_distance(background, mesh._PALM_CENTRE, mesh._PALM_HALF_EXTENTS, mesh._PALM_ROUNDING)
     edge = GRASPING_EDGE + np.clip(depth / 0.008, 0, 1) * (GRASPING_PALM_EDGE - GRASPING_EDGE)
-    nodes, tets = pytetwild.tetrahedralize(v, f, epsilon=0.002, coarsen=False, quiet=True, bg_vertices=background,
-                                           bg_tets=background_tets, bg_values=edge)
-    nodes, tets = np.asarray(nodes, dtype=np.float64).reshape(-1, 3), np.asarray(tets, dtype=np.int64).reshape(-1, 4)
-    flip = mesh.tet_signed_volumes(nodes, tets) < 0
-    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
-    used, compact = np.unique(tets, return_inverse=True)
-    return v, f, nodes[used], compact.reshape(-1, 4).astype(np.int32)
+    nodes, tets = mesh.tetrahedralize(v, f, edge_length_fac=0.05, coarsen=False, epsilon=0.002,
+                                      sizing=(background, background_tets, edge))
+    return v, f, nodes, tets
 
 
 def write_meshes() -> None:
@@ -372,11 +364,7 @@ def write_meshes() -> None:
     number[used] = np.arange(len(used))
     mesh.save_obj(SAMPLES / "two_finger_hand.obj", nodes[used], number[faces])
     np.savez_compressed(SAMPLES / "two_finger_hand_tets.npz", nodes=nodes, tets=tets)
-    import pyvista
-
-    sphere = pyvista.Icosphere(radius=BALL_RADIUS, nsub=2)
-    v, f = np.asarray(sphere.points), np.asarray(sphere.faces).reshape(-1, 4)[:, 1:].astype(np.int32)
-    ball_nodes, ball_tets = mesh.tetrahedralize(v, f, edge_length_fac=0.5, coarsen=True, epsilon=0.01)
+    v, f, ball_nodes, ball_tets = ball_mesh(BALL_RADIUS)
     mesh.save_obj(SAMPLES / "ball.obj", v, f)
     np.savez_compressed(SAMPLES / "ball_tets.npz", nodes=ball_nodes, tets=ball_tets)
     v, f, nodes, tets = grasping_hand_tets()
@@ -389,7 +377,7 @@ def write_meshes() -> None:
 
 
 def write_hand_ball() -> None:
-    v, f, nodes, tets = hand_ball_mesh()
+    v, f, nodes, tets = ball_mesh(HAND_BALL_RADIUS)
     mesh.save_obj(SAMPLES / "hand_ball.obj", v, f)
     np.savez_compressed(SAMPLES / "hand_ball_tets.npz", nodes=nodes, tets=tets)
 

@@ -630,7 +630,7 @@ def load_tets(path, where: str) -> tuple[np.ndarray, np.ndarray]:
     return nodes, tets.astype(np.int32)
 
 
-def tetrahedralize(V, F, edge_length_fac=None, coarsen=None, epsilon=None, progress=None):
+def tetrahedralize(V, F, edge_length_fac=None, coarsen=None, epsilon=None, progress=None, sizing=None):
     """Fill a closed surface with positively oriented tets using pytetwild (fTetWild).
 
     edge_length_fac: target tet edge length as a fraction of the bounding-box diagonal.
@@ -639,6 +639,10 @@ def tetrahedralize(V, F, edge_length_fac=None, coarsen=None, epsilon=None, progr
     An option left None takes the parameter table's default (hand.tetrahedralize.*), the one
     scenes and Blender use.
     progress: optional callable progress(fraction, message), called between stages.
+    sizing: optional (nodes (k, 3), tets (j, 4), edge lengths (k,) in m), a background tet mesh
+    covering the surface whose interpolated values ask for the edge length there (fTetWild's
+    sizing field; it refines where they are below edge_length_fac's length): finer tets where
+    joints bend.
     Returns (nodes float64 (n, 3), tets int32 (m, 4)); every node belongs to a tet.
     The output of pytetwild differs from run to run: store the tets you simulate.
     """
@@ -663,6 +667,7 @@ def tetrahedralize(V, F, edge_length_fac=None, coarsen=None, epsilon=None, progr
     stray = pathlib.Path(_FTETWILD_STRAY_FILE)
     stray_existed = stray.exists()
     try:
+        field = {} if sizing is None else dict(zip(("bg_vertices", "bg_tets", "bg_values"), sizing))
         nodes, tets = pytetwild.tetrahedralize(
             np.ascontiguousarray(V, dtype=np.float64),
             np.ascontiguousarray(F, dtype=np.int32),
@@ -670,6 +675,7 @@ def tetrahedralize(V, F, edge_length_fac=None, coarsen=None, epsilon=None, progr
             coarsen=coarsen,
             epsilon=epsilon,
             quiet=True,
+            **field,
         )
     finally:
         if not stray_existed:

@@ -303,7 +303,7 @@ _PALM_RADIUS = 0.03
 # The grasping hand's bones (docs/skeleton.md, Section 9): capsules 0.6 times each digit's radius
 # (its finer tets hold 10-36 nodes in each, off one line), and a palm bone that ends 15 mm short of
 # the knuckle line, so that a layer of flesh at each knuckle bends.
-_GRASPING_BONE_RADIUS = 0.6
+GRASPING_BONE_RADIUS = 0.6
 _GRASPING_PALM_TAIL = np.array([0.0, 0.0, -0.06])
 _GRASPING_PALM_RADIUS = 0.02
 
@@ -343,6 +343,6 @@ def grasping_hand_skeleton() -> Skeleton:
     tets of sample_scenes/grasping_hand_tets.npz (docs/skeleton.md, Section 9)."""
     from . import mesh
 
-    digits = procedural_hand_skeleton(mesh.GRASPING_THUMB, _GRASPING_BONE_RADIUS).bones[1:]
+    digits = procedural_hand_skeleton(mesh.GRASPING_THUMB, GRASPING_BONE_RADIUS).bones[1:]
     palm = Bone("palm", None, _PALM_HEAD.copy(), _GRASPING_PALM_TAIL.copy(), _GRASPING_PALM_RADIUS)
     return Skeleton([palm, *digits])

@@ -561,3 +561,18 @@ def test_embedding_gap_is_the_distance_outside_the_tets():
     points = np.array([[0.05, 0.05, 0.05], [0.05, 0.05, 0.13], [-0.03, -0.04, 0.05]])
     _, _, gap = mesh.embed_points(nodes, tets, points, return_gap=True)
     assert gap == pytest.approx([0.0, 0.03, 0.05], abs=1e-12)
+
+
+def test_a_sizing_field_makes_the_tets_finer_where_it_asks():
+    """fTetWild's sizing field through mesh.tetrahedralize: edges of 4 mm asked on the cube's
+    x < 5 cm half, 40 mm (above edge_length_fac's 8.7 mm, which then rules) on the other, give
+    that half more nodes (at an edge ratio of 2.2, ~10 times as many tets in the same volume)."""
+    V, F = cube_surface()
+    background, background_tets = mesh.structured_box(np.full(3, 0.12), np.array([6, 6, 6]), np.full(3, -0.01))
+    edge = np.where(background[:, 0] < 0.05, 0.004, 0.04)
+    nodes, tets = mesh.tetrahedralize(V, F, edge_length_fac=0.05, coarsen=False, epsilon=1e-3,
+                                      sizing=(background, background_tets, edge))
+    assert (mesh.tet_signed_volumes(nodes, tets) > 0).all()
+    inside = (nodes[:, 0] > 1e-6) & (nodes[:, 0] < 0.1 - 1e-6)  # off the two x faces, which both halves lack
+    fine, coarse = (inside & (nodes[:, 0] < 0.045)).sum(), (inside & (nodes[:, 0] > 0.055)).sum()
+    assert fine > 2 * coarse, (fine, coarse)
