@@ -71,6 +71,15 @@ def test_a_root_has_no_joint_so_one_bone_with_joint_settings_is_todays_step():
         assert np.array_equal(sims[0].velocities(), sims[1].velocities())
 
 
+def test_the_palm_handle_model_refuses_joint_settings():
+    """The palm handle is one bone, with no parent to tie: joint settings given to it are refused
+    with the fix, not ignored."""
+    nodes, tets = mesh.structured_box((0.06, 0.03, 0.03), (6, 3, 3), (-0.03, -0.015, -0.015))
+    for field in ("joint_stiffness", "joint_damping"):
+        with pytest.raises(native.InvalidInput, match="hh_model_create_skeleton"):
+            native.HandModel(nodes, tets, palm_seed=np.zeros(3), handle_radius=0.012, **{field: 1.0})
+
+
 def test_joints_off_sixteen_bones_is_the_reference_step_without_joint_terms(sample_hand):
     """Stiffness and damping 0 (the defaults): the 16-bone step is the reference's step with no
     joint terms, and the energies count no joint (a check that 0 means off, not a weak joint)."""
