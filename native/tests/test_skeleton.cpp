@@ -286,7 +286,7 @@ TEST(joint_blocks_enter_the_step_between_parent_and_child) {
     CHECK_LT(rel, 1e-11);
 }
 
-TEST(the_b_bone_step_with_one_bone_is_todays_step) {
+TEST(the_b_bone_step_with_one_bone_is_the_palm_handle_step) {
     // The B-bone formulation (skeleton frame, per-bone blocks, SkeletonSystem) run on a one-bone
     // model against today's single-handle step (which step() takes for one bone): the same
     // equations, so the same step to round-off, from a deformed state spinning about a turned

@@ -112,7 +112,7 @@ def test_collinear_nodes_are_refused():
         skel.bodies(nodes, np.ones(len(nodes)))
 
 
-def test_one_bone_is_todays_palm_handle(sample_hand):
+def test_one_bone_is_the_palm_handle(sample_hand):
     """The zero-length bone at the seed captures the native handle's nodes, in its order, and
     Eq. 3 gives its mass, centre and inertia (the native ones, from the native lumped masses)."""
     nodes, tets, _ = sample_hand

@@ -49,7 +49,7 @@ def joint_gaps(model, sim) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 
 
-def test_a_root_has_no_joint_so_one_bone_with_joint_settings_is_todays_step():
+def test_a_root_has_no_joint_so_one_bone_with_joint_settings_steps_as_the_palm_handle():
     """One bone is a root: joint settings leave today's single-handle step bit for bit (==)."""
     nodes, tets = mesh.structured_box((0.06, 0.03, 0.03), (6, 3, 3), (-0.03, -0.015, -0.015))
     seed, radius = np.zeros(3), 0.012

@@ -76,7 +76,7 @@ def test_native_capture_refuses_bad_skeletons_naming_the_bone(case, message):
         ns._capture(nodes, desc)
 
 
-def test_one_bone_model_is_todays_model(sample_hand):
+def test_one_bone_model_is_the_palm_handle_model(sample_hand):
     """head = tail = seed, radius = handle_radius: the same nodes in the same order, and Eq. 3
     bit for bit."""
     nodes, tets = sample_hand
@@ -133,7 +133,7 @@ def moving_state(n, rng):
 
 @pytest.mark.parametrize("solver", ["cholesky", "cg"])
 @pytest.mark.parametrize("mode", [0, 1, 2])
-def test_one_bone_step_is_todays_step(mode, solver):
+def test_one_bone_step_is_the_palm_handle_step(mode, solver):
     """The one-bone skeleton model steps exactly as today's model (==, bit for bit) over 12
     steps from a deformed, moving, rotated, spinning state, free, coupled and prescribed."""
     nodes, tets = bar()
