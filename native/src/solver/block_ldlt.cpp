@@ -828,6 +828,13 @@ __attribute__((always_inline)) inline void supernodal_pass(const SupernodalFacto
     typedef typename PassLanes<AT, LV>::V V;
     // columns per group: the group's values of every lane stay in registers (G x N vectors)
     constexpr int G = W == 1 ? 4 : (W <= 8 ? 8 : 4);
+    // Vectors of lanes one sweep over a group's rows below takes (W > 1): all N when the G x N
+    // values or sums fit the registers with room to spare (16 with AVX2's 4 doubles, 32 with
+    // AVX-512's 8), else 2 per sweep: with AVX2, 16 and 32 lanes spilled them (the grasping
+    // hand's 32 dense columns in 16-lane passes: 3.75 ms in whole sweeps, 3.35 ms in chunks, one
+    // core; the same values bit for bit)
+    constexpr int kRegisters = VL >= 8 ? 32 : 16;
+    constexpr int QB = (W == 1 || G * N <= kRegisters - 4 || N % 2 != 0) ? N : 2;
     constexpr int CH = VL;  // half panels, W > 1: rows converted a chunk at a time
     // a value times its column's scale (half panels; the other panels hold the values themselves)
     auto scaled = [](auto v, float s) {
@@ -911,12 +918,19 @@ __attribute__((always_inline)) inline void supernodal_pass(const SupernodalFacto
                         }
                     });
 #endif
-                for (; r < ld; ++r) {
-                    AT* yr = y + static_cast<size_t>(W) * r;
-                    for (int q = 0; q < N; ++q) {
-                        V t = panel_scalar<AT>(col[0] + r) * a[0][q];
-                        for (int k = 1; k < G; ++k) t += panel_scalar<AT>(col[k] + r) * a[k][q];
-                        store_vector(yr + LV * q, load_vector<V>(yr + LV * q) - t);
+                // QB of the N vectors per sweep over the rows (see QB): each lane's
+                // arithmetic is the same whatever the chunk
+                for (int q0 = 0; q0 < N; q0 += QB) {
+                    V ac[G][QB];
+                    for (int k = 0; k < G; ++k)
+                        for (int q = 0; q < QB; ++q) ac[k][q] = a[k][q0 + q];
+                    for (int r2 = r; r2 < ld; ++r2) {
+                        AT* yr = y + static_cast<size_t>(W) * r2 + LV * q0;
+                        for (int q = 0; q < QB; ++q) {
+                            V t = panel_scalar<AT>(col[0] + r2) * ac[0][q];
+                            for (int k = 1; k < G; ++k) t += panel_scalar<AT>(col[k] + r2) * ac[k][q];
+                            store_vector(yr + LV * q, load_vector<V>(yr + LV * q) - t);
+                        }
                     }
                 }
             }
@@ -987,11 +1001,18 @@ __attribute__((always_inline)) inline void supernodal_pass(const SupernodalFacto
                         }
                     });
 #endif
-                for (; r < ld; ++r)
-                    for (int q = 0; q < N; ++q) {
-                        const V yr = load_vector<V>(y + static_cast<size_t>(W) * r + LV * q);
-                        for (int k = 0; k < G; ++k) sk[k][q] += panel_scalar<AT>(col[k] + r) * yr;
-                    }
+                for (int q0 = 0; q0 < N; q0 += QB) {  // (as the forward pass's chunks)
+                    V sc[G][QB];
+                    for (int k = 0; k < G; ++k)
+                        for (int q = 0; q < QB; ++q) sc[k][q] = sk[k][q0 + q];
+                    for (int r2 = r; r2 < ld; ++r2)
+                        for (int q = 0; q < QB; ++q) {
+                            const V yr = load_vector<V>(y + static_cast<size_t>(W) * r2 + LV * (q0 + q));
+                            for (int k = 0; k < G; ++k) sc[k][q] += panel_scalar<AT>(col[k] + r2) * yr;
+                        }
+                    for (int k = 0; k < G; ++k)
+                        for (int q = 0; q < QB; ++q) sk[k][q0 + q] = sc[k][q];
+                }
                 for (int k = 0; k < G; ++k)
                     for (int q = 0; q < N; ++q) store_vector(acc[k] + LV * q, scaled(sk[k][q], s[k]));
             }
