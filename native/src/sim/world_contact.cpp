@@ -312,6 +312,16 @@ void World::ready_contact_body(int bi) {
     // columns in the factor's elimination order, each batch's units in one part of the tree
     // (on the 10x bunny the build went from ~11 to ~10.2 ms on one thread)
     build.unit_order.clear();
+    // A skeleton hand whose bones all follow their targets (Ah = I and A_ht = 0 in each bone's
+    // rows, sim/skeleton_step.cpp): impulses on the flesh leave the bones' velocities as they are
+    // (S = I, v_h = 0 in SkeletonSystem::apply_inverse_many), and the flesh's response is A_t^-1
+    // itself. Its unit columns then need the factor only at the touched nodes, not at every
+    // bone's nodes too (A_ht's rows read those): the grasping hand's ~200 columns cost ~0.6 of
+    // that pass (bench/bench_grasp.py). The same values, bit for bit, at the touched rows.
+    build.flesh_touched.clear();
+    if (b.skeleton() && b.hand->bones_prescribed && !cb.row_basis && b.hand->tool.solver() == DeformableSolver::Cholesky &&
+        !cb.touched.empty() && cb.touched.front() >= b.handle_dofs())
+        for (int k : cb.touched) build.flesh_touched.push_back(k - b.handle_dofs());
     DeformableSystem* system = b.response_system();
     if (system && system->prepare_concurrent_solves() && !cb.row_basis && build.first == 0) {
         const int base = b.handle_dofs();
@@ -374,6 +384,10 @@ void World::solve_contact_body(int bi, int part, int parts) {
             if (b.kind == BodyKind::Hand && !b.skeleton())
                 done = b.hand->hand.apply_inverse_unit_columns(units, w, cb.touched, x);
             if (b.kind == BodyKind::Soft) done = b.soft.tool->solve_units(units, w, cb.touched, x.data(), x.rows());
+            if (!build.flesh_touched.empty()) {  // (a skeleton hand whose bones are all prescribed)
+                for (int j = 0; j < w; ++j) units[j] -= b.handle_dofs();
+                done = b.hand->tool.solve_units(units, w, build.flesh_touched, x.data(), x.rows());
+            }
             if (done) {
                 for (int j = 0; j < w; ++j) cb.K.col(build.unit_order[first + j]) = x.col(j);
                 continue;

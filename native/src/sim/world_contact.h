@@ -41,6 +41,9 @@ struct World::ContactSetup {
         // unit columns on the step's Cholesky factor: K's columns solved in this order (by the
         // factor's elimination order of their nodes), so a batch's units share their paths
         std::vector<int> unit_order;
+        // a skeleton hand with every bone prescribed: the touched unknowns on the flesh alone
+        // (ready_contact_body), its unit columns solved there on A_t's factor
+        std::vector<int> flesh_touched;
     };
     std::map<int, Build> build;
     std::map<int, MatX> response;  // per body: its symmetrized C_b (see ReducedContactProblem)

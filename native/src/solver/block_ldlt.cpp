@@ -828,6 +828,13 @@ __attribute__((always_inline)) inline void supernodal_pass(const SupernodalFacto
     typedef typename PassLanes<AT, LV>::V V;
     // columns per group: the group's values of every lane stay in registers (G x N vectors)
     constexpr int G = W == 1 ? 4 : (W <= 8 ? 8 : 4);
+    // Vectors of lanes one sweep over a group's rows below takes (W > 1): all N when the G x N
+    // values or sums fit the registers with room to spare (16 with AVX2's 4 doubles, 32 with
+    // AVX-512's 8), else 2 per sweep: with AVX2, 16 and 32 lanes spilled them (the grasping
+    // hand's 32 dense columns in 16-lane passes: 3.75 ms in whole sweeps, 3.35 ms in chunks, one
+    // core; the same values bit for bit)
+    constexpr int kRegisters = VL >= 8 ? 32 : 16;
+    constexpr int QB = (W == 1 || G * N <= kRegisters - 4 || N % 2 != 0) ? N : 2;
     constexpr int CH = VL;  // half panels, W > 1: rows converted a chunk at a time
     // a value times its column's scale (half panels; the other panels hold the values themselves)
     auto scaled = [](auto v, float s) {
@@ -911,12 +918,19 @@ __attribute__((always_inline)) inline void supernodal_pass(const SupernodalFacto
                         }
                     });
 #endif
-                for (; r < ld; ++r) {
-                    AT* yr = y + static_cast<size_t>(W) * r;
-                    for (int q = 0; q < N; ++q) {
-                        V t = panel_scalar<AT>(col[0] + r) * a[0][q];
-                        for (int k = 1; k < G; ++k) t += panel_scalar<AT>(col[k] + r) * a[k][q];
-                        store_vector(yr + LV * q, load_vector<V>(yr + LV * q) - t);
+                // QB of the N vectors per sweep over the rows (see QB): each lane's
+                // arithmetic is the same whatever the chunk
+                for (int q0 = 0; q0 < N; q0 += QB) {
+                    V ac[G][QB];
+                    for (int k = 0; k < G; ++k)
+                        for (int q = 0; q < QB; ++q) ac[k][q] = a[k][q0 + q];
+                    for (int r2 = r; r2 < ld; ++r2) {
+                        AT* yr = y + static_cast<size_t>(W) * r2 + LV * q0;
+                        for (int q = 0; q < QB; ++q) {
+                            V t = panel_scalar<AT>(col[0] + r2) * ac[0][q];
+                            for (int k = 1; k < G; ++k) t += panel_scalar<AT>(col[k] + r2) * ac[k][q];
+                            store_vector(yr + LV * q, load_vector<V>(yr + LV * q) - t);
+                        }
                     }
                 }
             }
@@ -987,11 +1001,18 @@ __attribute__((always_inline)) inline void supernodal_pass(const SupernodalFacto
                         }
                     });
 #endif
-                for (; r < ld; ++r)
-                    for (int q = 0; q < N; ++q) {
-                        const V yr = load_vector<V>(y + static_cast<size_t>(W) * r + LV * q);
-                        for (int k = 0; k < G; ++k) sk[k][q] += panel_scalar<AT>(col[k] + r) * yr;
-                    }
+                for (int q0 = 0; q0 < N; q0 += QB) {  // (as the forward pass's chunks)
+                    V sc[G][QB];
+                    for (int k = 0; k < G; ++k)
+                        for (int q = 0; q < QB; ++q) sc[k][q] = sk[k][q0 + q];
+                    for (int r2 = r; r2 < ld; ++r2)
+                        for (int q = 0; q < QB; ++q) {
+                            const V yr = load_vector<V>(y + static_cast<size_t>(W) * r2 + LV * (q0 + q));
+                            for (int k = 0; k < G; ++k) sc[k][q] += panel_scalar<AT>(col[k] + r2) * yr;
+                        }
+                    for (int k = 0; k < G; ++k)
+                        for (int q = 0; q < QB; ++q) sk[k][q0 + q] = sc[k][q];
+                }
                 for (int k = 0; k < G; ++k)
                     for (int q = 0; q < N; ++q) store_vector(acc[k] + LV * q, scaled(sk[k][q], s[k]));
             }
@@ -1340,7 +1361,7 @@ void BlockLDLT::solve_units(const int* units, int k, const std::vector<int>& row
     // paper-size hands' factors stay in cache, so a pass is bound by its arithmetic, and two
     // vectors of lanes per row give each 3x3 block's loads twice the work (the paper bunny's
     // contact build is a few percent cheaper than with 8).
-    const int most = supernodal_ ? kWidestSolve : 16;
+    const int most = supernodal_ ? widest_pass() : 16;
     // The right-hand sides stay zero between calls: each batch clears the dirty nodes it leaves
     // nonzero. Clearing all 3n x w values per call instead (the calls mostly take one batch)
     // had been ~1% of the 10x bunny's thread time: 3.2 MB per batch on the ~17000-tet hand, 26
@@ -1415,34 +1436,104 @@ void BlockLDLT::solve(MatX& b, const std::vector<Mat3>* warp, const Beside& besi
     solve_packed(b, warp, nullptr, beside ? &beside : nullptr);
 }
 
+namespace {
+// A node's 3 x W block (row-major) times W^T (in) or W (out), in place: warp_permute's
+// arithmetic, for solve_packed's copies that permute and warp at once
+template <int W, bool In>
+void rotate_rows(const Mat3& warp, double* block) {
+    double src[3 * W];
+    std::copy(block, block + 3 * W, src);
+    const double* m = warp.data();  // column-major: W(r, c) = m[r + 3 c]
+    for (int r = 0; r < 3; ++r) {
+        const double m0 = In ? m[3 * r] : m[r], m1 = In ? m[3 * r + 1] : m[r + 3], m2 = In ? m[3 * r + 2] : m[r + 6];
+        for (int j = 0; j < W; ++j) block[r * W + j] = m0 * src[j] + m1 * src[W + j] + m2 * src[2 * W + j];
+    }
+}
+template <bool In>
+void rotate_rows(int w, const Mat3& warp, double* block) {
+    if (w == 1) rotate_rows<1, In>(warp, block);
+    else if (w == 4) rotate_rows<4, In>(warp, block);
+    else if (w == 16) rotate_rows<16, In>(warp, block);
+    else if (w == 32) rotate_rows<32, In>(warp, block);
+    else rotate_rows<8, In>(warp, block);
+}
+}  // namespace
+
+// Lanes of the supernodal form's double passes. With AVX2 a 32-lane pass keeps 8 vectors per row
+// and 4 x 8 of a column group's values (the forward pass) or sums (the backward one): twice the
+// 16 registers, so they spill; two 16-lane passes fit them and cost less, although each streams
+// the factor (the grasping hand's 2078 nodes: 32 dense columns 4.6 ms in one pass, 3.8 ms in two,
+// one core). Each lane's arithmetic is the same at either width, so the solutions are the same
+// bit for bit. AVX-512 has 32 registers of 8 lanes: one pass.
+int BlockLDLT::widest_pass() const {
+    if (!supernodal_) return 8;
+    return simd_level() == 1 ? 16 : kWidestSolve;
+}
+
 void BlockLDLT::solve_packed(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes,
                              const Beside* beside) const {
     if (b.rows() != 3 * n_) throw std::logic_error("BlockLDLT::solve: right-hand side of the wrong size");
     const unsigned char* wanted = wanted_nodes ? wanted_mask(*wanted_nodes) : nullptr;
     // Columns per pass: the passes stream the factor from memory, so more columns share each
-    // load. The supernodal kernels take up to 32 (the contact responses' many unit columns),
-    // the up-looking ones 8.
-    const int most = supernodal_ ? kWidestSolve : 8;
+    // load (widest_pass).
+    const int most = widest_pass();
+    SolveScratch& s = scratch();
     for (Eigen::Index first = 0; first < b.cols(); first += most) {
         const int k = static_cast<int>(std::min<Eigen::Index>(most, b.cols() - first));
         const int w = padded_width(k);
-        std::vector<double>& packed = scratch().packed;
-        packed.resize(static_cast<size_t>(3) * n_ * w);
-        const double* in[32];
-        for (int j = 0; j < k; ++j) in[j] = b.col(first + j).data();
-        for (int e = 0; e < 3 * n_; ++e) {
-            double* row = packed.data() + static_cast<size_t>(w) * e;
-            for (int j = 0; j < k; ++j) row[j] = in[j][e];
-            for (int j = k; j < w; ++j) row[j] = 0.0;
+        if (beside) {  // (the split passes permute their own copy)
+            std::vector<double>& packed = s.packed;
+            packed.resize(static_cast<size_t>(3) * n_ * w);
+            pack_columns(b, first, k, w, packed.data());
+            solve_node_major_split(packed.data(), w, warp, Panels::Double, *beside);
+            unpack_columns(packed.data(), w, b, first, k);
+            continue;
         }
-        if (beside) solve_node_major_split(packed.data(), w, warp, Panels::Double, *beside);
-        else solve_node_major(packed.data(), w, warp, Panels::Double, wanted);
-        double* out[32];
-        for (int j = 0; j < k; ++j) out[j] = b.col(first + j).data();
-        for (int e = 0; e < 3 * n_; ++e) {
-            const double* row = packed.data() + static_cast<size_t>(w) * e;
-            for (int j = 0; j < k; ++j) out[j][e] = row[j];
+        // Straight into the factor's node order, warped, and back: one copy each way (packing
+        // node-major and then permuting made two, ~a fifth of the grasping hand's 32-lane pass)
+        s.work.resize(static_cast<size_t>(3) * n_ * w);
+        double* x = s.work.data();
+        const double* in[kWidestSolve];
+        double* out[kWidestSolve];
+        for (int j = 0; j < k; ++j) in[j] = out[j] = b.col(first + j).data();
+        for (int node = 0; node < n_; ++node) {
+            const int old = order_[node];
+            double* to = x + static_cast<size_t>(3) * w * node;
+            for (int d = 0; d < 3; ++d) {
+                double* row = to + static_cast<size_t>(w) * d;
+                for (int j = 0; j < k; ++j) row[j] = in[j][3 * old + d];
+                for (int j = k; j < w; ++j) row[j] = 0.0;
+            }
+            if (warp) rotate_rows<true>(w, (*warp)[old], to);
         }
+        solve_in_order(x, w, Panels::Double, wanted);
+        for (int node = 0; node < n_; ++node) {
+            // with wanted nodes only theirs (whole supernodes: see wanted_mask) are asked for
+            if (wanted && !wanted[supernodal_ ? node_sn_[node] : node]) continue;
+            const int old = order_[node];
+            double* from = x + static_cast<size_t>(3) * w * node;
+            if (warp) rotate_rows<false>(w, (*warp)[old], from);
+            for (int d = 0; d < 3; ++d) {
+                const double* row = from + static_cast<size_t>(w) * d;
+                for (int j = 0; j < k; ++j) out[j][3 * old + d] = row[j];
+            }
+        }
+    }
+}
+
+// The node-major block of k columns of b from `first` (w lanes, the rest zero), and back
+void BlockLDLT::pack_columns(const MatX& b, Eigen::Index first, int k, int w, double* packed) const {
+    for (int e = 0; e < 3 * n_; ++e) {
+        double* row = packed + static_cast<size_t>(w) * e;
+        for (int j = 0; j < k; ++j) row[j] = b(e, first + j);
+        for (int j = k; j < w; ++j) row[j] = 0.0;
+    }
+}
+
+void BlockLDLT::unpack_columns(const double* packed, int w, MatX& b, Eigen::Index first, int k) const {
+    for (int e = 0; e < 3 * n_; ++e) {
+        const double* row = packed + static_cast<size_t>(w) * e;
+        for (int j = 0; j < k; ++j) b(e, first + j) = row[j];
     }
 }
 

@@ -18,7 +18,8 @@
 
 namespace hh {
 
-// Most right-hand sides one solve pass takes (supernodal form; the up-looking form takes 8).
+// Most right-hand sides one solve pass takes (supernodal form with AVX-512; with AVX2 16, the
+// up-looking form 8: BlockLDLT::widest_pass), and the batches the callers hand to a solve.
 constexpr int kWidestSolve = 32;
 
 class BlockLDLT {
@@ -72,7 +73,7 @@ public:
     // `rows` and of `units` must be among wanted_nodes (the backward pass visits them and their
     // ancestors only; the other rows are never computed; a unit elsewhere is refused with
     // std::logic_error). The contact responses' solves.
-    // The units go in batches of kWidestSolve; first_batch and batch_step: only the batches
+    // The units go in batches of a pass's lanes (widest_pass; 16 up-looking); first_batch and batch_step: only the batches
     // first_batch, first_batch + batch_step, ... (calls for different batches may run on two
     // threads at once: each batch's columns are its own, and come out the same either way).
     void solve_units(const int* units, int k, const std::vector<int>& rows, const std::vector<int>& wanted_nodes,
@@ -170,6 +171,10 @@ private:
     // (forward, backward); -1: every supernode, both passes
     // the solves on MatX: columns packed node-major, kWidestSolve a pass; beside: split passes
     void solve_packed(MatX& b, const std::vector<Mat3>* warp, const std::vector<int>* wanted_nodes, const Beside* beside) const;
+    void pack_columns(const MatX& b, Eigen::Index first, int k, int w, double* packed) const;
+    void unpack_columns(const double* packed, int w, MatX& b, Eigen::Index first, int k) const;
+    // lanes of a double pass on MatX columns and of solve_units' passes (see solve_packed)
+    int widest_pass() const;
     // (T: double, or float for the one-lane half passes: float_passes)
     template <typename T>
     void solve_supernodal(T* x, int w, Panels panels, const unsigned char* wanted, int part = -1, bool forward = true,

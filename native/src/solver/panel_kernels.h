@@ -1,6 +1,7 @@
 // Dense kernels of the supernodal factorization (BlockLDLT::factorize_supernodal) on
-// column-major panels. With AVX-512 they are this file's register-blocked kernels, otherwise
-// Eigen's (the library is built for baseline x86-64, where Eigen's dense code is SSE2).
+// column-major panels. With AVX-512 they are this file's register-blocked kernels; with AVX2 its
+// kernel for the small outer products and Eigen's for the rest; otherwise Eigen's (the library is
+// built for baseline x86-64, where Eigen's dense code is SSE2).
 #pragma once
 
 namespace hh {
