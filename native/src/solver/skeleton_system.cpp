@@ -60,7 +60,7 @@ void SkeletonSystem::solve_prescribed() {
     auto t0 = clock::now();
     schur.setIdentity(nh, nh);
     schur_lu_.compute(schur);
-    schur_condition_ = 1;
+    if (tool.solver() != DeformableSolver::Cholesky) schur_condition_ = 1;  // (as solve_schur's SVD of S = I)
     s.resize(nh + n3);
     s.head(nh) = r.head(nh);
     rhs_ = r.tail(n3);
@@ -78,9 +78,9 @@ void SkeletonSystem::solve_prescribed() {
 
 const MatX& SkeletonSystem::flesh_response() const {
     if (response_ready_ || !prescribed_) return response_;  // (before any solve: empty)
-    MatX columns = MatX::Zero(tool.A.rows(), 6 * n_bones());
-    ath_columns(columns, 0);
-    tool.solve_many(columns, response_, 1);  // slots 1..6B, as solve_schur's
+    MatX ath = MatX::Zero(tool.A.rows(), 6 * n_bones());
+    ath_columns(ath, 0);
+    tool.solve_many(ath, response_, 1);  // slots 1..6B, as solve_schur's
     response_ready_ = true;
     return response_;
 }
