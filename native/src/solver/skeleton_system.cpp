@@ -16,26 +16,90 @@ void SkeletonSystem::resize(int n_bones) {
     links.clear();
 }
 
+// Whether every bone's rows are v_b = target (Ah = I, A_ht = 0, no joint links: a prescribed
+// bone's, sim/skeleton_step.cpp), so that v_h = b_h and S = I.
+bool SkeletonSystem::all_prescribed() const {
+    if (!links.empty()) return false;
+    for (int b = 0; b < n_bones(); ++b) {
+        if (Ah[b] != Mat6::Identity()) return false;
+        for (const Mat63& block : Aht[b])
+            if (!block.isZero(0)) return false;
+    }
+    return true;
+}
+
 void SkeletonSystem::solve() {
-    using clock = std::chrono::steady_clock;
-    const Eigen::Index n3 = tool.A.rows();
-    const int nb = n_bones();
-    const Eigen::Index nh = 6 * nb;
+    const Eigen::Index nh = 6 * n_bones();
     t_deformable = 0;
     t_schur = 0;
-
-    // b_t and the 6B columns of A_th: bone b's six columns are non-zero only at its nodes
-    rhs_.setZero(n3, 1 + nh);
-    rhs_.col(0) = r.tail(n3);
-    for (int b = 0; b < nb; ++b)
-        for (size_t j = 0; j < nodes[b]->size(); ++j) rhs_.block<3, 6>(3 * (*nodes[b])[j], 1 + 6 * b) = Ath[b][j];
+    response_ready_ = false;
     // As HandSystem::solve: with an iterative tool solver the columns are solved
     // min(1, 100 / cond(S)) times tighter than b_t, cond(S) (now 6B x 6B) from the last step.
     const double scale = schur_condition_ > 0 ? std::min(1.0, std::max(1e-4, 100.0 / schur_condition_)) : 1e-3;
     for (Eigen::Index i = 1; i <= nh; ++i) tool.set_tolerance_scale(static_cast<int>(i), scale);
+    if (all_prescribed()) solve_prescribed();
+    else solve_schur();
+    if (!s.allFinite()) throw NumericalError("the skeleton's step is not finite: reduce the time step");
+    tool.s = s.tail(tool.A.rows());
+}
+
+// The bones' columns of A_th as a flesh matrix (3n x 6B): bone b's six columns are non-zero only
+// at its nodes
+void SkeletonSystem::ath_columns(MatX& out, Eigen::Index first_col) const {
+    for (int b = 0; b < n_bones(); ++b)
+        for (size_t j = 0; j < nodes[b]->size(); ++j)
+            out.block<3, 6>(3 * (*nodes[b])[j], first_col + 6 * b) = Ath[b][j];
+}
+
+// Every bone prescribed: v_h = b_h is known, so Eq. 12 is one flesh solve,
+// v_t = A_t^-1 (b_t - A_th v_h), instead of 1 + 6B columns (the 16-bone grasp: 1 against 97).
+// S = I; the columns A_t^-1 A_th are solved only if flesh_response() asks for them.
+void SkeletonSystem::solve_prescribed() {
+    using clock = std::chrono::steady_clock;
+    const Eigen::Index n3 = tool.A.rows(), nh = 6 * n_bones();
+    auto t0 = clock::now();
+    schur.setIdentity(nh, nh);
+    schur_lu_.compute(schur);
+    if (tool.solver() != DeformableSolver::Cholesky) schur_condition_ = 1;  // (as solve_schur's SVD of S = I)
+    s.resize(nh + n3);
+    s.head(nh) = r.head(nh);
+    rhs_ = r.tail(n3);
+    for (int b = 0; b < n_bones(); ++b)
+        for (size_t j = 0; j < nodes[b]->size(); ++j)
+            rhs_.col(0).segment<3>(3 * (*nodes[b])[j]) -= Ath[b][j] * s.segment<6>(6 * b);
+    t_schur += seconds_since(t0);
+    t0 = clock::now();
+    tool.solve_many(rhs_, solved_, 0);
+    t_deformable += seconds_since(t0);
+    columns = 1;
+    s.tail(n3) = solved_.col(0);
+    prescribed_ = true;
+}
+
+const MatX& SkeletonSystem::flesh_response() const {
+    if (response_ready_ || !prescribed_) return response_;  // (before any solve: empty)
+    MatX ath = MatX::Zero(tool.A.rows(), 6 * n_bones());
+    ath_columns(ath, 0);
+    tool.solve_many(ath, response_, 1);  // slots 1..6B, as solve_schur's
+    response_ready_ = true;
+    return response_;
+}
+
+void SkeletonSystem::solve_schur() {
+    using clock = std::chrono::steady_clock;
+    const Eigen::Index n3 = tool.A.rows();
+    const int nb = n_bones();
+    const Eigen::Index nh = 6 * nb;
+    prescribed_ = false;
+
+    // b_t and the 6B columns of A_th
+    rhs_.setZero(n3, 1 + nh);
+    rhs_.col(0) = r.tail(n3);
+    ath_columns(rhs_, 1);
     auto t0 = clock::now();
     tool.solve_many(rhs_, solved_, 0);  // one factor of A_t for all 1 + 6B right-hand sides
     t_deformable += seconds_since(t0);
+    columns = static_cast<int>(1 + nh);
 
     // S = A_h - A_ht A_t^-1 A_th and b_h - A_ht A_t^-1 b_t (Eq. 13): bone b's rows of A_ht
     // touch only its nodes' rows of the solved columns
@@ -72,9 +136,8 @@ void SkeletonSystem::solve() {
     s.resize(nh + n3);
     s.head(nh) = vh;
     response_ = solved_.rightCols(nh);
+    response_ready_ = true;
     s.tail(n3) = solved_.col(0) - response_ * vh;
-    if (!s.allFinite()) throw NumericalError("the skeleton's step is not finite: reduce the time step");
-    tool.s = s.tail(n3);
 }
 
 VecX solve_monolithic(const SkeletonSystem& system, const VecX& rhs) {

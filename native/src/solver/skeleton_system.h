@@ -6,7 +6,8 @@
 // with the flesh solver a black box: one batch of 1 + 6B right-hand sides on one factor of
 // A_t (b_t and the columns of A_th, each built from its bone's nodes only), the dense 6B x 6B
 // S = A_h - A_ht A_t^-1 A_th formed from A_ht's sparse rows, one LU of S, and Eq. 12 as a
-// combination of the solved columns. (One bone is HandSystem's path, data.hand: the step never
+// combination of the solved columns. When every bone is prescribed (v_h = b_h, S = I) it is one
+// flesh solve, v_t = A_t^-1 (b_t - A_th v_h), and the columns only on demand (flesh_response). (One bone is HandSystem's path, data.hand: the step never
 // comes here with B = 1, so today's step is kept bit for bit.)
 #pragma once
 #include <vector>
@@ -37,9 +38,15 @@ public:
     void resize(int n_bones);
     void solve();
     double t_deformable = 0, t_schur = 0;  // s in the tool's solves, in forming and solving S
+    int columns = 0;                       // right-hand sides of the last solve()'s A_t solve
     MatX schur;                            // S of the last solve (6B x 6B)
-    // After solve(): A_t^-1 A_th (3n x 6B), the flesh's velocity response to the bones'
-    const MatX& flesh_response() const { return response_; }
+    // After solve(): A_t^-1 A_th (3n x 6B), the flesh's velocity response to the bones'. After an
+    // all-prescribed solve it is solved here on first call (6B columns on the step's A_t, in
+    // solve's warm-start slots 1..6B): only the bones' coupling model reads it. Not thread-safe;
+    // call it after the step, before the next step's formulation changes A_t.
+    const MatX& flesh_response() const;
+    // Whether the last solve() was the all-prescribed one (one right-hand side)
+    bool solved_prescribed() const { return prescribed_; }
 
     // The world's contact responses (solver/skeleton_response.cpp), after solve(), on its factor
     // of A_t, its A_t^-1 A_th and the LU of S, as HandSystem's (the one-bone hand's):
@@ -52,7 +59,14 @@ public:
     void apply_inverse_many(const MatX& rhs, MatX& out, const std::vector<int>* rows = nullptr) const;
 
 private:
-    MatX rhs_, solved_, response_;
+    bool all_prescribed() const;
+    void solve_prescribed();
+    void solve_schur();
+    void ath_columns(MatX& out, Eigen::Index first_col) const;
+    MatX rhs_, solved_;
+    mutable MatX response_;
+    mutable bool response_ready_ = false;
+    bool prescribed_ = false;
     Eigen::PartialPivLU<MatX> schur_lu_;  // of the last step's S
     double schur_condition_ = 0;  // of the last step's S (0: none yet)
 };
