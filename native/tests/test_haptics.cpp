@@ -592,6 +592,17 @@ struct RestFingers {
             }
     }
 };
+// The fingers posed at `rest` on a playback wrist through the two timed poses (t, root), run
+// offline for `frames` visual frames: the newest frame.
+hh_session_frame run_on_wrist(BoneRig& rig, RestFingers& rest, const double* t, const double* root, int frames) {
+    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, rest.p, rest.q, 2) == HH_OK);
+    CHECK(hh_session_device_playback(rig.session, t, root, nullptr, 2, 1e300) == HH_OK);
+    CHECK(hh_session_run_offline(rig.session, frames) == HH_OK);
+    int fresh = 0;
+    hh_session_frame f{};
+    CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK && fresh);
+    return f;
+}
 }  // namespace
 
 TEST(a_wrist_device_feels_the_clamped_sum_not_the_sum_of_clamped_bones) {
@@ -606,12 +617,7 @@ TEST(a_wrist_device_feels_the_clamped_sum_not_the_sum_of_clamped_bones) {
     const double root[6] = {x[0], x[1], x[2], x[9], x[10], x[11]};
     RestFingers rest(rig);
     rest.p[3 * (BoneRig::kBones + 2)] -= 0.002;  // bone 2's second pose, 2 mm towards the root
-    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, rest.p, rest.q, 2) == HH_OK);
-    CHECK(hh_session_device_playback(rig.session, t, root, nullptr, 2, 1e300) == HH_OK);
-    CHECK(hh_session_run_offline(rig.session, 120) == HH_OK);
-    int fresh = 0;
-    hh_session_frame f;
-    CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK && fresh);
+    hh_session_frame f = run_on_wrist(rig, rest, t, root, 120);
     double feedback[6 * BoneRig::kBones];
     CHECK(hh_session_frame_bones(rig.session, BoneRig::kBones, nullptr, nullptr, nullptr, feedback) == HH_OK);
     hh_model_info info;
@@ -662,12 +668,8 @@ TEST(a_one_frame_device_drives_a_skeleton_hand_with_its_fingers_posed) {
     CHECK(std::string(hh_last_error()).find("this session has feedback groups") != std::string::npos);
     CHECK(hh_session_set_feedback_groups(rig.session, BoneRig::kBones, no_group, 0) == HH_OK);
 
-    CHECK(hh_session_pose_fingers(rig.session, BoneRig::kBones, rest.t, rest.p, rest.q, 2) == HH_OK);
-    CHECK(hh_session_device_playback(rig.session, t, root, nullptr, 2, 1e300) == HH_OK);
-    CHECK(hh_session_run_offline(rig.session, 45) == HH_OK);
+    hh_session_frame f = run_on_wrist(rig, rest, t, root, 45);
     int fresh = 0;
-    hh_session_frame f;
-    CHECK(hh_session_fetch_frame(rig.session, &fresh, &f) == HH_OK && fresh);
     double devices[7 * BoneRig::kBones], feedback[6 * BoneRig::kBones];
     CHECK(hh_session_frame_bones(rig.session, BoneRig::kBones, nullptr, nullptr, devices, feedback) == HH_OK);
     const hh::Vec3 p0(devices[0], devices[1], devices[2]);
