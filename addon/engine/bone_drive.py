@@ -58,7 +58,7 @@ class BoneDrive:
         x_root, q_root = root
         relative = quat.multiply(q_root, quat.conjugate(q[0]))
         out_p = x_root + (p - p[0]) @ quat.to_matrix(relative).T
-        out_q = np.array([quat.multiply(relative, qb) for qb in q])
+        out_q = quat.multiply(relative, q)
         out_p[0], out_q[0] = self.device.pose(t)
         return out_p, out_q
 
@@ -70,7 +70,7 @@ class BoneDrive:
         p, q = self.targets(t, root)
         p0, q0 = self.previous if self.previous is not None else self.targets(t - dt, root)
         v = (p - p0) / dt
-        w = np.array([quat.rotation_vector(quat.multiply(qb, quat.conjugate(qa))) for qa, qb in zip(q0, q)]) / dt
+        w = quat.rotation_vector(quat.multiply(q, quat.conjugate(q0))) / dt
         world.set_bone_targets(hand, self.modes, p, q, v, w)
         self.previous = (p, q)
         return p, q

@@ -8,22 +8,30 @@ import numpy as np
 
 
 def multiply(a, b) -> np.ndarray:
-    av, aw, bv, bw = np.asarray(a[:3]), a[3], np.asarray(b[:3]), b[3]
-    return np.concatenate([aw * bv + bw * av + np.cross(av, bv), [aw * bw - av @ bv]])
+    """a b, of one quaternion each or of arrays (..., 4) of them. Written out per component: a
+    skeleton's drive turns every bone every step, and np.cross on 3-vectors took most of it."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack([aw * bx + bw * ax + ay * bz - az * by,
+                     aw * by + bw * ay + az * bx - ax * bz,
+                     aw * bz + bw * az + ax * by - ay * bx,
+                     aw * bw - ax * bx - ay * by - az * bz], axis=-1)
 
 
 def conjugate(q) -> np.ndarray:
-    return np.array([-q[0], -q[1], -q[2], q[3]])
+    return np.asarray(q, dtype=float) * np.array([-1.0, -1.0, -1.0, 1.0])
 
 
 def rotation_vector(q) -> np.ndarray:
-    """The rotation vector (axis times angle, rad) of q, the shorter way round."""
+    """The rotation vector (axis times angle, rad) of q, the shorter way round; of one
+    quaternion or of arrays (..., 4) of them."""
     q = np.asarray(q, dtype=float)
-    q = q if q[3] >= 0 else -q
-    vn = np.linalg.norm(q[:3])
-    if vn < 1e-12:
-        return 2.0 * q[:3]
-    return 2.0 * math.atan2(vn, q[3]) / vn * q[:3]
+    q = np.where(q[..., 3:] >= 0, q, -q)
+    vn = np.linalg.norm(q[..., :3], axis=-1, keepdims=True)
+    small = vn < 1e-12  # (2 atan2(|v|, s) / |v| -> 2 as |v| -> 0 with s = 1)
+    scale = np.where(small, 2.0, 2.0 * np.arctan2(vn, q[..., 3:]) / np.where(small, 1.0, vn))
+    return scale * q[..., :3]
 
 
 def from_rotation_vector(theta) -> np.ndarray:

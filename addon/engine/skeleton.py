@@ -234,23 +234,28 @@ def pose_bones(skeleton: Skeleton, coms: np.ndarray, turns: list, heads: list) -
     moves to heads[b]. A None turn turns with the parent (a root: no turn); a None head rides on
     the parent at the bone's rest head (a root: stays at rest), so the rig keeps its own bone
     lengths. coms: the bones' rest centres of mass (B, 3)."""
-    motion = [None] * len(skeleton)  # each bone's rigid motion: (turn, rest head, moved head)
+    motion = [None] * len(skeleton)  # each bone's rigid motion: (turn, its matrix, rest head, moved head)
     positions, quaternions = np.empty((len(skeleton), 3)), np.empty((len(skeleton), 4))
+    still = (np.array([0.0, 0.0, 0.0, 1.0]), np.eye(3))
     for b in parents_first(skeleton):
         head, parent = np.asarray(skeleton.bones[b].head, dtype=float), skeleton.parents[b]
-        inherited = motion[parent] if parent >= 0 else (np.array([0.0, 0.0, 0.0, 1.0]), head, head)
-        turn = inherited[0] if turns[b] is None else np.asarray(turns[b], dtype=float)
-        turn = turn / np.linalg.norm(turn)
+        inherited = motion[parent] if parent >= 0 else (*still, head, head)
+        if turns[b] is None:
+            turn, matrix = inherited[0], inherited[1]
+        else:
+            turn = np.asarray(turns[b], dtype=float)
+            turn = turn / np.linalg.norm(turn)
+            matrix = quat.to_matrix(turn)
         moved = _moved(inherited, head) if heads[b] is None else np.asarray(heads[b], dtype=float)
-        motion[b] = (turn, head, moved)
+        motion[b] = (turn, matrix, head, moved)
         positions[b] = _moved(motion[b], coms[b])
         quaternions[b] = turn
     return positions, quaternions
 
 
 def _moved(motion, x) -> np.ndarray:
-    turn, pivot, moved = motion
-    return moved + quat.to_matrix(turn) @ (np.asarray(x, dtype=float) - pivot)
+    _, matrix, pivot, moved = motion
+    return moved + matrix @ (np.asarray(x, dtype=float) - pivot)
 
 
 def parents_first(skeleton: Skeleton) -> list[int]:

@@ -285,3 +285,71 @@ def test_a_fast_spinning_cube_thrown_at_a_slant_does_not_tunnel(target):
     deepest, lowest = throw(world, body, goal)
     assert lowest < 0.01
     assert deepest <= THICKNESS
+
+
+# --- pairs moving together: the reach follows their motion relative to each other ----------------
+
+SIDEWAYS = np.array([20.0, 0.0, 0.0])  # m/s: the frame both bodies move with
+
+
+class DriftingPad(SoftPad):
+    """The soft pad free (nothing fixed) and carried sideways at 20 m/s with every node."""
+
+    def __init__(self, world):
+        nodes, tets = mesh.structured_box([PAD] * 3, [6] * 3, (-PAD / 2, -PAD / 2, -PAD))
+        self.faces = mesh.tet_boundary_faces(tets)
+        sn, sw = W.vertex_surface(len(nodes))
+        self.world = world
+        self.body = world.add_soft_body(nodes, tets, sn, sw, self.faces, friction=0.5, young_modulus=1e5)
+        world.set_nodes(self.body, velocities=np.tile(SIDEWAYS, (len(nodes), 1)))
+
+    def passed(self, projectile) -> bool:
+        pad_top = self.world.nodes(self.body)[0][:, 2].max()
+        return projectile.centre()[2] < pad_top - PAD
+
+
+@pytest.mark.parametrize("speed", SPEEDS)
+def test_a_body_thrown_at_a_pad_both_carried_sideways_does_not_tunnel(speed):
+    """Both move at 20 m/s sideways, the cube also down at `speed`: seen from their common
+    frame this is the soft-pad throw, and the pair's search must see the closing speed in it
+    (the sideways motion, 67 cm a step, cancels; the downward one does not)."""
+    world = W.World(dt=DT, gravity=[0, 0, 0], contact_thickness=THICKNESS)
+    pad = DriftingPad(world)
+    body = Rigid(world, "cube", speed, launch_height(speed))
+    world.set_pose(body.body, world.pose(body.body)[0], [0, 0, 0, 1], SIDEWAYS + [0, 0, -speed], [0, 0, 0])
+    deepest, lowest = throw(world, body, pad)
+    assert lowest < 0.5 * speed * DT
+    assert deepest <= THICKNESS
+
+
+def stacked_blocks(velocity) -> tuple:
+    """Two free 3 cm soft blocks, one above the other with a gap of one contact thickness (where
+    resting contacts settle), every node moving at `velocity`; returns the world and bodies."""
+    world = W.World(dt=DT, gravity=[0, 0, 0], contact_thickness=THICKNESS)
+    bodies = []
+    for bottom in (-0.03, THICKNESS):
+        nodes, tets = mesh.structured_box([0.03] * 3, [3] * 3, (-0.015, -0.015, bottom))
+        sn, sw = W.vertex_surface(len(nodes))
+        body = world.add_soft_body(nodes, tets, sn, sw, mesh.tet_boundary_faces(tets), friction=0.5,
+                                   young_modulus=1e5)
+        world.set_nodes(body, velocities=np.tile(velocity, (len(nodes), 1)))
+        bodies.append(body)
+    return world, bodies
+
+
+def test_two_blocks_carried_together_find_the_contacts_they_find_at_rest():
+    """Carried at 20 m/s, 67 cm a step, the pair is searched by its motion relative to itself
+    (none): each step finds the contacts the same blocks find at rest where they are, not every
+    vertex within 67 cm. And nothing pushes: they keep their velocity and their gap."""
+    world, (lower, upper) = stacked_blocks(SIDEWAYS)
+    for _ in range(3):
+        still, _ = stacked_blocks(np.zeros(3))
+        for body in (lower, upper):
+            still.set_nodes(body, positions=world.nodes(body)[0])
+        at_rest = still.step()["contacts"]
+        assert at_rest > 0
+        assert world.step()["contacts"] == at_rest
+    for body in (lower, upper):
+        assert np.abs(world.nodes(body)[1] - SIDEWAYS).max() < 1e-9
+    gap = world.nodes(upper)[0][:, 2].min() - world.nodes(lower)[0][:, 2].max()
+    assert abs(gap - THICKNESS) < 1e-9

@@ -62,32 +62,41 @@ double farthest(const std::vector<Vec3>& points, const Vec3& centre) {
 }
 
 // m: how far a point at most `arm` from the centre moves when the pose goes from (x0, q0) to
-// (x1, q1): the centre's displacement plus the arc of the rotation between them
-double pose_travel(const Vec3& x0, const Vec4& q0, const Vec3& x1, const Vec4& q1, double arm) {
+// (x1, q1), seen from a frame that moves by `shift` meanwhile: the centre's displacement less
+// the shift, plus the arc of the rotation between them
+double pose_travel(const Vec3& x0, const Vec4& q0, const Vec3& x1, const Vec4& q1, double arm, const Vec3& shift) {
     const double angle = quat_to_rotation_vector(quat_multiply(q1, quat_conjugate(q0))).norm();
-    return (x1 - x0).norm() + angle * arm;
+    return (x1 - x0 - shift).norm() + angle * arm;
 }
 
-double fastest_node(const VecX& v) {
+// m/s: the fastest node's speed relative to `frame`
+double fastest_node(const VecX& v, const Vec3& frame) {
     double speed = 0;
-    for (Eigen::Index k = 0; k + 2 < v.size(); k += 3) speed = std::max(speed, v.segment<3>(k).squaredNorm());
+    for (Eigen::Index k = 0; k + 2 < v.size(); k += 3) speed = std::max(speed, (v.segment<3>(k) - frame).squaredNorm());
     return std::sqrt(speed);
+}
+
+Vec3 mean_node(const VecX& v) {
+    Vec3 sum = Vec3::Zero();
+    for (Eigen::Index k = 0; k + 2 < v.size(); k += 3) sum += v.segment<3>(k);
+    return v.size() >= 3 ? Vec3(sum / static_cast<double>(v.size() / 3)) : Vec3(Vec3::Zero());
 }
 }  // namespace
 
-// m: how far the points bone b carries move in the step of dt: the palm handle carries the
-// whole hand (its arm reaches every point); a bone of a skeleton its own nodes, each of which
-// is carried further by its parent's motion only through that parent's own target
-double Body::bone_travel(int b, double dt) const {
+// m: how far the points bone b carries move in the step of dt (relative to `frame`, m/s): the
+// palm handle carries the whole hand (its arm reaches every point); a bone of a skeleton its own
+// nodes, each of which is carried further by its parent's motion only through that parent's own
+// target
+double Body::bone_travel(int b, double dt, const Vec3& frame) const {
     const HandleState& h = bone_state(*hand, b);
     const DeviceFrame& d = bone_target(*hand, b);
     double arm = 0;
     if (!skeleton()) arm = farthest(points, h.x_com);
     else for (int i : hand_model->skeleton.bones[b].nodes) arm = std::max(arm, (points[i] - h.x_com).norm());
-    double travel = (h.v_com.norm() + h.omega.norm() * arm) * dt;
+    double travel = ((h.v_com - frame).norm() + h.omega.norm() * arm) * dt;
     if (d.enabled) {  // the bone goes to its target's pose (prescribed) or is pulled toward it
-        travel = std::max(travel, pose_travel(h.x_com, h.q, d.position, d.quaternion, arm));
-        travel = std::max(travel, (d.velocity.norm() + d.angular_velocity.norm() * arm) * dt);
+        travel = std::max(travel, pose_travel(h.x_com, h.q, d.position, d.quaternion, arm, frame * dt));
+        travel = std::max(travel, ((d.velocity - frame).norm() + d.angular_velocity.norm() * arm) * dt);
     }
     return travel;
 }
@@ -95,24 +104,34 @@ double Body::bone_travel(int b, double dt) const {
 // Bounds from what the step knows before it starts. Start-of-step velocities alone miss what
 // is driven: a scripted pusher or a prescribed handle that is still at the start of a fast
 // move, or a hand whose device has jumped away; their end-of-step targets are known already.
-double Body::step_travel(double dt) const {
+double Body::step_travel(double dt, const Vec3& frame) const {
     switch (kind) {
-        case BodyKind::Soft: return fastest_node(soft.state.v) * dt;
+        case BodyKind::Soft: return fastest_node(soft.state.v, frame) * dt;
         case BodyKind::Hand: {
-            double travel = fastest_node(hand->v) * dt;
-            for (int b = 0; b < hand_model->n_bones(); ++b) travel = std::max(travel, bone_travel(b, dt));
+            double travel = fastest_node(hand->v, frame) * dt;
+            for (int b = 0; b < hand_model->n_bones(); ++b) travel = std::max(travel, bone_travel(b, dt, frame));
             return travel;
         }
         case BodyKind::Rigid: {
             const double arm = farthest(mesh.local, Vec3::Zero());
-            return (mesh.state.v_com.norm() + mesh.state.omega.norm() * arm) * dt;
+            return ((mesh.state.v_com - frame).norm() + mesh.state.omega.norm() * arm) * dt;
         }
         case BodyKind::Kinematic: {
             const double arm = farthest(mesh.local, Vec3::Zero());
-            const double moving = (mesh.state.v_com.norm() + mesh.state.omega.norm() * arm) * dt;
-            return std::max(moving, pose_travel(mesh.state.x_com, mesh.state.q, mesh.target.x_com, mesh.target.q, arm));
+            const double moving = ((mesh.state.v_com - frame).norm() + mesh.state.omega.norm() * arm) * dt;
+            return std::max(moving, pose_travel(mesh.state.x_com, mesh.state.q, mesh.target.x_com, mesh.target.q, arm, frame * dt));
         }
-        default: return 0;
+        default: return frame.norm() * dt;  // (planes and static meshes stand still)
+    }
+}
+
+Vec3 Body::drift() const {
+    switch (kind) {
+        case BodyKind::Soft: return mean_node(soft.state.v);
+        case BodyKind::Hand: return mean_node(hand->v);
+        case BodyKind::Rigid:
+        case BodyKind::Kinematic: return mesh.state.v_com;
+        default: return Vec3::Zero();
     }
 }
 

@@ -111,10 +111,13 @@ struct Body {
     void update_points();
     // the surface's vertex positions from the points (normals and boxes: the next detection)
     void update_surface_positions();
-    // m: how far its farthest-moving surface point can travel in the next step of dt (speculative
-    // contact's reach, World::begin_detection)
-    double step_travel(double dt) const;
-    double bone_travel(int bone, double dt) const;  // (a hand's part of it, per bone)
+    // m: how far its farthest-moving surface point can travel in the next step of dt, seen from
+    // a frame moving at `frame` (m/s): speculative contact's reach (World::begin_detection)
+    double step_travel(double dt, const Vec3& frame = Vec3::Zero()) const;
+    double bone_travel(int bone, double dt, const Vec3& frame) const;  // (a hand's part of it, per bone)
+    // m/s: a velocity its points share, the frame from which a pair's relative motion is seen
+    // (the mean of its nodes' velocities; a rigid body's centre's)
+    Vec3 drift() const;
 };
 
 // Mass, centre of mass and inertia about it of a closed, outward-wound triangle mesh of

@@ -48,6 +48,21 @@ void World::begin_detection() {
     auto pair_motion = [&](double ma, double mb) {
         return ma + mb - std::min({ma, mb, 0.5 * settings.contact_thickness});
     };
+    // The bound holds with m_a and m_b seen from any one frame moving at c: the pair's points
+    // close by |(x_a - c h) - (x_b - c h)|. The least of c = 0 and each body's drift keeps a
+    // pair carried together at the reach of their motion relative to each other: a ball lifted
+    // in the grasping hand at 9 cm/s was searched 6 mm around, which found ~340 contacts where
+    // ~140 hold it (bench/bench_grasp.py).
+    std::vector<Vec3> drift(bodies.size());
+    for (size_t i = 0; i < bodies.size(); ++i) drift[i] = bodies[i]->drift();
+    auto pair_reach = [&](int i, int j) {
+        double closing = pair_motion(motion_[i], motion_[j]);
+        for (const Vec3& c : {drift[i], drift[j]}) {
+            const double ma = bodies[i]->step_travel(settings.dt, c), mb = bodies[j]->step_travel(settings.dt, c);
+            if (std::isfinite(ma) && std::isfinite(mb)) closing = std::min(closing, pair_motion(ma, mb));
+        }
+        return base + closing;
+    };
     detection_jobs_.clear();
     for (size_t i = 0; i < bodies.size(); ++i) {
         const Body& a = *bodies[i];
@@ -60,7 +75,7 @@ void World::begin_detection() {
             if (b.kind == BodyKind::Plane)
                 detection_jobs_.push_back({ai, static_cast<int>(j), base + motion_[i], {}});
             else if (b.has_surface && (j > i || !b.dynamic()))
-                detection_jobs_.push_back({ai, static_cast<int>(j), base + pair_motion(motion_[i], motion_[j]), {}});
+                detection_jobs_.push_back({ai, static_cast<int>(j), pair_reach(ai, static_cast<int>(j)), {}});
         }
     }
 }
