@@ -514,7 +514,9 @@ TEST(reused_cholesky_measures_a_nearly_cancelled_load_against_its_reference_norm
         fewer += with.iterations[s] < without.iterations[s];
         more += with.iterations[s] > without.iterations[s];
     }
-    CHECK(same_factor > 6);
+    // (at least one referenced step compared: the policy prices a factorization by the
+    // machine's kernels, so the first renewal comes at step 4 or 5 with AVX-512, later on AVX2)
+    CHECK(same_factor > 2);
     CHECK(fewer > 0 && more == 0);
 }
 

@@ -353,3 +353,62 @@ def test_two_blocks_carried_together_find_the_contacts_they_find_at_rest():
         assert np.abs(world.nodes(body)[1] - SIDEWAYS).max() < 1e-9
     gap = world.nodes(upper)[0][:, 2].min() - world.nodes(lower)[0][:, 2].max()
     assert abs(gap - THICKNESS) < 1e-9
+
+
+# --- a skeleton hand: each contact at the reach of the bones its points move with --------------
+
+def gripper_world():
+    """The 3-bone gripper (palm, left and right fingers, every bone prescribed) in zero gravity."""
+    from haptic_hand.engine import gripper as gr
+    world = W.World(dt=DT, gravity=[0, 0, 0], contact_thickness=THICKNESS)
+    hand, _, _ = gr.add_gripper(world, 0.03, 0.5, (0.0, 0.0, 0.0))
+    return world, hand, gr
+
+
+def swing_right_finger(world, hand, gr, angle: float) -> None:
+    """Targets: the palm and left finger at rest, the right finger turned by `angle` about y
+    at its head (negative: its tip swings out, towards +x), reached at the end of the step."""
+    p, q = world.bone_states(hand)[:2]
+    head = np.array([2 * gr.FINGER + 0.03 - gr.FINGER / 2, 0.0, -gr.CELL])
+    c, s = np.cos(angle), np.sin(angle)
+    turn = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    p, q = p.copy(), q.copy()
+    p[2] = head + turn @ (p[2] - head)
+    q[2] = [0.0, np.sin(angle / 2), 0.0, np.cos(angle / 2)]
+    world.set_bone_targets(hand, np.full(3, 2, dtype=np.int32), p, q)
+
+
+def test_a_finger_swinging_fast_leaves_its_resting_neighbours_contacts_as_they_are():
+    """The left fingertip rests one thickness above a static block; the right finger swings
+    out at 0.5 rad a step (its tip 2.2 cm a step). The block's contacts are the left finger's:
+    at its own reach, the ones it finds with the right finger still, not every vertex within
+    the right tip's travel."""
+    counts = {}
+    for angle in (0.0, -0.5):
+        world, hand, gr = gripper_world()
+        v, f = box_surface([-0.005, -0.02, -gr.LENGTH - THICKNESS - 0.004], [0.012, 0.02, -gr.LENGTH - THICKNESS])
+        world.add_mesh_body(W.STATIC, v, f, friction=0.5)
+        swing_right_finger(world, hand, gr, angle)
+        counts[angle] = world.step()["contacts"]
+    assert counts[0.0] > 0
+    assert counts[-0.5] == counts[0.0]
+
+
+def test_a_finger_swung_fast_into_a_thin_wall_does_not_tunnel():
+    """The right finger swings out at 0.5 rad a step into a 4 mm static wall 5 mm beside it.
+    Its bone is prescribed and goes through; its flesh must stay out: no surface vertex deeper
+    in the wall than the thickness, and none beyond it."""
+    world, hand, gr = gripper_world()
+    outer = 2 * gr.FINGER + 0.03  # the right finger's outer face
+    lo, hi = np.array([outer + 0.005, -0.05, -0.08]), np.array([outer + 0.009, 0.05, 0.0])
+    v, f = box_surface(lo, hi)
+    world.add_mesh_body(W.STATIC, v, f, friction=0.5)
+    touched = False
+    for k in range(1, 4):
+        swing_right_finger(world, hand, gr, -0.5 * k)
+        world.step()
+        x = world.surface(hand)
+        assert box_depth(x, (lo + hi) / 2, (hi - lo) / 2) <= THICKNESS
+        assert x[:, 0].max() < hi[0]
+        touched |= x[:, 0].max() > lo[0] - 2 * THICKNESS
+    assert touched  # the finger did reach the wall

@@ -1,6 +1,7 @@
 #include "rigid/skeleton.h"
 
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 namespace hh {
@@ -142,6 +143,15 @@ SkeletonModel build_skeleton(const VecX& rest, const VecX& node_masses, const st
         s.names.push_back(bones[b].name);
         s.drive_scale.push_back(bones[b].drive_scale);
     }
+    s.node_region = s.node_bone;
+    for (size_t i = 0; i < s.node_region.size(); ++i) {
+        if (s.node_region[i] >= 0) continue;
+        double nearest = std::numeric_limits<double>::infinity();
+        for (size_t b = 0; b < bones.size(); ++b) {
+            const double d = segment_distance(rest.segment<3>(3 * i), bones[b].head, bones[b].tail);
+            if (d < nearest) nearest = d, s.node_region[i] = static_cast<int>(b);
+        }
+    }
     // after every bone's centre of mass: a parent may be listed after its child
     s.joint_on_parent.assign(bones.size(), Vec3::Zero());
     s.joint_on_child.assign(bones.size(), Vec3::Zero());
@@ -162,6 +172,7 @@ SkeletonModel palm_skeleton(const HandleModel& handle, int n_nodes) {
     s.joint_on_parent = s.joint_on_child = {Vec3::Zero()};
     s.node_bone.assign(n_nodes, -1);
     for (int i : handle.nodes) s.node_bone[i] = 0;
+    s.node_region.assign(n_nodes, 0);
     return s;
 }
 

@@ -28,6 +28,9 @@ struct SkeletonModel {
     std::vector<std::string> names;
     std::vector<double> drive_scale;
     std::vector<int> node_bone;  // per tet node: its bone, -1 for flesh only
+    // per tet node: its bone, or for flesh the bone whose segment is nearest at rest (the flesh
+    // it moves with: speculative contact's reach per bone, World::drop_beyond_own_reach)
+    std::vector<int> node_region;
     // Per bone with a parent, its ball joint (docs/skeleton.md, Section 5): the bone's rest head
     // as a point of its parent (head - parent's rest centre of mass) and of itself (head - its
     // own); zero for a root. Body frames are the world frame at rest, as the springs' r_B.

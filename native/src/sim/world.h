@@ -130,7 +130,11 @@ private:
     };
     std::vector<DetectionJob> detection_jobs_;
     std::vector<double> surface_reach_;  // per body: its tree's margin
+    std::vector<Vec3> drift_;            // per body: Body::drift, the frames pairs are seen from
+    double base_reach_ = 0;              // m: the reach of pairs at rest
     void begin_detection();
+    double pair_closing(int a, int b) const;
+    void drop_beyond_own_reach(DetectionJob& job) const;
     void update_body_surface(int body);
     void detect_job(int job);
     void finish_detection();
@@ -155,6 +159,8 @@ private:
     bool handle_terms_apart(int body) const;
     void solve_contact_body(int body, int part, int parts);
     void finish_contact_body(int body);
+    void solve_upper_units(int body, int first, int w);
+    void mirror_upper(int body);
     // a group's sweeps in parts too: setup (its problem), the columns in shares, the sweeps
     static constexpr int kColumnShares = 2;
     void setup_contact_group(int group);

@@ -334,6 +334,7 @@ void World::ready_contact_body(int bi) {
         std::stable_sort(keyed.begin(), keyed.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
         for (const auto& e : keyed) build.unit_order.push_back(e.second);
     }
+    build.upper = !build.unit_order.empty() && (b.kind == BodyKind::Soft || !build.flesh_touched.empty());
 }
 
 // The handle-space linearization's terms (haptics/coupling_model.cpp) of a hand with a
@@ -376,19 +377,15 @@ void World::solve_contact_body(int bi, int part, int parts) {
         // unit columns on the step's Cholesky factor: solved straight at the touched rows (the
         // full-length right-hand sides and solutions, built, copied and permuted per column, were
         // ~a third of these solves' time in the 10x bunny scene)
-        if (!cb.row_basis && !build.unit_order.empty()) {
+        if (build.upper) {
+            solve_upper_units(bi, first, w);
+            continue;
+        }
+        if (!cb.row_basis && !build.unit_order.empty() && b.kind == BodyKind::Hand && !b.skeleton()) {
             int units[kWidestSolve];
             for (int j = 0; j < w; ++j) units[j] = cb.touched[build.unit_order[first + j]];
             x.resize(cb.K.rows(), w);
-            bool done = false;
-            if (b.kind == BodyKind::Hand && !b.skeleton())
-                done = b.hand->hand.apply_inverse_unit_columns(units, w, cb.touched, x);
-            if (b.kind == BodyKind::Soft) done = b.soft.tool->solve_units(units, w, cb.touched, x.data(), x.rows());
-            if (!build.flesh_touched.empty()) {  // (a skeleton hand whose bones are all prescribed)
-                for (int j = 0; j < w; ++j) units[j] -= b.handle_dofs();
-                done = b.hand->tool.solve_units(units, w, build.flesh_touched, x.data(), x.rows());
-            }
-            if (done) {
+            if (b.hand->hand.apply_inverse_unit_columns(units, w, cb.touched, x)) {
                 for (int j = 0; j < w; ++j) cb.K.col(build.unit_order[first + j]) = x.col(j);
                 continue;
             }
@@ -415,11 +412,42 @@ void World::solve_contact_body(int bi, int part, int parts) {
     }
 }
 
+// The unit columns first .. first + w (in elimination order) of A^-1 (ContactSetup::Build::upper)
+// at the rows of the units from first on: their nodes and ancestors only, where all the rows'
+// would reach the ancestors of every touched node (on the grasping hand the ~200 columns' solves
+// cost ~0.6 of the full ones, bench/bench_grasp.py).
+void World::solve_upper_units(int bi, int first, int w) {
+    const ContactSetup::Build& build = setup_->build.at(bi);
+    Body& b = *bodies[bi];
+    ContactBody& cb = contact_bodies.at(bi);
+    const int m = static_cast<int>(cb.K.cols()), base = b.kind == BodyKind::Soft ? 0 : b.handle_dofs();
+    std::vector<int> rows(m - first);
+    for (int r = first; r < m; ++r) rows[r - first] = cb.touched[build.unit_order[r]] - base;
+    MatX x(rows.size(), w);
+    DeformableSystem& system = b.kind == BodyKind::Soft ? *b.soft.tool : b.hand->tool;
+    if (!system.solve_units(rows.data(), w, rows, x.data(), x.rows()))
+        throw std::logic_error("World::solve_upper_units: the factor is not ready");
+    for (int j = 0; j < w; ++j)
+        for (size_t r = 0; r < rows.size(); ++r) cb.K(build.unit_order[first + r], build.unit_order[first + j]) = x(r, j);
+}
+
+// The entries solve_upper_units left: row a, column c with a's unit before c's batch, by symmetry
+void World::mirror_upper(int bi) {
+    const ContactSetup::Build& build = setup_->build.at(bi);
+    ContactBody& cb = contact_bodies.at(bi);
+    const int m = static_cast<int>(cb.K.cols());
+    for (int c = 0; c < m; ++c) {
+        const int batch_start = c - c % kWidestSolve;
+        for (int a = 0; a < batch_start; ++a) cb.K(build.unit_order[a], build.unit_order[c]) = cb.K(build.unit_order[c], build.unit_order[a]);
+    }
+}
+
 void World::finish_contact_body(int bi) {
     ContactSetup& cs = *setup_;
     const Body& b = *bodies[bi];
-    const ContactBody& cb = contact_bodies.at(bi);
+    ContactBody& cb = contact_bodies.at(bi);
     const int nt = static_cast<int>(cb.touched.size());
+    if (cs.build.at(bi).upper) mirror_upper(bi);
     if (!cb.K.allFinite())  // (the solves above check only the rows they were asked for)
         throw NumericalError("the contact response of body " + std::to_string(bi) +
                              " is not finite: reduce the time step or check its material");

@@ -44,6 +44,11 @@ struct World::ContactSetup {
         // a skeleton hand with every bone prescribed: the touched unknowns on the flesh alone
         // (ready_contact_body), its unit columns solved there on A_t's factor
         std::vector<int> flesh_touched;
+        // A^-1 itself at the touched unknowns (a soft body, or that skeleton hand), symmetric:
+        // each batch of unit columns is solved at the rows of its own and later units only (the
+        // upper triangle in elimination order, whose paths through the factor are shorter), the
+        // rest mirrored (mirror_upper)
+        bool upper = false;
     };
     std::map<int, Build> build;
     std::map<int, MatX> response;  // per body: its symmetrized C_b (see ReducedContactProblem)

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <unordered_map>
 
 #include "sim/world.h"
@@ -41,28 +42,10 @@ void World::begin_detection() {
     // by inflating the query side (detect_pair).
     surface_reach_.resize(bodies.size());
     for (size_t i = 0; i < bodies.size(); ++i) surface_reach_[i] = base + std::min(motion_[i], 2 * settings.contact_thickness);
-    // A pair closes by at most m_a + m_b. Searching that less s = min(m_a, m_b, thickness / 2)
-    // misses only pairs farther than base + m_a + m_b - s, which end the step farther than
-    // base - s >= the thickness: found in time next step. (It keeps slow pairs, such as the
-    // paper bunny's, at the reach of the faster body alone, as before.)
-    auto pair_motion = [&](double ma, double mb) {
-        return ma + mb - std::min({ma, mb, 0.5 * settings.contact_thickness});
-    };
-    // The bound holds with m_a and m_b seen from any one frame moving at c: the pair's points
-    // close by |(x_a - c h) - (x_b - c h)|. The least of c = 0 and each body's drift keeps a
-    // pair carried together at the reach of their motion relative to each other: a ball lifted
-    // in the grasping hand at 9 cm/s was searched 6 mm around, which found ~340 contacts where
-    // ~140 hold it (bench/bench_grasp.py).
-    std::vector<Vec3> drift(bodies.size());
-    for (size_t i = 0; i < bodies.size(); ++i) drift[i] = bodies[i]->drift();
-    auto pair_reach = [&](int i, int j) {
-        double closing = pair_motion(motion_[i], motion_[j]);
-        for (const Vec3& c : {drift[i], drift[j]}) {
-            const double ma = bodies[i]->step_travel(settings.dt, c), mb = bodies[j]->step_travel(settings.dt, c);
-            if (std::isfinite(ma) && std::isfinite(mb)) closing = std::min(closing, pair_motion(ma, mb));
-        }
-        return base + closing;
-    };
+    // pairs: World::pair_closing
+    drift_.resize(bodies.size());
+    for (size_t i = 0; i < bodies.size(); ++i) drift_[i] = bodies[i]->drift();
+    base_reach_ = base;
     detection_jobs_.clear();
     for (size_t i = 0; i < bodies.size(); ++i) {
         const Body& a = *bodies[i];
@@ -75,9 +58,86 @@ void World::begin_detection() {
             if (b.kind == BodyKind::Plane)
                 detection_jobs_.push_back({ai, static_cast<int>(j), base + motion_[i], {}});
             else if (b.has_surface && (j > i || !b.dynamic()))
-                detection_jobs_.push_back({ai, static_cast<int>(j), pair_reach(ai, static_cast<int>(j)), {}});
+                detection_jobs_.push_back({ai, static_cast<int>(j), base + pair_closing(ai, static_cast<int>(j)), {}});
         }
     }
+}
+
+namespace {
+// A pair closes by at most m_a + m_b. Searching that less s = min(m_a, m_b, thickness / 2)
+// misses only pairs farther than base + m_a + m_b - s, which end the step farther than
+// base - s >= the thickness: found in time next step. (It keeps slow pairs, such as the paper
+// bunny's, at the reach of the faster body alone.)
+double closing(double ma, double mb, double thickness) { return ma + mb - std::min({ma, mb, 0.5 * thickness}); }
+}  // namespace
+
+// The bound holds with m_a and m_b seen from any one frame moving at c: the pair's points close
+// by |(x_a - c h) - (x_b - c h)|. The least of c = 0 and each body's drift keeps a pair carried
+// together at the reach of their motion relative to each other: a ball lifted in the grasping
+// hand at 9 cm/s was searched 6 mm around, which found ~340 contacts where ~140 hold it
+// (bench/bench_grasp.py).
+double World::pair_closing(int a, int b) const {
+    const double t = settings.contact_thickness;
+    double least = closing(motion_[a], motion_[b], t);
+    for (const Vec3& c : {drift_[a], drift_[b]}) {
+        const double ma = bodies[a]->step_travel(settings.dt, c), mb = bodies[b]->step_travel(settings.dt, c);
+        if (std::isfinite(ma) && std::isfinite(mb)) least = std::min(least, closing(ma, mb, t));
+    }
+    return least;
+}
+
+// A skeleton hand's pair is searched as far as its fastest bone moves, but each contact needs
+// only the reach of the bones its points move with: each node's region (its bone, or for flesh
+// the bone nearest at rest, SkeletonModel::node_region), that bone's parent and children (the
+// flesh between two bones moves between their motions), and the node's own velocity. A hand
+// closing its fingers on a ball kept ~300 contacts a step, the palm's and the ball's within a
+// fingertip's travel of each other; the contacts dropped here are beyond the reach of their own
+// points' motion, so they end the step farther than the thickness (as the pair bound's).
+void World::drop_beyond_own_reach(DetectionJob& job) const {
+    auto skeleton_hand = [&](int i) { return bodies[i]->skeleton(); };
+    if (job.a == job.b || (!skeleton_hand(job.a) && !skeleton_hand(job.b)) || job.found.empty()) return;
+    const double dt = settings.dt, t = settings.contact_thickness;
+    const Vec3 frames[3] = {Vec3::Zero(), drift_[job.a], drift_[job.b]};
+    // per frame: each skeleton side's bone travels, else the body's whole travel
+    struct Side { std::vector<double> bone[3]; double whole[3]; };
+    Side side[2];
+    const int body[2] = {job.a, job.b};
+    for (int s = 0; s < 2; ++s) {
+        const Body& b = *bodies[body[s]];
+        for (int f = 0; f < 3; ++f) {
+            side[s].whole[f] = b.step_travel(dt, frames[f]);
+            if (!b.skeleton()) continue;
+            for (int k = 0; k < b.hand_model->n_bones(); ++k) side[s].bone[f].push_back(b.bone_travel(k, dt, frames[f]));
+        }
+    }
+    // m: how far the points of one side of a contact move, seen from frame f (either side may
+    // be either body: detect_pair takes the vertices of each against the other's triangles)
+    auto travel = [&](const ContactSide& cs, int f) {
+        const int s = cs.body == job.a ? 0 : 1;
+        const Body& b = *bodies[body[s]];
+        if (!b.skeleton()) return side[s].whole[f];
+        const SkeletonModel& rig = b.hand_model->skeleton;
+        double m = 0;
+        for (int k = 0; k < cs.count; ++k)
+            for (int slot = 0; slot < 4; ++slot) {
+                if (b.surface.weights[cs.vertex[k]][slot] == 0) continue;
+                const int node = b.surface.nodes[cs.vertex[k]][slot], region = rig.node_region[node];
+                m = std::max(m, (b.hand->v.segment<3>(3 * node) - frames[f]).norm() * dt);
+                m = std::max(m, side[s].bone[f][region]);
+                if (rig.parents[region] >= 0) m = std::max(m, side[s].bone[f][rig.parents[region]]);
+                for (int child = 0; child < b.hand_model->n_bones(); ++child)
+                    if (rig.parents[child] == region) m = std::max(m, side[s].bone[f][child]);
+            }
+        return m;
+    };
+    std::vector<Contact> kept;
+    kept.reserve(job.found.size());
+    for (const Contact& c : job.found) {
+        double least = std::numeric_limits<double>::infinity();
+        for (int f = 0; f < 3; ++f) least = std::min(least, closing(travel(c.a, f), travel(c.b, f), t));
+        if (!(c.distance >= base_reach_ + least)) kept.push_back(c);
+    }
+    job.found.swap(kept);
 }
 
 void World::update_body_surface(int i) {
@@ -97,6 +157,7 @@ void World::detect_job(int k) {
         detect_plane(a.surface, job.a, b.plane.point, b.plane.normal, job.b, DetectionSettings{job.reach}, job.found);
     else
         detect_pair(a.surface, job.a, b.surface, job.b, DetectionSettings{job.reach}, job.found);
+    drop_beyond_own_reach(job);
 }
 
 void World::finish_detection() {
