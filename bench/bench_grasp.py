@@ -13,7 +13,8 @@ all in the same process, twice: whole runs one after another (each world has the
 itself through its run, as in an application's loop), then all runs alternating step by step
 (the machine's load falls on each alike; each step finds the cache filled by the other worlds).
 Prints, for each, the median, 95th percentile and slowest step, their frame rates, the median's
-split (dynamics, contact), the ratios to the one-handle step and the machine.
+split (dynamics, contact), the share of steps over 1/60 s, the ratios to the one-handle step and
+the machine.
 
     .venv/bin/python bench/bench_grasp.py [--repeats 3]
 """
@@ -123,7 +124,18 @@ def report(title: str, walls: dict, split: dict, steps: dict) -> None:
         print(f"  {name}, {threads} thread(s): median {1e3 * median:.2f} ms ({1 / median:.0f} Hz, "
               f"{median / base:.2f}x one handle), 95th percentile {1e3 * p95:.2f} ms ({1 / p95:.0f} Hz), slowest "
               f"{1e3 * worst:.2f} ms (step {int(np.argmax(wall)) % steps[name]}); dynamics {1e3 * dynamics:.2f} ms, "
-              f"contact {1e3 * contact:.2f} ms")
+              f"contact {1e3 * contact:.2f} ms; over 1/60 s: {np.mean(np.array(wall) > 1 / 60):.0%} of the steps")
+
+
+def by_phase(wall: list, hand: dict) -> None:
+    """The hand's steps between its keyed targets (close, lift, hold, open), step k ending at k dt."""
+    keys = [key["t"] for key in hand["skeleton"]["targets"]] + [hand["frames"] * hand["dt"]]
+    frames, end = hand["frames"], np.arange(1, hand["frames"] + 1) * hand["dt"]
+    wall = np.array(wall).reshape(-1, frames)
+    for t0, t1 in zip(keys[:-1], keys[1:]):
+        inside = wall[:, (end > t0 + 1e-9) & (end <= t1 + 1e-9)]
+        if inside.size:
+            print(f"    t {t0:.1f}-{t1:.1f} s: median {1e3 * np.median(inside):.1f} ms, slowest {1e3 * inside.max():.1f} ms")
 
 
 def main() -> None:
@@ -134,7 +146,10 @@ def main() -> None:
     hand = scenes.load(SCENE).data
     steps = {"hand": hand["frames"], "gripper": gr.HELD + gr.OPEN_FOR, "one handle": hand["frames"]}
     print(f"steps of 1/30 s, x {args.repeats}: hand {steps['hand']}, gripper {steps['gripper']}")
-    report("whole runs, one after another:", *whole_runs(hand, steps, args.repeats), steps)
+    walls, split = whole_runs(hand, steps, args.repeats)
+    report("whole runs, one after another:", walls, split, steps)
+    print("  hand, 1 thread, between its keyed targets:")
+    by_phase(walls["hand", 1], hand)
     report("interleaved step by step:", *interleaved(hand, steps, args.repeats), steps)
 
 
