@@ -16,7 +16,7 @@ Prints, for each, the median, 95th percentile and slowest step, their frame rate
 split (dynamics, contact), the share of steps over 1/60 s, the ratios to the one-handle step and
 the machine.
 
-    .venv/bin/python bench/bench_grasp.py [--repeats 3]
+    .venv/bin/python bench/bench_grasp.py [--repeats 3] [--plot docs/images/grasp_steps.png]
 """
 
 from __future__ import annotations
@@ -138,9 +138,38 @@ def by_phase(wall: list, hand: dict) -> None:
             print(f"    t {t0:.1f}-{t1:.1f} s: median {1e3 * np.median(inside):.1f} ms, slowest {1e3 * inside.max():.1f} ms")
 
 
+def plot_steps(wall: list, hand: dict, path: str) -> None:
+    """The hand's steps (one thread, median over the runs) against time, the keyed targets'
+    phases shaded, the 1/60 s budget drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    frames, dt = hand["frames"], hand["dt"]
+    per_step = 1e3 * np.median(np.array(wall).reshape(-1, frames), axis=0)
+    keys = [key["t"] for key in hand["skeleton"]["targets"]] + [frames * dt]
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    for k, (t0, t1) in enumerate(zip(keys[:-1], keys[1:])):
+        ax.axvspan(t0, t1, color="0.92" if k % 2 else "white", lw=0)
+    ax.plot(np.arange(1, frames + 1) * dt, per_step, ".-", color="tab:blue", lw=1, label="visual-loop step")
+    ax.axhline(1e3 / 60, color="tab:red", lw=1, ls="--", label="1/60 s")
+    ax.set_xlabel("scene time (s); bands: close, settle, lift, hold, open, after")
+    ax.set_ylabel("wall time (ms)")
+    ax.set_ylim(0, min(60.0, 1.1 * per_step.max()))
+    ax.legend(loc="upper right", fontsize=8)
+    ax.grid(alpha=0.3)
+    ax.set_title("16-bone grasp of a soft ball, one thread")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    print(f"  wrote {path}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=3, help="runs of each whole scene per thread count")
+    ap.add_argument("--plot", metavar="PNG", help="also draw the hand's steps on one thread against time")
     args = ap.parse_args()
     print_machine(machine_info())
     hand = scenes.load(SCENE).data
@@ -150,6 +179,8 @@ def main() -> None:
     report("whole runs, one after another:", walls, split, steps)
     print("  hand, 1 thread, between its keyed targets:")
     by_phase(walls["hand", 1], hand)
+    if args.plot:
+        plot_steps(walls["hand", 1], hand, args.plot)
     report("interleaved step by step:", *interleaved(hand, steps, args.repeats), steps)
 
 
