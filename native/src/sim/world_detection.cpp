@@ -193,18 +193,11 @@ void World::reduce_contacts() {
         // one contact per patch cell and element of the side-a body that carries the contact
         // point: a fine embedded surface moves only as its elements do
         const Body& a = *bodies[c.a.body];
-        // the cells move with side a (from its element's first node, or its centre): cells fixed in
-        // the world were crossed every few steps by bodies carried along, whose contacts then
-        // restarted cold (the grasping hand lifting a ball: 20-140 sweeps a step, 1-11 with these)
-        Vec3 origin = Vec3::Zero();
         if (a.kind == BodyKind::Hand || a.kind == BodyKind::Soft) {
             const Eigen::Vector4i& element = a.surface.nodes[c.a.vertex[0]];
             for (int k = 0; k < 4; ++k) mix(element[k]);
-            origin = a.points[element[0]];
-        } else if (a.kind == BodyKind::Rigid || a.kind == BodyKind::Kinematic) {
-            origin = a.mesh.state.x_com;
         }
-        for (int d = 0; d < 3; ++d) mix(static_cast<std::int64_t>(std::floor((c.point[d] - origin[d]) / h)));
+        for (int d = 0; d < 3; ++d) mix(static_cast<std::int64_t>(std::floor(c.point[d] / h)));
         const double depth = c.distance - (previous_impulse.count(contact_key(c)) ? keep : 0.0);
         auto it = best.find(key);
         if (it == best.end()) {
