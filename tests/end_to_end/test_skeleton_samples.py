@@ -199,3 +199,18 @@ def test_the_grasping_hand_lifts_a_ball_by_friction_and_opening_drops_it(results
 def tet_volume(nodes, tets) -> float:
     a, b, c, d = (nodes[tets[:, k]] for k in range(4))
     return float(np.abs(np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a)).sum() / 6)
+
+
+@pytest.mark.parametrize("name", ["grasp_ball", "pinch_letter", "pinch_letter_hand", "grasp_ball_hand"])
+def test_no_frame_of_a_grasp_or_a_pinch_ends_with_the_surfaces_through_each_other(results, name):
+    """Fingers closing fast on a soft object are the contact solve's hardest frames (its sweeps
+    may stop short of the tolerance there): after every step every contact's signed distance
+    stays positive, at most the 1 mm thickness into the layer the surfaces are kept apart by."""
+    r = results[name]
+    fields = [str(f) for f in r["contact_fields"]]
+    closest = r["contact_stats"][:, fields.index("min_distance")]
+    deepest = r["contact_stats"][:, fields.index("max_penetration")]
+    touching = r["contact_stats"][:, fields.index("contacts")] > 0
+    assert touching.any()
+    assert closest[touching].min() > 0, closest.min()
+    assert deepest.max() < 1e-3
