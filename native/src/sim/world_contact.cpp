@@ -318,10 +318,9 @@ void World::ready_contact_body(int bi) {
     // itself. Its unit columns then need the factor only at the touched nodes, not at every
     // bone's nodes too (A_ht's rows read those): the grasping hand's ~200 columns cost ~0.6 of
     // that pass (bench/bench_grasp.py). The same values, bit for bit, at the touched rows.
-    build.flesh_touched.clear();
-    if (b.skeleton() && b.hand->bones_prescribed && !cb.row_basis && b.hand->tool.solver() == DeformableSolver::Cholesky &&
-        !cb.touched.empty() && cb.touched.front() >= b.handle_dofs())
-        for (int k : cb.touched) build.flesh_touched.push_back(k - b.handle_dofs());
+    const bool flesh_alone = b.skeleton() && b.hand->bones_prescribed && !cb.row_basis &&
+                             b.hand->tool.solver() == DeformableSolver::Cholesky && !cb.touched.empty() &&
+                             cb.touched.front() >= b.handle_dofs();
     DeformableSystem* system = b.response_system();
     if (system && system->prepare_concurrent_solves() && !cb.row_basis && build.first == 0) {
         const int base = b.handle_dofs();
@@ -334,7 +333,7 @@ void World::ready_contact_body(int bi) {
         std::stable_sort(keyed.begin(), keyed.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
         for (const auto& e : keyed) build.unit_order.push_back(e.second);
     }
-    build.upper = !build.unit_order.empty() && (b.kind == BodyKind::Soft || !build.flesh_touched.empty());
+    build.upper = !build.unit_order.empty() && (b.kind == BodyKind::Soft || flesh_alone);
 }
 
 // The handle-space linearization's terms (haptics/coupling_model.cpp) of a hand with a
@@ -414,8 +413,8 @@ void World::solve_contact_body(int bi, int part, int parts) {
 
 // The unit columns first .. first + w (in elimination order) of A^-1 (ContactSetup::Build::upper)
 // at the rows of the units from first on: their nodes and ancestors only, where all the rows'
-// would reach the ancestors of every touched node (on the grasping hand the ~200 columns' solves
-// cost ~0.6 of the full ones, bench/bench_grasp.py).
+// would reach the ancestors of every touched node (on the grasping hand's 216 columns, 3.8 ms
+// against 4.3: the top of the elimination tree, which every column's path crosses, stays).
 void World::solve_upper_units(int bi, int first, int w) {
     const ContactSetup::Build& build = setup_->build.at(bi);
     Body& b = *bodies[bi];

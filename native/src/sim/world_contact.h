@@ -41,10 +41,8 @@ struct World::ContactSetup {
         // unit columns on the step's Cholesky factor: K's columns solved in this order (by the
         // factor's elimination order of their nodes), so a batch's units share their paths
         std::vector<int> unit_order;
-        // a skeleton hand with every bone prescribed: the touched unknowns on the flesh alone
-        // (ready_contact_body), its unit columns solved there on A_t's factor
-        std::vector<int> flesh_touched;
-        // A^-1 itself at the touched unknowns (a soft body, or that skeleton hand), symmetric:
+        // A^-1 itself at the touched unknowns (a soft body, or a skeleton hand with every bone
+        // prescribed, whose touched unknowns are the flesh's: A_t's factor), symmetric:
         // each batch of unit columns is solved at the rows of its own and later units only (the
         // upper triangle in elimination order, whose paths through the factor are shorter), the
         // rest mirrored (mirror_upper)
