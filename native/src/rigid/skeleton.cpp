@@ -152,6 +152,14 @@ SkeletonModel build_skeleton(const VecX& rest, const VecX& node_masses, const st
             if (d < nearest) nearest = d, s.node_region[i] = static_cast<int>(b);
         }
     }
+    s.region_bones.assign(bones.size(), {});
+    for (size_t b = 0; b < bones.size(); ++b) {
+        s.region_bones[b].push_back(static_cast<int>(b));
+        if (bones[b].parent >= 0) {
+            s.region_bones[b].push_back(bones[b].parent);
+            s.region_bones[bones[b].parent].push_back(static_cast<int>(b));
+        }
+    }
     // after every bone's centre of mass: a parent may be listed after its child
     s.joint_on_parent.assign(bones.size(), Vec3::Zero());
     s.joint_on_child.assign(bones.size(), Vec3::Zero());
@@ -173,6 +181,7 @@ SkeletonModel palm_skeleton(const HandleModel& handle, int n_nodes) {
     s.node_bone.assign(n_nodes, -1);
     for (int i : handle.nodes) s.node_bone[i] = 0;
     s.node_region.assign(n_nodes, 0);
+    s.region_bones = {{0}};
     return s;
 }
 

@@ -31,6 +31,9 @@ struct SkeletonModel {
     // per tet node: its bone, or for flesh the bone whose segment is nearest at rest (the flesh
     // it moves with: speculative contact's reach per bone, World::drop_beyond_own_reach)
     std::vector<int> node_region;
+    // per bone: itself, its parent and its children, the bones whose motion its region's
+    // nodes follow (World::drop_beyond_own_reach reads it for every touched node, every step)
+    std::vector<std::vector<int>> region_bones;
     // Per bone with a parent, its ball joint (docs/skeleton.md, Section 5): the bone's rest head
     // as a point of its parent (head - parent's rest centre of mass) and of itself (head - its
     // own); zero for a root. Body frames are the world frame at rest, as the springs' r_B.

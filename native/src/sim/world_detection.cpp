@@ -123,10 +123,7 @@ void World::drop_beyond_own_reach(DetectionJob& job) const {
                 if (b.surface.weights[cs.vertex[k]][slot] == 0) continue;
                 const int node = b.surface.nodes[cs.vertex[k]][slot], region = rig.node_region[node];
                 m = std::max(m, (b.hand->v.segment<3>(3 * node) - frames[f]).norm() * dt);
-                m = std::max(m, side[s].bone[f][region]);
-                if (rig.parents[region] >= 0) m = std::max(m, side[s].bone[f][rig.parents[region]]);
-                for (int child = 0; child < b.hand_model->n_bones(); ++child)
-                    if (rig.parents[child] == region) m = std::max(m, side[s].bone[f][child]);
+                for (int bone : rig.region_bones[region]) m = std::max(m, side[s].bone[f][bone]);
             }
         return m;
     };
