@@ -28,10 +28,7 @@ void check_capture(int c, int n, double radius) {
     }
 }
 
-HandleModel build_handle(const VecX& rest, const VecX& node_masses, const Vec3& seed, double radius) {
-    HandleModel h;
-    h.nodes = capture_nodes(rest, seed, radius);
-    check_capture(static_cast<int>(h.nodes.size()), static_cast<int>(rest.size() / 3), radius);
+bool fill_mass_and_inertia(HandleModel& h, const VecX& rest, const VecX& node_masses) {
     for (int i : h.nodes) {
         h.mass += node_masses[i];
         h.rest_com += node_masses[i] * rest.segment<3>(3 * i);
@@ -43,7 +40,14 @@ HandleModel build_handle(const VecX& rest, const VecX& node_masses, const Vec3& 
         h.inertia_body += node_masses[i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
     }
     Eigen::SelfAdjointEigenSolver<Mat3> eig(h.inertia_body);
-    if (eig.eigenvalues().minCoeff() <= 1e-12 * eig.eigenvalues().maxCoeff())
+    return eig.eigenvalues().minCoeff() > 1e-12 * eig.eigenvalues().maxCoeff();
+}
+
+HandleModel build_handle(const VecX& rest, const VecX& node_masses, const Vec3& seed, double radius) {
+    HandleModel h;
+    h.nodes = capture_nodes(rest, seed, radius);
+    check_capture(static_cast<int>(h.nodes.size()), static_cast<int>(rest.size() / 3), radius);
+    if (!fill_mass_and_inertia(h, rest, node_masses))
         throw InvalidArgument(
             "the handle's captured nodes are collinear, so its inertia is singular: increase "
             "the handle radius");

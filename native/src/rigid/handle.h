@@ -22,6 +22,12 @@ std::vector<int> capture_nodes(const VecX& rest, const Vec3& seed, double radius
 // (`captured` of them) or all of them: the one rule of a usable handle.
 void check_capture(int captured, int n, double radius);
 
+// Eq. 3 for the handle's nodes (h.nodes): its mass, rest centre of mass, springs' r_B and
+// inertia, in one order for the palm handle and every bone (so one bone is the palm handle bit
+// for bit). Returns false when the nodes are collinear (the inertia's smallest eigenvalue at
+// most 1e-12 of its largest): the caller names the fix.
+bool fill_mass_and_inertia(HandleModel& h, const VecX& rest, const VecX& node_masses);
+
 // Throws InvalidArgument when the sphere captures fewer than 4 nodes or every node, or
 // when the captured nodes are collinear (singular inertia).
 HandleModel build_handle(const VecX& rest, const VecX& node_masses, const Vec3& seed, double radius);

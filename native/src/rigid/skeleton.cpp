@@ -123,19 +123,7 @@ SkeletonModel build_skeleton(const VecX& rest, const VecX& node_masses, const st
         if (s.node_bone[i] >= 0) s.bones[s.node_bone[i]].nodes.push_back(static_cast<int>(i));
     for (size_t b = 0; b < bones.size(); ++b) {
         HandleModel& h = s.bones[b];
-        // Eq. 3 in the order of build_handle, so one bone is today's handle bit for bit
-        for (int i : h.nodes) {
-            h.mass += node_masses[i];
-            h.rest_com += node_masses[i] * rest.segment<3>(3 * i);
-        }
-        h.rest_com /= h.mass;
-        for (int i : h.nodes) {
-            const Vec3 r = rest.segment<3>(3 * i) - h.rest_com;
-            h.r_body.push_back(r);
-            h.inertia_body += node_masses[i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
-        }
-        Eigen::SelfAdjointEigenSolver<Mat3> eig(h.inertia_body);
-        require(eig.eigenvalues().minCoeff() > 1e-12 * eig.eigenvalues().maxCoeff(),
+        require(fill_mass_and_inertia(h, rest, node_masses),  // (Eq. 3 as the palm handle's)
                 quoted(bones[b]) + ": its " + std::to_string(h.nodes.size()) +
                     " nodes lie on a line, so its inertia is singular: increase its radius so it holds nodes off "
                     "its axis");
