@@ -213,7 +213,12 @@
       2, "Simulation threads", "",                                                                     \
       "Threads of each visual-loop step: 2 runs detection and the other bodies beside the hand's "     \
       "solve (the same results as 1)",                                                                \
-      "1 or 2")
+      "1 or 2")                                                                                        \
+    X(defer_separating, HH_KIND_BOOL, 1, "contact.defer_separating", "", HH_V(1), 0, 1,                \
+      HH_UI_SCENE | HH_UI_ADVANCED, 0, 1, "Defer separating contacts", "",                             \
+      "Speculative contacts whose points separate at the start of the step are left out of the "      \
+      "contact solve, and it solves again with them if one would close (the same contacts held)",     \
+      "true or false")
 
 /* hh_material: a soft body's material. */
 #define HH_MATERIAL_STRUCT_ROWS(X) HH_MATERIAL_ROWS(X, "bodies[].material.", HH_UI_OBJECT | HH_FOR_SOFT)

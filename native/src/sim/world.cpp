@@ -24,7 +24,8 @@ WorldSettings::WorldSettings(const hh_world_params& p)
       max_iterations(p.max_iterations),
       tolerance(p.tolerance),
       stall_factor(p.stall_factor),
-      threads(p.threads) {}
+      threads(p.threads),
+      defer_separating(p.defer_separating != 0) {}
 
 World::World(const WorldSettings& s) : settings(s) {
     if (settings.threads > 1) worker_ = std::make_unique<Worker>();

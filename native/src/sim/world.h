@@ -36,6 +36,9 @@ struct WorldSettings {
     // beside the caller's (the results are the same as with 1, bit for bit: only parts that do
     // not depend on each other run side by side; see World::step)
     int threads;
+    // speculative contacts whose points separate at the start of the step wait outside the
+    // contact solve, which runs again with them if one would close (sim/world_speculative.cpp)
+    bool defer_separating;
 };
 
 struct WorldStats {
@@ -62,6 +65,9 @@ public:
     std::vector<std::unique_ptr<Body>> bodies;
     std::vector<Contact> contacts;  // of the last step, one per patch
     std::vector<Contact> detected;  // every pair found within reach, before the reduction
+    // of the last step: the speculative contacts left out of its contact solve, their points
+    // separating (settings.defer_separating; empty when it solved again with them)
+    std::vector<Contact> deferred;
     WorldStats stats;
     // impulses of the last step's contacts (world frame, N s), by contact identity, to warm
     // start the next step's solve: a resting contact's impulse changes little between steps
@@ -139,6 +145,13 @@ private:
     void detect_job(int job);
     void finish_detection();
     void reduce_contacts();
+    // Speculative contacts set aside while their points separate (sim/world_speculative.cpp)
+    std::vector<std::uint64_t> deferred_patch_keys_;
+    void defer_separating_contacts();
+    Vec3 start_velocity(const ContactSide& side, const Vec3& point) const;
+    double solved_normal_velocity(const Contact& k) const;
+    bool a_deferred_contact_closes() const;
+    void take_back_deferred_contacts();
     // Each dynamic body's free solve (sim/world.cpp)
     void solve_free(Body& b);
     void solve_free_skeleton(Body& b);
@@ -150,6 +163,8 @@ private:
     struct ContactSetup;
     std::unique_ptr<ContactSetup> setup_;
     void prepare_contacts();
+    double contact_gap(const Contact& k) const;         // distance less thickness, with the hand's turn
+    Vec3 kinematic_velocity(const Contact& k) const;    // a kinematic side's carried velocity (a less b)
     // a body's responses in three kinds of part: begin (its unknowns and J_b), the black-box
     // solves in contact_body_parts shares that may run side by side, finish (C_b, u_free)
     int contact_body_parts(int body) const;  // (after prepare_contacts)
@@ -180,6 +195,8 @@ private:
     void add_contact_bodies(StepTasks& tasks, std::vector<int>& built);
     void add_contact_groups(StepTasks& tasks, const std::vector<int>& built);
     void sum_step_times(const StepTasks& tasks, double finish_seconds);
+    void add_contact_times(const StepTasks& tasks);
+    std::unique_ptr<StepTasks> solve_contacts_again();
     void measure_contacts();
     void integrate();
     double contact_distance(const Contact& c) const;

@@ -43,6 +43,49 @@ const Vec3& contact_direction(const std::vector<Contact>& contacts, int row) {
 }
 }  // namespace
 
+// One side of a contact on its body's unknowns: the terms of J's rows (sign: +1 for side a,
+// -1 for side b), a rigid body's lever arm or each flesh node's share of the point
+void append_side_terms(const Body& b, const ContactSide& side, double sign, std::vector<ContactTerm>& ts) {
+    for (int k = 0; k < side.count; ++k) {
+        const int v = side.vertex[k];
+        if (b.kind == BodyKind::Rigid) {
+            ts.push_back({0, sign * side.weight[k], true, b.surface.x[v] - b.mesh.state.x_com});
+        } else {
+            const int base = b.handle_dofs();
+            for (int q = 0; q < 4; ++q) {
+                const int node = b.surface.nodes[v][q];
+                // a fixed node of a soft body does not move: it takes no impulse
+                if (b.surface.weights[v][q] == 0 || (b.kind == BodyKind::Soft && b.soft.fixed[node])) continue;
+                ts.push_back({base + 3 * node, sign * side.weight[k] * b.surface.weights[v][q], false, Vec3::Zero()});
+            }
+        }
+    }
+}
+
+double World::contact_gap(const Contact& k) const {
+    double gap = k.distance - settings.contact_thickness;
+    // A hand's side ends its step beyond x + dt v by its step frame's turn (sim/step_frame.h)
+    for (int s = 0; s < 2; ++s) {
+        const ContactSide& side = s == 0 ? k.a : k.b;
+        const Body& b = *bodies[side.body];
+        if (b.kind == BodyKind::Hand && side.count > 0)
+            gap += (s == 0 ? 1.0 : -1.0) * k.normal.dot(turn_remainder(b.hand->frame, side.point(b.surface)));
+    }
+    return gap;
+}
+
+Vec3 World::kinematic_velocity(const Contact& k) const {
+    Vec3 vel = Vec3::Zero();
+    for (int s = 0; s < 2; ++s) {
+        const ContactSide& side = s == 0 ? k.a : k.b;
+        const Body& b = *bodies[side.body];
+        if (b.kind != BodyKind::Kinematic) continue;
+        const Vec3 p = side.count > 0 ? side.point(b.surface) : k.point;
+        vel += (s == 0 ? 1.0 : -1.0) * carried_velocity(b, p, settings.dt);
+    }
+    return vel;
+}
+
 // Identity of a contact across steps: its sides' bodies and first vertices (a vertex against
 // a body keeps its identity when the closest triangle changes).
 std::uint64_t contact_key(const Contact& c) {
@@ -96,20 +139,7 @@ void World::prepare_contacts() {
                 ts = &sides[c].back().second;
                 ts->reserve(4 * side.count);
             }
-            for (int k = 0; k < side.count; ++k) {
-                const int v = side.vertex[k];
-                if (b.kind == BodyKind::Rigid) {
-                    ts->push_back({0, sign * side.weight[k], true, b.surface.x[v] - b.mesh.state.x_com});
-                } else {
-                    const int base = b.handle_dofs();
-                    for (int q = 0; q < 4; ++q) {
-                        const int node = b.surface.nodes[v][q];
-                        // a fixed node of a soft body does not move: it takes no impulse
-                        if (b.surface.weights[v][q] == 0 || (b.kind == BodyKind::Soft && b.soft.fixed[node])) continue;
-                        ts->push_back({base + 3 * node, sign * side.weight[k] * b.surface.weights[v][q], false, Vec3::Zero()});
-                    }
-                }
-            }
+            append_side_terms(b, side, sign, *ts);
             if (std::find(involved.begin(), involved.end(), side.body) == involved.end()) involved.push_back(side.body);
         }
     std::sort(involved.begin(), involved.end());
@@ -142,25 +172,12 @@ void World::prepare_contacts() {
     kinetic.resize(nc);
     for (int c = 0; c < nc; ++c) {
         const Contact& k = contacts[c];
-        gap[c] = k.distance - settings.contact_thickness;
-        // A hand's side ends its step beyond x + dt v by its step frame's turn (sim/step_frame.h)
-        for (int s = 0; s < 2; ++s) {
-            const ContactSide& side = s == 0 ? k.a : k.b;
-            const Body& b = *bodies[side.body];
-            if (b.kind == BodyKind::Hand && side.count > 0)
-                gap[c] += (s == 0 ? 1.0 : -1.0) * k.normal.dot(turn_remainder(b.hand->frame, side.point(b.surface)));
-        }
+        gap[c] = contact_gap(k);
         friction[c] = std::sqrt(bodies[k.a.body]->friction * bodies[k.b.body]->friction);
         kinetic[c] = std::sqrt(bodies[k.a.body]->kinetic_friction * bodies[k.b.body]->kinetic_friction);
         // kinematic bodies' motion enters as a known relative velocity
-        for (int s = 0; s < 2; ++s) {
-            const ContactSide& side = s == 0 ? k.a : k.b;
-            const Body& b = *bodies[side.body];
-            if (b.kind != BodyKind::Kinematic) continue;
-            const Vec3 p = side.count > 0 ? side.point(b.surface) : k.point;
-            const Vec3 vel = carried_velocity(b, p, settings.dt);
-            for (int d = 0; d < 3; ++d) u_free[3 * c + d] += (s == 0 ? 1.0 : -1.0) * direction(3 * c + d).dot(vel);
-        }
+        const Vec3 vel = kinematic_velocity(k);
+        for (int d = 0; d < 3; ++d) u_free[3 * c + d] += direction(3 * c + d).dot(vel);
     }
 
     cs.group_solve.resize(contact_groups.size());
@@ -632,7 +649,7 @@ void World::finish_contacts() {
 void World::trace_contacts() const {
     if (!contact_trace || !setup_) return;
     const ContactSetup& cs = *setup_;
-    std::fprintf(contact_trace, "warm %d patch %d ", cs.warm_hits, cs.patch_hits);
+    std::fprintf(contact_trace, "warm %d patch %d deferred %zu ", cs.warm_hits, cs.patch_hits, deferred.size());
     double columns = 0;  // (of the sweeps' time)
     int formed = 0;
     for (const auto& gs : cs.group_solve) {

@@ -20,6 +20,10 @@ struct ContactTerm {
     Vec3 r;
 };
 
+// One side of a contact on its body's unknowns: the terms of J's rows (sign: +1 for side a, -1
+// for side b)
+void append_side_terms(const Body& b, const ContactSide& side, double sign, std::vector<ContactTerm>& ts);
+
 // Identity of a contact across steps (the warm start's key)
 std::uint64_t contact_key(const Contact& c);
 

@@ -161,6 +161,7 @@ void World::finish_detection() {
     contacts.clear();  // (in the jobs' order: the same contacts in the same order on one thread as on two)
     for (const DetectionJob& job : detection_jobs_) contacts.insert(contacts.end(), job.found.begin(), job.found.end());
     reduce_contacts();
+    defer_separating_contacts();
 }
 
 void World::reduce_contacts() {

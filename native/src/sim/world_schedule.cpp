@@ -92,14 +92,31 @@ void World::step() {
     add_detection(tasks);
     add_contact_solve(tasks);
     tasks.graph.run(worker_.get());
+    std::unique_ptr<StepTasks> again;
+    if (!deferred.empty() && a_deferred_contact_closes()) again = solve_contacts_again();
     const auto t_finish = std::chrono::steady_clock::now();
     finish_contacts();
     sum_step_times(tasks, seconds_since(t_finish));
+    if (again) add_contact_times(*again);
     trace_contacts();
     integrate();
     measure_contacts();
     time += settings.dt;
     stats.t_total = seconds_since(t0);
+}
+
+// A deferred contact would close (sim/world_speculative.cpp): the contact solve again, with
+// every contact, from the bodies' free velocities (its tasks alone: detection and the free
+// solves are done)
+std::unique_ptr<World::StepTasks> World::solve_contacts_again() {
+    take_back_deferred_contacts();
+    auto again = std::make_unique<StepTasks>(bodies.size());
+    const BesideScope beside(bodies, again->graph);
+    again->detection_task = again->graph.add([] {}, {}, kPrepare);
+    for (size_t i = 0; i < bodies.size(); ++i) again->free_task[i] = again->graph.add([] {}, {}, kPrepare);
+    add_contact_solve(*again);
+    again->graph.run(worker_.get());
+    return again;
 }
 
 // A scripted kinematic body's target: the velocity that carries it exactly from the script's
@@ -255,12 +272,17 @@ void World::sum_step_times(const StepTasks& tasks, double finish_seconds) {
             stats.t_dynamics += hs.pass_seconds[0] + hs.pass_seconds[1] + hs.pass_seconds[2];
             if (hs.assemble_apart) stats.t_dynamics += hs.assembly_seconds + hs.factor_part_seconds[0] + hs.factor_part_seconds[1];
         }
-    stats.t_contact_build = tasks.prepare_seconds;
+    stats.t_contact_apply = finish_seconds;
+    add_contact_times(tasks);
+}
+
+// A contact solve's parts, added to the step's (twice when it solved again)
+void World::add_contact_times(const StepTasks& tasks) {
+    stats.t_contact_build += tasks.prepare_seconds;
     for (const auto& parts : tasks.build_part_seconds)
         for (double s : parts) stats.t_contact_build += s;
     for (const auto& parts : tasks.group_seconds)
         for (double s : parts) stats.t_contact_sweeps += s;
-    stats.t_contact_apply = finish_seconds;
     for (double s : tasks.apply_seconds) stats.t_contact_apply += s;
     stats.t_contact = stats.t_contact_build + stats.t_contact_sweeps + stats.t_contact_apply;
 }
