@@ -72,14 +72,9 @@ public:
     // impulses of the last step's contacts (world frame, N s), by contact identity, to warm
     // start the next step's solve: a resting contact's impulse changes little between steps
     std::unordered_map<std::uint64_t, Vec3> previous_impulse;
-    // the same by patch (pair of bodies, cell, element, normal octant), with the identity of the
-    // contact that carried it: when another vertex becomes the deepest of a patch, its contact
-    // starts from the patch's last impulse, unless that contact is still there (in another cell)
-    struct PatchImpulse {
-        Vec3 impulse;
-        std::uint64_t contact;
-    };
-    std::unordered_map<std::uint64_t, PatchImpulse> previous_patch_impulse;
+    // the same by patch (pair of bodies, cell, element, normal octant): when another vertex
+    // becomes the deepest of a patch, its contact starts from the patch's last impulse
+    std::unordered_map<std::uint64_t, Vec3> previous_patch_impulse;
     std::vector<double> motion_;  // per body: how far its fastest point moves in the step (detect)
     std::vector<std::uint64_t> contact_patch_keys;  // per contact of the last step
     // The last contact solve, kept for the handle-space linearization (haptics/coupling_model).

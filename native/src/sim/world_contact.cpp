@@ -11,7 +11,6 @@
 #include <functional>
 #include <map>
 #include <string>
-#include <unordered_set>
 
 #include "common/clock.h"
 #include "sim/world_contact.h"
@@ -200,31 +199,19 @@ void World::prepare_contacts() {
     // Warm start from the previous step's impulses of the same contacts
     VecX& lambda = cs.lambda;
     lambda.setZero(rows);
-    std::vector<std::uint64_t> keys(nc);
-    std::unordered_set<std::uint64_t> found_again;  // last step's contacts that are contacts again
     for (int c = 0; c < nc; ++c) {
-        keys[c] = contact_key(contacts[c]);
-        if (previous_impulse.count(keys[c])) found_again.insert(keys[c]);
-    }
-    for (int c = 0; c < nc; ++c) {
-        const Vec3* impulse = nullptr;
-        auto it = previous_impulse.find(keys[c]);
-        if (it != previous_impulse.end()) {
-            impulse = &it->second;
-            ++cs.warm_hits;
-        } else {
-            // another vertex is the deepest of the same patch now: start from that patch's
-            // impulse, unless the contact that carried it is found again (carried with its
-            // bodies into another cell, it brings that impulse along: taken twice, the warm
-            // start pushed twice as hard there, and a lifted ball's sweeps ran 20-140 times)
-            auto patch = previous_patch_impulse.find(contact_patch_keys[c]);
-            if (patch == previous_patch_impulse.end() || found_again.count(patch->second.contact)) continue;
-            impulse = &patch->second.impulse;
+        auto it = previous_impulse.find(contact_key(contacts[c]));
+        if (it == previous_impulse.end()) {
+            // another vertex is the deepest of the same patch now: start from that patch's impulse
+            it = previous_patch_impulse.find(contact_patch_keys[c]);
+            if (it == previous_patch_impulse.end()) continue;
             ++cs.patch_hits;
+        } else {
+            ++cs.warm_hits;
         }
-        lambda[3 * c] = impulse->dot(contacts[c].normal);
-        lambda[3 * c + 1] = impulse->dot(contacts[c].tangent1);
-        lambda[3 * c + 2] = impulse->dot(contacts[c].tangent2);
+        lambda[3 * c] = it->second.dot(contacts[c].normal);
+        lambda[3 * c + 1] = it->second.dot(contacts[c].tangent1);
+        lambda[3 * c + 2] = it->second.dot(contacts[c].tangent2);
     }
 }
 
@@ -639,7 +626,7 @@ void World::finish_contacts() {
         const Contact& k = contacts[c];
         const Vec3 impulse = lambda[3 * c] * k.normal + lambda[3 * c + 1] * k.tangent1 + lambda[3 * c + 2] * k.tangent2;
         previous_impulse[contact_key(k)] = impulse;
-        previous_patch_impulse[contact_patch_keys[c]] = {impulse, contact_key(k)};
+        previous_patch_impulse[contact_patch_keys[c]] = impulse;
         bodies[k.a.body]->contact_force += impulse / settings.dt;
         bodies[k.b.body]->contact_force -= impulse / settings.dt;
     }
