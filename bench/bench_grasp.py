@@ -16,7 +16,7 @@ Prints, for each, the median, 95th percentile and slowest step, their frame rate
 split (dynamics, contact), the share of steps over 1/60 s, the ratios to the one-handle step and
 the machine.
 
-    .venv/bin/python bench/bench_grasp.py [--repeats 3] [--plot docs/images/grasp_steps.png]
+    .venv/bin/python bench/bench_grasp.py [--repeats 3] [--plot docs/images/grasp_steps.png] [--solve-separating]
 """
 
 from __future__ import annotations
@@ -170,9 +170,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=3, help="runs of each whole scene per thread count")
     ap.add_argument("--plot", metavar="PNG", help="also draw the hand's steps on one thread against time")
+    ap.add_argument("--solve-separating", action="store_true",
+                    help="contact.defer_separating off in the hand's scene: every speculative contact solved")
     args = ap.parse_args()
     print_machine(machine_info())
     hand = scenes.load(SCENE).data
+    if args.solve_separating:
+        hand["contact"] = {**hand.get("contact", {}), "defer_separating": False}
+        print("contact.defer_separating: false (every speculative contact solved)")
     steps = {"hand": hand["frames"], "gripper": gr.HELD + gr.OPEN_FOR, "one handle": hand["frames"]}
     print(f"steps of 1/30 s, x {args.repeats}: hand {steps['hand']}, gripper {steps['gripper']}")
     walls, split = whole_runs(hand, steps, args.repeats)
