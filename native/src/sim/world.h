@@ -19,6 +19,8 @@
 
 namespace hh {
 
+struct ContactTerm;  // (sim/world_contact.h)
+
 // The world's settings: the hh_world_params rows of the parameter table (their meanings and
 // ranges are there); a default-constructed one holds the table's defaults.
 struct WorldSettings {
@@ -148,8 +150,8 @@ private:
     // Speculative contacts set aside while their points separate (sim/world_speculative.cpp)
     std::vector<std::uint64_t> deferred_patch_keys_;
     void defer_separating_contacts();
-    Vec3 start_velocity(const ContactSide& side, const Vec3& point) const;
-    double solved_normal_velocity(const Contact& k) const;
+    Vec3 start_velocity(const ContactSide& side) const;
+    double solved_normal_velocity(const Contact& k, std::vector<ContactTerm>& terms) const;
     bool a_deferred_contact_closes() const;
     void take_back_deferred_contacts();
     // Each dynamic body's free solve (sim/world.cpp)

@@ -25,7 +25,7 @@ void World::defer_separating_contacts() {
     size_t kept = 0;
     for (size_t c = 0; c < contacts.size(); ++c) {
         const Contact& k = contacts[c];
-        const Vec3 relative = start_velocity(k.a, k.point) - start_velocity(k.b, k.point) + kinematic_velocity(k);
+        const Vec3 relative = start_velocity(k.a) - start_velocity(k.b) + kinematic_velocity(k);
         if (k.distance >= base_reach_ && k.normal.dot(relative) >= 0) {
             deferred.push_back(k);
             deferred_patch_keys_.push_back(contact_patch_keys[c]);
@@ -39,8 +39,9 @@ void World::defer_separating_contacts() {
     contact_patch_keys.resize(kept);
 }
 
-// A dynamic side's point velocity at the start of the step (kinematic sides: kinematic_velocity)
-Vec3 World::start_velocity(const ContactSide& side, const Vec3& point) const {
+// A dynamic side's point velocity at the start of the step (kinematic sides: kinematic_velocity;
+// a plane's side, which has no vertices: zero)
+Vec3 World::start_velocity(const ContactSide& side) const {
     const Body& b = *bodies[side.body];
     switch (b.kind) {
         case BodyKind::Hand:
@@ -52,18 +53,16 @@ Vec3 World::start_velocity(const ContactSide& side, const Vec3& point) const {
                     u += side.weight[k] * b.surface.weights[side.vertex[k]][q] * v.segment<3>(3 * b.surface.nodes[side.vertex[k]][q]);
             return u;
         }
-        case BodyKind::Rigid: {
-            const Vec3 p = side.count > 0 ? side.point(b.surface) : point;
-            return b.mesh.state.v_com + b.mesh.state.omega.cross(p - b.mesh.state.x_com);
-        }
+        case BodyKind::Rigid:
+            return b.mesh.state.v_com + b.mesh.state.omega.cross(side.point(b.surface) - b.mesh.state.x_com);
         default: return Vec3::Zero();
     }
 }
 
-// u_n of a contact from the bodies' velocities after the solve (J v_new, as the solve's rows)
-double World::solved_normal_velocity(const Contact& k) const {
+// u_n of a contact from the bodies' velocities after the solve (J v_new, as the solve's rows);
+// terms: scratch for J's terms, one for all the contacts checked
+double World::solved_normal_velocity(const Contact& k, std::vector<ContactTerm>& terms) const {
     double u = k.normal.dot(kinematic_velocity(k));
-    std::vector<ContactTerm> terms;
     for (int s = 0; s < 2; ++s) {
         const ContactSide& side = s == 0 ? k.a : k.b;
         const Body& b = *bodies[side.body];
@@ -79,8 +78,9 @@ double World::solved_normal_velocity(const Contact& k) const {
 }
 
 bool World::a_deferred_contact_closes() const {
+    std::vector<ContactTerm> terms;
     return std::any_of(deferred.begin(), deferred.end(),
-                       [&](const Contact& k) { return contact_gap(k) + settings.dt * solved_normal_velocity(k) < 0; });
+                       [&](const Contact& k) { return contact_gap(k) + settings.dt * solved_normal_velocity(k, terms) < 0; });
 }
 
 // Before the second solve: the contacts with the deferred ones, every body back at its free
