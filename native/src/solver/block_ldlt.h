@@ -176,14 +176,19 @@ private:
     // lanes of a double pass on MatX columns and of solve_units' passes (see solve_packed)
     int widest_pass() const;
     // (T: double, or float for the one-lane half passes: float_passes)
+    // path: null, or per supernode whether the forward pass visits it (solve_units: the batch's
+    // units and their ancestors; the others hold zeros, which it then need not scan for)
     template <typename T>
     void solve_supernodal(T* x, int w, Panels panels, const unsigned char* wanted, int part = -1, bool forward = true,
-                          bool backward = true) const;
+                          bool backward = true, const unsigned char* path = nullptr) const;
+    // solve_units' path for units[0 .. k) into scratch (see solve_supernodal)
+    const unsigned char* unit_path(const int* units, int k) const;
     // whether a pass of w lanes on these panels runs in float arithmetic (one lane on the half
     // panels, where the CPU converts halves: see supernodal_solve_half_float)
     bool float_passes(int w, Panels panels) const;
     void check_panels(int w, Panels panels) const;
-    void solve_in_order(double* x, int w, Panels panels, const unsigned char* wanted) const;
+    // path: as solve_supernodal's, per node on the up-looking factor
+    void solve_in_order(double* x, int w, Panels panels, const unsigned char* wanted, const unsigned char* path = nullptr) const;
     void solve_node_major(double* x, int w, const std::vector<Mat3>* warp, Panels panels, const unsigned char* wanted) const;
     const unsigned char* wanted_mask(const std::vector<int>& nodes) const;
     bool keep_single_ = false, single_valid_ = false, factored_ = false;
