@@ -253,11 +253,23 @@ DeformableSystem::~DeformableSystem() = default;
 void DeformableSystem::configure(DeformableSolver solver, double cg_tolerance, int cg_max_iterations) {
     Impl& m = *impl_;
     if (solver == m.solver && cg_tolerance == m.cg_tolerance && cg_max_iterations == m.cg_max_iterations) return;
+    if (solver != m.solver) {  // (each solver analyses in its own forms: analyse, analyze_per_step)
+        m.cholesky = BlockLDLT();
+        m.drop_blocks();
+    }
     m.solver = solver;
     m.cg_tolerance = cg_tolerance;
     m.cg_max_iterations = cg_max_iterations;
     m.have_factor = m.factor_current = false;
     factor_valid_ = false;
+}
+
+void DeformableSystem::analyse_ahead(const SpMat& pattern) {
+    Impl& m = *impl_;
+    if (A.rows() != pattern.rows()) A = pattern;
+    if (m.cholesky.analysed()) return;
+    if (m.solver == DeformableSolver::Cholesky) m.analyze_per_step(A);
+    else if (m.solver == DeformableSolver::ReusedCholesky) m.analyse(*this);
 }
 
 DeformableSolver DeformableSystem::solver() const { return impl_->solver; }
