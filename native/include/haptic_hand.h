@@ -256,6 +256,13 @@ typedef struct hh_skeleton_desc {
     const int* set_nodes;
     const char* const* names;
     const double* drive_scales;
+    /* Angular limits (docs/skeleton.md Section 5), each NULL for none: axes[B][9] each bone's rest
+     * axes, row-major, its columns x, y, z (world frame; NULL: the world axes); limit_min[B][3],
+     * limit_max[B][3] the range of its rotation relative to its parent, as a rotation vector in
+     * those axes (rad; -inf / +inf: a free axis; min <= 0 <= max; none on a root). */
+    const double* axes;
+    const double* limit_min;
+    const double* limit_max;
 } hh_skeleton_desc;
 
 /* The capture rule without a model: a node in an explicit set is that bone's; any other goes to

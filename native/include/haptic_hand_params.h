@@ -185,7 +185,18 @@
     X(joint_damping, HH_KIND_DOUBLE, 1, "skeleton.joints.damping", "N s/m", HH_V(0), 0, HH_INF,        \
       HH_UI_SCENE | HH_UI_ADVANCED, 0, 100, "Joint damping", "",                                       \
       "Damping of the ball joints' springs (on the relative velocity of the two bones' joint points)", \
-      "zero or positive; about the flesh springs' damping")
+      "zero or positive; about the flesh springs' damping")                                            \
+    X(joint_limit_stiffness, HH_KIND_DOUBLE, 1, "skeleton.joints.limit_stiffness", "N m/rad", HH_V(0), \
+      0, HH_INF, HH_UI_SCENE | HH_UI_ADVANCED, 0, 100, "Joint limit stiffness", "",                     \
+      "Angular limits: a one-sided angular spring turns a bone back into its range "                   \
+      "(hand.skeleton[].limits) on each axis beyond it (docs/skeleton.md, Section 5); 0 with zero "     \
+      "limit damping: no limits",                                                                      \
+      "0 (no limits), or a few times the torque that bends the finger at its drive (0.1 to 10 N m/rad " \
+      "for a finger)")                                                                                 \
+    X(joint_limit_damping, HH_KIND_DOUBLE, 1, "skeleton.joints.limit_damping", "N m s/rad", HH_V(0),   \
+      0, HH_INF, HH_UI_SCENE | HH_UI_ADVANCED, 0, 1, "Joint limit damping", "",                         \
+      "Damping of the angular limits, on the axes beyond their range (relative angular velocity)",     \
+      "zero or positive; about a tenth of the limit stiffness times a frame's time")
 
 /* hh_world_params: the visual loop's world (contact and Coulomb friction). */
 #define HH_WORLD_PARAMS_ROWS(X)                                                                        \

@@ -4,10 +4,12 @@
 // monolithic reference, with and without the ball joints of Section 5 (their wrenches'
 // Jacobians against central differences as well).
 #include <functional>
+#include <limits>
 #include <random>
 
 #include "box_mesh.h"
 #include "check.h"
+#include "coupling/joint_limits.h"
 #include "coupling/joints.h"
 #include "rigid/quaternion.h"
 #include "sim/skeleton_step.h"
@@ -15,6 +17,7 @@
 using namespace hh;
 
 namespace {
+constexpr double kInf = std::numeric_limits<double>::infinity();
 // A 6 x 2 x 2 cm bar of 1 cm cubes with three bones on its axis (a chain), flesh between them.
 Model three_bone_bar(double joint_stiffness = 0, double joint_damping = 0) {
     const BoxMesh box = make_box(6, 2, 2, 0.01);
@@ -284,6 +287,76 @@ TEST(joint_jacobians_match_finite_differences) {
     CHECK_LT(std::abs(f.energy - 0.5 * k * gap.squaredNorm()), 1e-15 * f.energy);
     std::printf("joint wrench Jacobians against central differences: %.2g relative\n", worst);
     CHECK_LT(worst, 1e-7);
+}
+
+TEST(joint_limit_torque_is_its_energy_gradient_and_its_jacobian_the_gauss_newton_one) {
+    // A limited bone turned beyond its ranges on two axes, relative to a turned parent: the
+    // torque on each end is minus the energy's gradient in that end's world-frame turn (central
+    // differences of E, to 1e-7), equal and opposite, with no force; the damping opposes the
+    // relative spin on the axes beyond range only; and at the edge of the range (overshoot ->
+    // 0) the Gauss-Newton stiffness k M S M^T is the torque's full Jacobian (the left-out terms
+    // scale with the overshoot).
+    std::mt19937 rng(5);
+    std::normal_distribution<double> g(0, 1);
+    auto rv = [&](double s) { return Vec3(s * g(rng), s * g(rng), s * g(rng)); };
+    const double k = 2.5, d = 0.03;
+    const Mat3 axes = quat_to_matrix(quat_from_rotation_vector(Vec3(0.3, -0.7, 0.2)));
+    const Vec3 lo(-0.1, -0.2, -kInf), hi(0.05, 0.3, kInf);
+    HandleState parent, child;
+    parent.q = quat_from_rotation_vector(rv(0.6));
+    parent.omega = rv(1.0);
+    child.omega = rv(1.0);
+    // the child turned from the parent by psi = (0.4, -0.5, 0.2) in the bone's axes: x over its
+    // maximum, y under its minimum, z free
+    const Vec3 psi(0.4, -0.5, 0.2);
+    child.q = quat_multiply(parent.q, quat_from_rotation_vector(axes * psi));
+    const JointLimit limit = joint_limit(k, d, parent, child, axes, lo, hi);
+    CHECK(limit.active);
+    CHECK_LT((limit.psi - psi).norm(), 1e-12);
+    const Vec3 over(0.4 - 0.05, -0.5 + 0.2, 0.0);
+    CHECK_LT(std::abs(limit.energy - 0.5 * k * over.squaredNorm()), 1e-14);
+    auto energy = [&](const HandleState& p, const HandleState& c) { return joint_limit(k, 0, p, c, axes, lo, hi).energy; };
+    const double h = 1e-6;
+    Vec3 grad_child, grad_parent;
+    for (int i = 0; i < 3; ++i) {
+        auto turned = [&](HandleState s, double sgn) {
+            Vec3 u = Vec3::Zero();
+            u[i] = sgn * h;
+            s.q = quat_multiply(quat_from_rotation_vector(u), s.q);
+            return s;
+        };
+        grad_child[i] = (energy(parent, turned(child, 1)) - energy(parent, turned(child, -1))) / (2 * h);
+        grad_parent[i] = (energy(turned(parent, 1), child) - energy(turned(parent, -1), child)) / (2 * h);
+    }
+    const JointLimit still = joint_limit(k, 0, parent, child, axes, lo, hi);  // (no damping)
+    CHECK_LT((still.on_child + grad_child).norm(), 1e-7 * grad_child.norm());
+    CHECK_LT((grad_parent + grad_child).norm(), 1e-7 * grad_child.norm());  // tau_p = -tau_c
+    // the damping: -D (omega_c - omega_p), D symmetric, zero along the free axis's direction
+    const Vec3 damping_torque = limit.on_child - still.on_child;
+    CHECK_LT((damping_torque + limit.damping * (child.omega - parent.omega)).norm(), 1e-14);
+    CHECK_LT((limit.damping - limit.damping.transpose()).norm(), 1e-15);
+    const JointBlocks jb = joint_limit_blocks(limit, 0.01);
+    CHECK(jb.bh[kChild].head<3>().norm() == 0 && jb.bh[kParent].head<3>().norm() == 0);  // no force
+    CHECK_LT((jb.bh[kChild].tail<3>() - 0.01 * limit.on_child).norm(), 1e-16);
+    // just beyond the edge of the range (1e-5 rad on both limited axes) the torque's Jacobian in
+    // the child's turn is -k M S M^T: central differences with steps within that overshoot
+    HandleState edge = child;
+    edge.q = quat_multiply(parent.q, quat_from_rotation_vector(axes * Vec3(0.05 + 1e-5, -0.2 - 1e-5, 0.2)));
+    const JointLimit at_edge = joint_limit(k, 0, parent, edge, axes, lo, hi);
+    double worst = 0;
+    for (int i = 0; i < 3; ++i) {
+        auto torque = [&](double sgn) {
+            Vec3 u = Vec3::Zero();
+            u[i] = sgn * 1e-7;
+            HandleState c = edge;
+            c.q = quat_multiply(quat_from_rotation_vector(u), c.q);
+            return joint_limit(k, 0, parent, c, axes, lo, hi).on_child;
+        };
+        const Vec3 num = (torque(1) - torque(-1)) / 2e-7;
+        worst = std::max(worst, (num + at_edge.stiffness.col(i)).norm() / at_edge.stiffness.norm());
+    }
+    std::printf("joint limit stiffness beyond the edge of its range against differences: %.2g relative\n", worst);
+    CHECK_LT(worst, 1e-4);
 }
 
 TEST(joint_blocks_enter_the_step_between_parent_and_child) {

@@ -31,9 +31,11 @@ int hh_model_create(const double* rest_positions, int n_nodes, const int* tets, 
         require(out_model && params, "hh_model_create: null params or output pointer");
         *out_model = nullptr;
         // the palm handle is one bone: joints between bones would be silently ignored
-        require(params->joint_stiffness == 0 && params->joint_damping == 0,
-                "joint_stiffness and joint_damping tie a skeleton's bones to their parents, and this model has "
-                "the palm handle (one bone): set them to 0, or create the model with hh_model_create_skeleton");
+        require(params->joint_stiffness == 0 && params->joint_damping == 0 && params->joint_limit_stiffness == 0 &&
+                    params->joint_limit_damping == 0,
+                "joint_stiffness, joint_damping and the joint limits tie a skeleton's bones to their parents, and "
+                "this model has the palm handle (one bone): set them to 0, or create the model with "
+                "hh_model_create_skeleton");
         auto* m = new hh_model{hh::build_model(rest_positions, n_nodes, tets, n_tets, *params)};
         *out_model = m;
         return HH_OK;

@@ -40,6 +40,11 @@ std::vector<hh::BoneDesc> bone_descs(const hh_skeleton_desc* s) {
         d.tail = vec3(s->tails + 3 * b);
         d.radius = s->radii[b];
         d.drive_scale = s->drive_scales ? s->drive_scales[b] : 1.0;
+        if (s->axes)
+            for (int r = 0; r < 3; ++r)
+                for (int c = 0; c < 3; ++c) d.axes(r, c) = s->axes[9 * b + 3 * r + c];
+        if (s->limit_min) d.limit_min = vec3(s->limit_min + 3 * b);
+        if (s->limit_max) d.limit_max = vec3(s->limit_max + 3 * b);
         if (!s->set_offsets) continue;
         const int first = s->set_offsets[b], last = s->set_offsets[b + 1];
         require(first >= 0 && last >= first, "bone '" + d.name + "': its set_offsets must be non-negative and non-decreasing");

@@ -13,6 +13,28 @@ void require(bool ok, const std::string& message) {
 
 std::string quoted(const BoneDesc& bone) { return "bone '" + bone.name + "'"; }
 
+constexpr double kFree = std::numeric_limits<double>::infinity();  // an axis without a limit
+
+// Its angular limits: right-handed orthonormal rest axes, ranges that hold its rest pose (a
+// range beside the rest pose would push the bone out of it from the first step), none on a root.
+void check_limits(const BoneDesc& bone) {
+    const bool limited = (bone.limit_min.array() > -kFree).any() || (bone.limit_max.array() < kFree).any();
+    require(!bone.limit_min.hasNaN() && !bone.limit_max.hasNaN(),
+            quoted(bone) + " has a NaN angular limit: give radians, or -inf / +inf for a free axis");
+    require(!limited || bone.parent >= 0,
+            quoted(bone) + " is a root with angular limits: a root turns with its target, not against a parent; "
+                           "remove its limits");
+    for (int i = 0; i < 3; ++i)
+        require(bone.limit_min[i] <= 0 && bone.limit_max[i] >= 0,
+                quoted(bone) + "'s angular limit on its " + std::string(1, "xyz"[i]) + " axis, [" +
+                    std::to_string(bone.limit_min[i]) + ", " + std::to_string(bone.limit_max[i]) +
+                    "] rad, does not hold its rest pose (0): give a minimum <= 0 <= maximum");
+    require(bone.axes.allFinite() && (bone.axes.transpose() * bone.axes - Mat3::Identity()).cwiseAbs().maxCoeff() < 1e-6 &&
+                bone.axes.determinant() > 0,
+            quoted(bone) + "'s rest axes are not a rotation (orthonormal, right-handed columns x, y, z): give its "
+                           "rest matrix's axes");
+}
+
 // The explicit sets' owners (docs/skeleton.md: a node in two sets is an error).
 std::vector<int> explicit_owners(int n, const std::vector<BoneDesc>& bones) {
     std::vector<int> owner(n, -1);
@@ -85,6 +107,7 @@ void check_skeleton(const std::vector<BoneDesc>& bones) {
                     "vertex group");
         require(std::isfinite(bone.drive_scale) && bone.drive_scale >= 0,
                 quoted(bone) + " has a negative or non-finite drive scale: give 0 (free) or a positive factor");
+        check_limits(bone);
     }
     for (int b = 0; b < nb; ++b) {  // every chain of parents ends at a root
         int j = bones[b].parent;
@@ -156,6 +179,13 @@ SkeletonModel build_skeleton(const VecX& rest, const VecX& node_masses, const st
         s.joint_on_parent[b] = bones[b].head - s.bones[bones[b].parent].rest_com;
         s.joint_on_child[b] = bones[b].head - s.bones[b].rest_com;
     }
+    for (const BoneDesc& bone : bones) {
+        s.limit_axes.push_back(bone.axes);
+        s.limit_min.push_back(bone.limit_min);
+        s.limit_max.push_back(bone.limit_max);
+        s.limited.push_back(bone.parent >= 0 && ((bone.limit_min.array() > -kFree).any() ||
+                                                 (bone.limit_max.array() < kFree).any()));
+    }
     return s;
 }
 
@@ -166,6 +196,10 @@ SkeletonModel palm_skeleton(const HandleModel& handle, int n_nodes) {
     s.names = {"palm"};
     s.drive_scale = {1.0};
     s.joint_on_parent = s.joint_on_child = {Vec3::Zero()};
+    s.limit_axes = {Mat3::Identity()};
+    s.limit_min = {Vec3::Constant(-kFree)};
+    s.limit_max = {Vec3::Constant(kFree)};
+    s.limited = {0};
     s.node_bone.assign(n_nodes, -1);
     for (int i : handle.nodes) s.node_bone[i] = 0;
     s.node_region.assign(n_nodes, 0);

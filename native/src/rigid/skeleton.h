@@ -4,6 +4,7 @@
 // the palm seed and radius = the handle radius captures exactly today's palm handle
 // (rigid/handle.cpp), node for node and in the same ascending order.
 #pragma once
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,12 @@ struct BoneDesc {
     bool explicit_set = false;  // the bone holds exactly `nodes` (a Blender vertex group)
     std::vector<int> nodes;
     double drive_scale = 1;  // multiplies its virtual coupling's gains (0: free)
+    // Angular limits (docs/skeleton.md, Section 5; coupling/joint_limits.h): its rotation
+    // relative to its parent, as a rotation vector in its rest axes (columns x, y, z, world
+    // frame), within [limit_min, limit_max] per axis (rad; -inf / +inf: free, the default)
+    Mat3 axes = Mat3::Identity();
+    Vec3 limit_min = Vec3::Constant(-std::numeric_limits<double>::infinity());
+    Vec3 limit_max = Vec3::Constant(std::numeric_limits<double>::infinity());
 };
 
 // The static skeleton of a model: one handle model per bone (Eq. 3), bone 0 the root.
@@ -38,6 +45,10 @@ struct SkeletonModel {
     // as a point of its parent (head - parent's rest centre of mass) and of itself (head - its
     // own); zero for a root. Body frames are the world frame at rest, as the springs' r_B.
     std::vector<Vec3> joint_on_parent, joint_on_child;
+    // Per bone its angular limits (BoneDesc) and whether any axis is limited (never a root's)
+    std::vector<Mat3> limit_axes;
+    std::vector<Vec3> limit_min, limit_max;
+    std::vector<unsigned char> limited;
 };
 
 // Distance of p to the segment [head, tail]; |p - head| exactly when head == tail (so a

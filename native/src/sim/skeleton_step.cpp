@@ -3,6 +3,7 @@
 #include <chrono>
 
 #include "common/clock.h"
+#include "coupling/joint_limits.h"
 #include "coupling/joints.h"
 #include "rigid/quaternion.h"
 #include "sim/skeleton_frame.h"
@@ -51,27 +52,47 @@ void bone_block(const Model& model, Data& data, int b, const CouplingBlocks& cb)
     }
 }
 
+// A joint's blocks of Eq. 7 between bone b and its parent a. A prescribed bone's rows stay
+// v_b = target (its velocity is known), so it gets no joint terms; the other end's rows still
+// see it through their link block.
+void add_joint_blocks(Data& data, int a, int b, const JointBlocks& jb) {
+    SkeletonSystem& sys = data.skeleton;
+    const int bone[2] = {a, b};
+    for (int s = 0; s < 2; ++s) {
+        if (bone_target(data, bone[s]).prescribed) continue;
+        sys.Ah[bone[s]] += jb.ah[s][s];
+        sys.r.segment<6>(6 * bone[s]) += jb.bh[s];
+        sys.links.push_back({bone[s], bone[1 - s], jb.ah[s][1 - s]});
+    }
+}
+
 // The ball joints (docs/skeleton.md Section 5): each bone with a parent is tied to it at its
-// head, implicit in both bones' states. A prescribed bone's rows stay v_b = target (its
-// velocity is known), so it gets no joint terms; the other end's rows still see it through
-// their link block.
+// head, implicit in both bones' states.
 void joint_terms(const Model& model, Data& data) {
     const hh_params& p = model.params;
     if (p.joint_stiffness == 0 && p.joint_damping == 0) return;  // no joints: the step without them, bit for bit
-    SkeletonSystem& sys = data.skeleton;
     const SkeletonModel& sk = model.skeleton;
     for (int b = 0; b < model.n_bones(); ++b) {
         const int a = sk.parents[b];
         if (a < 0) continue;
-        const JointBlocks jb = joint_blocks(p.joint_stiffness, p.joint_damping, p.dt, data.carried[a],
-                                            sk.joint_on_parent[b], data.carried[b], sk.joint_on_child[b]);
-        const int bone[2] = {a, b};
-        for (int s = 0; s < 2; ++s) {
-            if (bone_target(data, bone[s]).prescribed) continue;
-            sys.Ah[bone[s]] += jb.ah[s][s];
-            sys.r.segment<6>(6 * bone[s]) += jb.bh[s];
-            sys.links.push_back({bone[s], bone[1 - s], jb.ah[s][1 - s]});
-        }
+        add_joint_blocks(data, a, b,
+                         joint_blocks(p.joint_stiffness, p.joint_damping, p.dt, data.carried[a], sk.joint_on_parent[b],
+                                      data.carried[b], sk.joint_on_child[b]));
+    }
+}
+
+// The angular limits (docs/skeleton.md Section 5): each limited bone beyond its range at the
+// carried states turns back towards it, implicit in both bones' states (coupling/joint_limits.h).
+void limit_terms(const Model& model, Data& data) {
+    const hh_params& p = model.params;
+    if (p.joint_limit_stiffness == 0 && p.joint_limit_damping == 0) return;  // no limits: bit for bit without
+    const SkeletonModel& sk = model.skeleton;
+    for (int b = 0; b < model.n_bones(); ++b) {
+        if (!sk.limited[b]) continue;
+        const int a = sk.parents[b];
+        const JointLimit limit = joint_limit(p.joint_limit_stiffness, p.joint_limit_damping, data.carried[a],
+                                             data.carried[b], sk.limit_axes[b], sk.limit_min[b], sk.limit_max[b]);
+        if (limit.active) add_joint_blocks(data, a, b, joint_limit_blocks(limit, p.dt));
     }
 }
 }  // namespace
@@ -121,6 +142,7 @@ void formulate_skeleton_end(const Model& model, Data& data) {
         bone_block(model, data, b, cb);
     }
     joint_terms(model, data);
+    limit_terms(model, data);
 }
 
 void integrate_skeleton(const Model& model, Data& data, const VecX& s) {
@@ -182,13 +204,19 @@ std::vector<Vec6> bone_wrenches(const Model& model, const Data& data) {
 
 double joint_energy(const Model& model, const Data& data) {
     const SkeletonModel& sk = model.skeleton;
+    const hh_params& p = model.params;
     double e = 0;
     for (int b = 0; b < model.n_bones(); ++b) {
         const int a = sk.parents[b];
-        if (a < 0 || model.params.joint_stiffness == 0) continue;
-        e += joint_force(model.params.joint_stiffness, 0, bone_state(data, a), sk.joint_on_parent[b],
-                         bone_state(data, b), sk.joint_on_child[b])
-                 .energy;
+        if (a < 0) continue;
+        if (p.joint_stiffness != 0)
+            e += joint_force(p.joint_stiffness, 0, bone_state(data, a), sk.joint_on_parent[b], bone_state(data, b),
+                             sk.joint_on_child[b])
+                     .energy;
+        if (p.joint_limit_stiffness != 0 && sk.limited[b])
+            e += joint_limit(p.joint_limit_stiffness, 0, bone_state(data, a), bone_state(data, b), sk.limit_axes[b],
+                             sk.limit_min[b], sk.limit_max[b])
+                     .energy;
     }
     return e;
 }

@@ -24,7 +24,8 @@ void step_skeleton(const Model& model, Data& data, bool monolithic);
 // W_b = sum over N_b of (F_B, R r_B x F_B), Eq. 5.
 std::vector<Vec6> bone_wrenches(const Model& model, const Data& data);
 
-// The ball joints' elastic energy, sum of k |e|^2 / 2 (docs/skeleton.md Section 5; 0 without joints).
+// The ball joints' and angular limits' elastic energy, sum of k |e|^2 / 2 and of k/2 times each
+// limit's squared overshoot (docs/skeleton.md Section 5; 0 without them).
 double joint_energy(const Model& model, const Data& data);
 
 }  // namespace hh
