@@ -24,7 +24,8 @@ _pd, _pi = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int)
 class SkeletonDesc(ctypes.Structure):
     _fields_ = [("struct_size", ctypes.c_int), ("n_bones", ctypes.c_int), ("parents", _pi), ("heads", _pd),
                 ("tails", _pd), ("radii", _pd), ("set_offsets", _pi), ("set_nodes", _pi),
-                ("names", ctypes.POINTER(ctypes.c_char_p)), ("drive_scales", _pd)]
+                ("names", ctypes.POINTER(ctypes.c_char_p)), ("drive_scales", _pd), ("axes", _pd),
+                ("limit_min", _pd), ("limit_max", _pd)]
 
 
 class BoneInfo(ctypes.Structure):
@@ -75,9 +76,21 @@ class _Desc:
         self.nodes = np.ascontiguousarray(np.concatenate(sets + [np.zeros(0)]), dtype=np.int32)
         self.names = (ctypes.c_char_p * b)(*[bone.name.encode() for bone in bones])
         self.scales = None if drive_scales is None else _f64(drive_scales, (b,), "drive scales")
+        self.axes, self.lo, self.hi = _limits(bones)
         self.desc = SkeletonDesc(ctypes.sizeof(SkeletonDesc), b, _ptr(self.parents, ctypes.c_int), _ptr(self.heads),
                                  _ptr(self.tails), _ptr(self.radii), _ptr(self.offsets, ctypes.c_int),
-                                 _ptr(self.nodes, ctypes.c_int), self.names, _ptr(self.scales))
+                                 _ptr(self.nodes, ctypes.c_int), self.names, _ptr(self.scales), _ptr(self.axes),
+                                 _ptr(self.lo), _ptr(self.hi))
+
+
+def _limits(bones) -> tuple:
+    """The bones' rest axes (B, 3, 3) and limits (B, 3) each, or None when no bone has them."""
+    if all(bone.limits is None and bone.axes is None for bone in bones):
+        return None, None, None
+    axes = _f64([np.eye(3) if bone.axes is None else bone.axes for bone in bones], (len(bones), 3, 3), "bone axes")
+    free = np.array([[-np.inf] * 3, [np.inf] * 3])
+    limits = _f64([free if bone.limits is None else bone.limits for bone in bones], (len(bones), 2, 3), "bone limits")
+    return axes, np.ascontiguousarray(limits[:, 0]), np.ascontiguousarray(limits[:, 1])
 
 
 def capture(nodes, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:

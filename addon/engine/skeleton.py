@@ -38,6 +38,11 @@ class Bone:
     tail: np.ndarray  # (3,) m, rest
     radius: float     # m, capsule radius of the capture by distance
     nodes: np.ndarray | None = field(default=None, repr=False)  # explicit node set, or None
+    # angular limits (docs/skeleton.md Section 5): (2, 3) rad, the minimum and maximum of its
+    # rotation relative to its parent as a rotation vector in its rest axes (-inf / +inf: a free
+    # axis), or None; `axes` (3, 3) those rest axes as columns x, y, z (None: the world axes)
+    limits: np.ndarray | None = field(default=None, repr=False)
+    axes: np.ndarray | None = field(default=None, repr=False)
 
 
 def segment_distance(points: np.ndarray, head: np.ndarray, tail: np.ndarray) -> np.ndarray:

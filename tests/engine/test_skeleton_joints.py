@@ -2,12 +2,15 @@
 off, the step without them; on, the native step against the numpy reference's joint terms
 (reference_skeleton.joint, written apart from the native code), Schur against monolithic, the
 statics of a free bone hanging from its parent by its joint, and the energy of a free spinning
-hand with undamped joints."""
+hand with undamped joints; the angular limits (skeleton.joints.limit_stiffness, .limit_damping;
+hand.skeleton[].limits): a bone hanging past its range held back by the limit's torque, Schur
+against monolithic with a limit active, off bit for bit, bad limits refused."""
 
 from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 import reference_skeleton as ref
 from haptic_hand.engine import mesh, native
@@ -241,6 +244,138 @@ def test_a_free_bone_hangs_from_its_parent_by_its_joint_and_its_flesh(stiffness)
     drop, plain_drop = com[2] - x[1][2], com[2] - plain.bone_states()[0][1][2]
     print(f"child's drop: {drop:.3g} m with the joint, {plain_drop:.3g} m without")
     assert 0 < drop < plain_drop
+
+
+# --------------------------------------------------------------------------------------------
+# Angular limits (skeleton.joints.limit_stiffness, .limit_damping; hand.skeleton[].limits)
+# --------------------------------------------------------------------------------------------
+
+LIMIT_Y = 0.01  # rad: the child's range about y, the axis it droops about (0.031 rad without it)
+
+
+def limited_bar(**params):
+    """two_bone_bar pinned at the knuckle (joints 1e6 N/m), the child's rotation about y within
+    +-LIMIT_Y, x and z free, its rest axes the world's (turned axes: test_skeleton.cpp's
+    joint_limit test)."""
+    bar = two_bone_bar(joint_stiffness=1e6)
+    axes = np.eye(3)
+    limits = np.array([[-np.inf, -LIMIT_Y, -np.inf], [np.inf, LIMIT_Y, np.inf]])
+    root, child = bar.skeleton.bones
+    bones = sk.Skeleton([root, sk.Bone(child.name, child.parent, child.head, child.tail, child.radius,
+                                       limits=limits, axes=axes)])
+    nodes, tets = mesh.structured_box((0.08, 0.02, 0.02), (8, 2, 2), (-0.04, -0.01, -0.01))
+    base = dict(rayleigh_alpha=8.0, young_modulus=2e4, joint_stiffness=1e6)
+    base.update(params)
+    return ns.SkeletonModel(nodes, tets, bones, drive_scales=[1.0, 0.0], **base)
+
+
+def limit_energy(k: float, qp, qc, limits: np.ndarray) -> float:
+    """k/2 |overshoot|^2 of the child's rotation vector relative to its parent (world axes at
+    rest), written with scipy's rotations, apart from the native code."""
+    psi = Rotation.from_matrix(quat.to_matrix(qp).T @ quat.to_matrix(qc)).as_rotvec()
+    over = psi - np.clip(psi, limits[0], limits[1])
+    return 0.5 * k * float(over @ over)
+
+
+def limit_torque(k: float, qp, qc, limits: np.ndarray) -> np.ndarray:
+    """The torque on the child: minus the energy's gradient in a world-frame turn of the child
+    (central differences)."""
+    h, out = 1e-7, np.zeros(3)
+    for i in range(3):
+        turn = [quat.multiply(quat.from_rotation_vector(sgn * h * np.eye(3)[i]), qc) for sgn in (1, -1)]
+        out[i] = -(limit_energy(k, qp, turn[0], limits) - limit_energy(k, qp, turn[1], limits)) / (2 * h)
+    return out
+
+
+def settled_droop(k_limit: float) -> float:
+    """The pinned bar's free child droops about y, 0.031 rad without limits. With its range
+    +-0.01 rad it settles beyond the limit by what the limit's torque needs: at rest its flesh
+    springs' wrench, its joint's and the limit's torque (minus the gradient of k/2 |overshoot|^2,
+    reckoned apart with scipy's rotations) cancel, and it droops less than without the limit.
+    Returns the droop (rad)."""
+    limits = np.array([[-np.inf, -LIMIT_Y, -np.inf], [np.inf, LIMIT_Y, np.inf]])
+    model = limited_bar(joint_limit_stiffness=k_limit, joint_limit_damping=0.01)
+    sim = hang(model, steps=300)
+    assert np.abs(sim.velocities()).max() < 1e-6  # at rest
+    x, q, _, _ = sim.bone_states()
+    psi = Rotation.from_matrix(quat.to_matrix(q[0]).T @ quat.to_matrix(q[1])).as_rotvec()
+    plain = hang(two_bone_bar(joint_stiffness=1e6))
+    psi_plain = Rotation.from_matrix(quat.to_matrix(plain.bone_states()[1][0]).T
+                                     @ quat.to_matrix(plain.bone_states()[1][1])).as_rotvec()
+    print(f"k {k_limit}: droop about y {psi[1]:.4g} rad with the limit, {psi_plain[1]:.4g} without")
+    assert LIMIT_Y < psi[1] < psi_plain[1]
+    com = model.bone_info(1)["com"]
+    lever = quat.to_matrix(q[1]) @ (np.array([0.01, 0.0, 0.0]) - com)
+    joint_force = -1e6 * joint_gaps(model, sim)[0]
+    torque = limit_torque(k_limit, q[0], q[1], limits)
+    total = sim.bone_wrenches()[1] + np.concatenate([joint_force, np.cross(lever, joint_force) + torque])
+    scale = np.abs(sim.bone_wrenches()[1][3:]).max()
+    print("child: springs", sim.bone_wrenches()[1], "joint force", joint_force, "limit torque", torque)
+    assert np.abs(total[3:]).max() < 1e-4 * scale
+    assert np.abs(torque[1]) > 0.3 * scale  # the limit does hold the child back
+    return float(psi[1])
+
+
+def test_a_free_bone_hanging_past_its_limit_is_held_back_the_nearer_the_stiffer_the_limit():
+    """settled_droop at two limit stiffnesses: each balance holds, and the stiffer limit holds
+    the bone nearer its range."""
+    soft, stiff = settled_droop(0.3), settled_droop(3.0)
+    assert LIMIT_Y < stiff < soft
+
+
+def test_a_limit_enters_the_step_as_the_monolithic_system_has_it():
+    """The bar drooping past its limit (the limit active from the first steps): each step's
+    Schur solve against the monolithic one (the limit's blocks in A_h and between the bones),
+    to 1e-9 of the velocities."""
+    model = limited_bar(joint_limit_stiffness=3.0, joint_limit_damping=0.01)
+    sims = [ns.SkeletonSimulation(model) for _ in range(2)]
+    for sim in sims:
+        p, q, _, _ = sim.bone_states()
+        sim.set_bone_targets([ns.PRESCRIBED, ns.FREE], p, q)
+    active = 0
+    for _ in range(40):
+        for sim, monolithic in zip(sims, (False, True)):
+            sim.step(monolithic=monolithic)
+        x, q, _, _ = sims[0].bone_states()
+        active += Rotation.from_matrix(quat.to_matrix(q[0]).T @ quat.to_matrix(q[1])).as_rotvec()[1] > LIMIT_Y
+        scale = np.abs(sims[1].velocities()).max()
+        assert np.abs(sims[0].velocities() - sims[1].velocities()).max() < 1e-9 * scale
+        assert np.abs(sims[0].bone_states()[3] - sims[1].bone_states()[3]).max() < 1e-9 * max(
+            np.abs(sims[1].bone_states()[3]).max(), 1e-12)
+        # (the states stay together: each step starts from the same state)
+        sims[1].set_state(sims[0].positions(), sims[0].velocities())
+        sims[1].set_bone_states(*sims[0].bone_states())
+    assert active > 20  # the limit acted through most of the run
+
+
+def test_limits_off_step_as_without_limits_and_the_palm_model_refuses_them():
+    """limit_stiffness and limit_damping 0 (the defaults): ranges given, the step is the one
+    without them, bit for bit; the palm handle model refuses the settings (it has no parent)."""
+    plain, given = hang(two_bone_bar(joint_stiffness=1e6), 20), hang(limited_bar(), 20)
+    assert np.array_equal(plain.velocities(), given.velocities())
+    nodes, tets = mesh.structured_box((0.06, 0.03, 0.03), (6, 3, 3), (-0.03, -0.015, -0.015))
+    for field in ("joint_limit_stiffness", "joint_limit_damping"):
+        with pytest.raises(native.InvalidInput, match="hh_model_create_skeleton"):
+            native.HandModel(nodes, tets, palm_seed=np.zeros(3), handle_radius=0.012, **{field: 1.0})
+
+
+@pytest.mark.parametrize("limits, axes, message", [
+    ([[-0.1, 0.02, -0.1], [0.1, 0.1, 0.1]], None, "does not hold its rest pose"),
+    ([[-0.1, np.nan, -0.1], [0.1, 0.1, 0.1]], None, "NaN angular limit"),
+    ([[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]], 2 * np.eye(3), "rest axes are not a rotation"),
+])
+def test_bad_limits_are_refused_naming_the_bone_and_the_fix(limits, axes, message):
+    bar = two_bone_bar()
+    root, child = bar.skeleton.bones
+    bones = sk.Skeleton([root, sk.Bone(child.name, child.parent, child.head, child.tail, child.radius,
+                                       limits=np.array(limits), axes=axes)])
+    nodes, tets = mesh.structured_box((0.08, 0.02, 0.02), (8, 2, 2), (-0.04, -0.01, -0.01))
+    with pytest.raises(native.InvalidInput, match=f"bone 'child'.*{message}"):
+        ns.SkeletonModel(nodes, tets, bones, drive_scales=[1.0, 0.0])
+    root_limited = sk.Skeleton([sk.Bone(root.name, None, root.head, root.tail, root.radius,
+                                        limits=np.array([[-0.1] * 3, [0.1] * 3])), child])
+    with pytest.raises(native.InvalidInput, match="bone 'root' is a root with angular limits"):
+        ns.SkeletonModel(nodes, tets, root_limited, drive_scales=[1.0, 0.0])
 
 
 # --------------------------------------------------------------------------------------------
