@@ -80,7 +80,8 @@ def _refuse_drive_without_skeleton(section: dict) -> None:
     if given:
         raise SceneError(f"skeleton.{given[0]} drives a skeleton's bones, but hand.skeleton is null (the palm "
                          f'handle): set hand.skeleton ("{PROCEDURAL}" or a list of bones) or remove it')
-    joints = [name for name in ("stiffness", "damping") if section["joints"][name] != 0]
+    joints = [name for name in ("stiffness", "damping", "limit_stiffness", "limit_damping")
+              if section["joints"][name] != 0]
     if joints:  # the table's rows reach the model as they are; the palm handle has no joints to give them to
         raise SceneError(f"skeleton.joints.{joints[0]} ties bones to their parents, but hand.skeleton is null (the "
                          f'palm handle, one bone): set hand.skeleton ("{PROCEDURAL}" or a list of bones) or set '
@@ -109,7 +110,7 @@ def bones(specs: list) -> tuple[sk.Skeleton, np.ndarray]:
                              "segment; nodes: exactly those)")
         out.append(sk.Bone(spec["name"], spec["parent"], np.asarray(spec["head"], float),
                            np.asarray(spec["tail"], float), 0.0 if nodes is not None else float(spec["radius"]),
-                           nodes))
+                           nodes, limits=_limits(spec, label), axes=_axes(spec, label)))
         scales.append(float(spec["drive_scale"]))
     _check_names(out)
     try:
@@ -129,6 +130,53 @@ def _bone_spec(i: int, given) -> tuple[dict, str]:
     if not spec["name"]:
         raise SceneError(f"{label}.name is empty: give every bone a unique, non-empty name")
     return spec, label
+
+
+def _limits(spec: dict, label: str) -> np.ndarray | None:
+    """The bone's angular limits, (2, 3) rad (an axis null: free), or None."""
+    given = spec["limits"]
+    if given is None:
+        return None
+    example = '{"min": [-0.2, -1.5, -0.1], "max": [0.2, 0.1, 0.1]}'
+    if not (isinstance(given, dict) and set(given) <= {"min", "max"}):
+        raise SceneError(f"{label}.limits = {json.dumps(given)[:60]} is invalid: give {example} (radians, in the "
+                         "bone's rest axes), or null for none")
+    out = np.array([[-np.inf] * 3, [np.inf] * 3])
+    for row, key in enumerate(("min", "max")):
+        values = given.get(key)
+        if values is None:
+            continue
+        if not (isinstance(values, list) and len(values) == 3 and
+                all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in values)):
+            raise SceneError(f"{label}.limits.{key} = {json.dumps(values)[:60]} is invalid: give three angles in "
+                             f"radians (null for a free axis), e.g. {example}")
+        for i, v in enumerate(values):
+            if v is not None:
+                out[row, i] = float(v)
+    if not (out[0] <= 0).all() or not (out[1] >= 0).all():
+        raise SceneError(f"{label}.limits = {json.dumps(given)[:80]} does not hold the bone's rest pose: give each "
+                         "axis a minimum <= 0 <= maximum")
+    if spec["parent"] is None and np.isfinite(out).any():
+        raise SceneError(f"{label} is a root with limits: a root turns with its target, not against a parent; "
+                         "remove its limits")
+    return out
+
+
+def _axes(spec: dict, label: str) -> np.ndarray | None:
+    """The bone's rest axes (3, 3), columns x, y, z, or None (the world's)."""
+    given = spec["axes"]
+    if given is None:
+        return None
+    try:
+        axes = np.array(given, dtype=float)
+    except (TypeError, ValueError):
+        axes = None
+    if axes is None or axes.shape != (3, 3) or not np.isfinite(axes).all() or \
+            np.abs(axes.T @ axes - np.eye(3)).max() > 1e-6 or np.linalg.det(axes) <= 0:
+        raise SceneError(f"{label}.axes = {json.dumps(given)[:80]} is not a rotation matrix: give the three rows of "
+                         "the bone's rest rotation (its columns the x, y, z axes; orthonormal, right-handed), or "
+                         "null for the world axes")
+    return axes
 
 
 def _explicit_nodes(spec: dict, label: str, owners: dict) -> np.ndarray | None:

@@ -320,6 +320,18 @@
       "Multiplies the gains of the bone's drive to its target (0: the bone is free, carried by the "   \
       "flesh); in Blender, the bone's Drive scale in Rig > Skeleton",                                  \
       "1; 0 frees the bone")                                                                           \
+    X(bone_limits, HH_KIND_JSON, 0, "hand.skeleton[].limits", "rad", HH_V(0), 0, 0,                     \
+      HH_NULLABLE | HH_UI_DERIVED, 0, 0, "Bone limits", "null",                                        \
+      "Angular limits: the range of the bone's rotation relative to its parent, as a rotation vector " \
+      "in its rest axes, {\"min\": [x, y, z], \"max\": [x, y, z]} (null: no limits; an axis null "      \
+      "or +-inf: free; skeleton.joints.limit_stiffness makes them act; docs/skeleton.md, Section 5); "  \
+      "in Blender, the pose bone's IK limits",                                                         \
+      "min <= 0 <= max per axis (the rest pose within its range); none on a root")                     \
+    X(bone_axes, HH_KIND_JSON, 0, "hand.skeleton[].axes", "", HH_V(0), 0, 0,                           \
+      HH_NULLABLE | HH_UI_DERIVED, 0, 0, "Bone axes", "null",                                          \
+      "The bone's rest axes, the frame its limits are in: three rows of the rotation matrix whose "    \
+      "columns are its x, y, z axes (world frame; null: the world axes); in Blender, the bone's rest " \
+      "matrix", "a rotation matrix (orthonormal, right-handed)")                                       \
     X(bodies, HH_KIND_JSON, 0, "bodies", "", HH_V(0), 0, 0, HH_UI_DERIVED, 0, 0, "Bodies", "[]",       \
       "The other bodies (docs/contact.md); in Blender, the objects with a role", "a list")             \
     X(name, HH_KIND_STRING, 0, "bodies[].name", "", HH_V(0), 0, 0,                                \

@@ -76,6 +76,48 @@ def test_the_scenes_joint_stiffness_reaches_the_model(scene_dir):
     assert energies[1] - energies[0] == pytest.approx(2 * 0.5 * k * 1e-3 ** 2, rel=1e-9)
 
 
+def test_the_scenes_bone_limits_reach_the_model(scene_dir):
+    """hand.skeleton[].limits and .axes with skeleton.joints.limit_stiffness (docs/skeleton.md
+    Section 5): index_2 turned 0.3 rad about its rest x axis (turned from the world's) against a
+    range of 0.1 rad adds k/2 (0.2 rad)^2 to the springs' energy, against the scene without
+    limit stiffness; turned about the free y axis it adds nothing."""
+    k = 0.7
+    axes = Rotation.from_rotvec([0.0, 0.0, 0.4]).as_matrix()
+    bones = bone_list(sk.procedural_hand_skeleton())
+    index_2 = [b["name"] for b in bones].index("index_2")
+    bones[index_2] = {**bones[index_2], "limits": {"min": [-0.1, None, -0.2], "max": [0.1, None, 0.2]},
+                      "axes": axes.tolist()}
+    for axis, added in ((0, 0.5 * k * 0.2 ** 2), (1, 0.0)):
+        energies = []
+        for joints in ({}, {"limit_stiffness": k}):
+            model = scenes.build_model(procedural_scene(scene_dir, bones, joints=joints))
+            sim = ns.SkeletonSimulation(model)
+            p, q, v, w = sim.bone_states()
+            turn = Rotation.from_rotvec(0.3 * axes[:, axis])  # about the bone's own axis, world frame
+            q[index_2] = (turn * Rotation.from_quat(q[index_2])).as_quat()
+            sim.set_bone_states(p, q, v, w)
+            energies.append(sim.energies()["spring"])
+        assert energies[1] - energies[0] == pytest.approx(added, rel=1e-9, abs=1e-15)
+
+
+@pytest.mark.parametrize("limits, axes, message", [
+    ({"min": [-0.1, 0.1, 0.0], "max": [0.1, 0.2, 0.0]}, None, r"limits = .* does not hold the bone's rest pose"),
+    ({"low": [0, 0, 0]}, None, r"limits = .* is invalid: give \{\"min\""),
+    ({"min": [-0.1, "a", 0.0]}, None, r"limits.min = .* is invalid: give three angles in radians"),
+    (None, [[2, 0, 0], [0, 1, 0], [0, 0, 1]], r"axes = .* is not a rotation matrix"),
+    (None, "x", r"axes = .* is not a rotation matrix"),
+])
+def test_bad_bone_limits_in_a_scene_name_the_field_and_the_fix(scene_dir, limits, axes, message):
+    bones = bone_list(sk.procedural_hand_skeleton())
+    bones[5] = {**bones[5], "limits": limits, "axes": axes}
+    with pytest.raises(scenes.SceneError, match=r"hand.skeleton\[5\] \('index_2'\)\." + message):
+        procedural_scene(scene_dir, bones)
+    bones = bone_list(sk.procedural_hand_skeleton())
+    bones[0] = {**bones[0], "limits": {"min": [-0.1, -0.1, -0.1]}}
+    with pytest.raises(scenes.SceneError, match=r"hand.skeleton\[0\] \('palm'\) is a root with limits"):
+        procedural_scene(scene_dir, bones)
+
+
 def drive_of(scene: scenes.Scene, device=None) -> BoneDrive:
     model = scenes.build_model(scene)
     coms = np.array([model.bone_info(b)["com"] for b in range(model.n_bones)])
