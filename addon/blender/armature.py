@@ -23,6 +23,7 @@ the export refuses it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,6 +56,8 @@ class RigBone:
     radius: float | None      # m: a capsule's radius (its own or automatic); None for a group
     nodes: np.ndarray | None  # the tet nodes of its group
     drive_scale: float
+    limits: np.ndarray | None = None  # (2, 3) rad from its IK limits (engine/skeleton.Bone.limits)
+    axes: np.ndarray | None = None    # (3, 3) its rest axes in the world, the frame of its limits
     auto_radius: bool = False
     source: str = ""          # where a group bone's nodes come from
     exact: bool = False       # they are a group of the tet mesh (else of the hand's skinning weights)
@@ -77,6 +80,10 @@ class Rig:
                         "radius": None if b.radius is None else param_props.decimal(b.radius),
                         "nodes": None if b.nodes is None else [int(i) for i in b.nodes],
                         "drive_scale": param_props.decimal(b.drive_scale)})
+            if b.limits is not None:
+                out[-1]["limits"] = {key: [None if math.isinf(x) else param_props.decimal(x) for x in row]
+                                     for key, row in zip(("min", "max"), b.limits)}
+                out[-1]["axes"] = [[float(x) for x in row] for row in b.axes]
         return out
 
 
@@ -109,6 +116,26 @@ def deform_bones(arm_obj) -> list[tuple[object, str | None]]:
                 out.append((b, p))
                 placed.add(b.name)
     return out
+
+
+def ik_limits(pose_bone) -> np.ndarray | None:
+    """The pose bone's IK limits as angular limits (2, 3) rad, in its own axes: a locked axis
+    [0, 0], a limited one [ik_min, ik_max], any other free; None when no axis is limited."""
+    out = np.array([[-np.inf] * 3, [np.inf] * 3])
+    for i, axis in enumerate("xyz"):
+        if getattr(pose_bone, f"lock_ik_{axis}"):
+            out[:, i] = 0.0
+        elif getattr(pose_bone, f"use_ik_limit_{axis}"):
+            out[:, i] = getattr(pose_bone, f"ik_min_{axis}"), getattr(pose_bone, f"ik_max_{axis}")
+    return None if np.isinf(out).all() else out
+
+
+def rest_axes(arm_obj, bone) -> np.ndarray:
+    """The bone's rest axes in the world (columns x, y, z): its rest matrix through the armature
+    object's, without the object's scale (the rotation of their polar decomposition)."""
+    m = meshdata.matrix(arm_obj)[:3, :3] @ np.array(bone.matrix_local, dtype=np.float64)[:3, :3]
+    u, _, vt = np.linalg.svd(m)
+    return u @ vt
 
 
 def rest_segments(arm_obj, bones, scale: float) -> tuple[np.ndarray, np.ndarray]:
@@ -233,6 +260,9 @@ def rig(scene, nodes: np.ndarray | None = None) -> Rig:
     for i, (bone, parent) in enumerate(chain):
         b = RigBone(bone.name, parent, heads[i], tails[i], capsules[i][0], None,
                     float(bone.haptic_hand.bone_drive_scale), auto_radius=capsules[i][1])
+        # (a root turns with its target: its IK limits, against a bone outside the skeleton, stay out)
+        b.limits = None if parent is None else ik_limits(s.armature.pose.bones[bone.name])
+        b.axes = None if b.limits is None else rest_axes(s.armature, bone)
         if b.radius is None:
             if groups is None:
                 groups = _Groups(hand, hand.haptic_hand.tet_object, nodes, meshdata.world_vertices(hand, scene),

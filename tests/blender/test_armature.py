@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 from haptic_hand.blender import armature, draw, scene_export, scene_import
 from haptic_hand.engine import mesh as meshing
 from haptic_hand.engine import rig_check
+from haptic_hand.engine import scene as scenes
 from haptic_hand.engine import skeleton as sk
 
 from blender_helpers import SAMPLES, build_hand, draw_panels, labels, props, rig_procedural_armature
@@ -63,6 +64,36 @@ def test_bones_export_in_world_metres_through_the_armatures_matrix(addon):
     expected = sk.Skeleton([sk.Bone(b.name, b.parent, moved(b.head), moved(b.tail), b.radius)
                             for b in REFERENCE.bones]).capture(nodes)
     np.testing.assert_array_equal(armature.rig(context.scene).owner, expected)
+
+
+def test_ik_limits_export_as_the_bones_angular_limits_in_their_rest_axes(addon):
+    """A pose bone's IK limits become its angular limits (docs/skeleton.md Section 5): a limited
+    axis its [ik_min, ik_max], a locked one [0, 0], the others free (null); its rest axes are
+    the bone's rest matrix through the turned armature's (mathutils, apart from the export's
+    numpy); the root's IK limits stay out; the engine builds the exported rig."""
+    context = addon
+    hand, arm = rigged(context)
+    for obj in (hand, arm):  # turned together, 0.4 rad about z
+        obj.rotation_mode = "QUATERNION"
+        obj.rotation_quaternion = (math.cos(0.2), 0.0, 0.0, math.sin(0.2))
+    pose = arm.pose.bones
+    pose["index_2"].use_ik_limit_x = True
+    pose["index_2"].ik_min_x, pose["index_2"].ik_max_x = -1.5, 0.1
+    pose["index_2"].lock_ik_z = True
+    pose["palm"].use_ik_limit_y = True  # the root
+    context.view_layer.update()
+    export = scene_export.export(context)
+    try:
+        bones = {b["name"]: b for b in export.scene.data["hand"]["skeleton"]}
+        model = scenes.build_model(export.scene)
+    finally:
+        export.cleanup()
+    got = bones["index_2"]["limits"]
+    assert got["min"] == [pytest.approx(-1.5), None, 0.0] and got["max"] == [pytest.approx(0.1), None, 0.0]
+    expected = arm.matrix_world.to_3x3().normalized() @ arm.data.bones["index_2"].matrix_local.to_3x3()
+    np.testing.assert_allclose(bones["index_2"]["axes"], np.array(expected), atol=1e-6)
+    assert "limits" not in bones["palm"] and "limits" not in bones["index_1"]
+    assert model.n_bones == 16
 
 
 def test_the_automatic_radius_is_the_limbs_own_with_a_margin(addon):
