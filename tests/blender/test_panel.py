@@ -24,7 +24,7 @@ DOC = ROOT / "docs" / "blender.md"
 BLENDER_NAMES = {"Mesh Cache", "Graph Editor", "Get Extensions", "Install from Disk...", "Shape Keys",
                  "Object Data", "Custom Properties", "File > Import > Haptic Hand Scene (.json)",
                  "Edit > Preferences > Get Extensions > ⌄ > Install from Disk...", "Mesh > Clean Up", "Deform",
-                 "Bone Properties", "Weight Paint > Weights > Normalize All"}
+                 "Bone Properties", "Inverse Kinematics", "Weight Paint > Weights > Normalize All"}
 
 
 def test_panels_draw_empty_and_rigged_scenes(addon, built_scenes, tmp_path):

@@ -138,7 +138,8 @@ F32 = 2e-7  # metres: float32 rounding of coordinates below 1 m, as Blender stor
 # what the scene refuses without a skeleton (it drives a skeleton's bones, feeds back per bone, or
 # ties bones to their parents)
 NEEDS_SKELETON = {"skeleton.tracking", "skeleton.tracking_map", "skeleton.root_device", "skeleton.drive.prescribed",
-                  "haptics.feedback", "skeleton.joints.stiffness", "skeleton.joints.damping"}
+                  "haptics.feedback", "skeleton.joints.stiffness", "skeleton.joints.damping",
+                  "skeleton.joints.limit_stiffness", "skeleton.joints.limit_damping"}
 
 
 def rig_skeleton(context, hand, drive: str, folder) -> None:
