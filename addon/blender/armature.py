@@ -132,7 +132,8 @@ def ik_limits(pose_bone) -> np.ndarray | None:
 
 def rest_axes(arm_obj, bone) -> np.ndarray:
     """The bone's rest axes in the world (columns x, y, z): its rest matrix through the armature
-    object's, without the object's scale (the rotation of their polar decomposition)."""
+    object's, without the object's scale (the orthogonal factor of their polar decomposition; a
+    reflection when the armature is mirrored)."""
     m = meshdata.matrix(arm_obj)[:3, :3] @ np.array(bone.matrix_local, dtype=np.float64)[:3, :3]
     u, _, vt = np.linalg.svd(m)
     return u @ vt
@@ -263,6 +264,10 @@ def rig(scene, nodes: np.ndarray | None = None) -> Rig:
         # (a root turns with its target: its IK limits, against a bone outside the skeleton, stay out)
         b.limits = None if parent is None else ik_limits(s.armature.pose.bones[bone.name])
         b.axes = None if b.limits is None else rest_axes(s.armature, bone)
+        if b.axes is not None and np.linalg.det(b.axes) < 0:
+            b.problems.append(f"bone '{bone.name}' has IK limits, but the armature '{s.armature.name}' is mirrored (a "
+                              "negative scale), so the limits' axes turn the other way: apply its scale (Object > "
+                              "Apply > Scale) or remove the IK limits")
         if b.radius is None:
             if groups is None:
                 groups = _Groups(hand, hand.haptic_hand.tet_object, nodes, meshdata.world_vertices(hand, scene),

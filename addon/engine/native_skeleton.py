@@ -87,9 +87,11 @@ def _limits(bones) -> tuple:
     """The bones' rest axes (B, 3, 3) and limits (B, 3) each, or None when no bone has them."""
     if all(bone.limits is None and bone.axes is None for bone in bones):
         return None, None, None
-    axes = _f64([np.eye(3) if bone.axes is None else bone.axes for bone in bones], (len(bones), 3, 3), "bone axes")
     free = np.array([[-np.inf] * 3, [np.inf] * 3])
-    limits = _f64([free if bone.limits is None else bone.limits for bone in bones], (len(bones), 2, 3), "bone limits")
+    axes = np.stack([_f64(np.eye(3) if bone.axes is None else bone.axes, (3, 3), f"bone '{bone.name}': its axes")
+                     for bone in bones])
+    limits = np.stack([_f64(free if bone.limits is None else bone.limits, (2, 3),
+                            f"bone '{bone.name}': its limits (min and max rows)") for bone in bones])
     return axes, np.ascontiguousarray(limits[:, 0]), np.ascontiguousarray(limits[:, 1])
 
 

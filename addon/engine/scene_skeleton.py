@@ -153,6 +153,10 @@ def _limits(spec: dict, label: str) -> np.ndarray | None:
         for i, v in enumerate(values):
             if v is not None:
                 out[row, i] = float(v)
+    finite = out[np.isfinite(out)]
+    if np.isnan(out).any() or (np.abs(finite) >= np.pi).any():
+        raise SceneError(f"{label}.limits = {json.dumps(given)[:80]} is invalid: give angles within (-pi, pi) "
+                         "radians (a rotation vector turns at most half a turn), or null for a free axis")
     if not (out[0] <= 0).all() or not (out[1] >= 0).all():
         raise SceneError(f"{label}.limits = {json.dumps(given)[:80]} does not hold the bone's rest pose: give each "
                          "axis a minimum <= 0 <= maximum")

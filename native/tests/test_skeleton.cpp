@@ -294,7 +294,7 @@ TEST(joint_limit_torque_is_its_energy_gradient_and_its_jacobian_the_gauss_newton
     // torque on each end is minus the energy's gradient in that end's world-frame turn (central
     // differences of E, to 1e-7), equal and opposite, with no force; the damping opposes the
     // relative spin on the axes beyond range only; and at the edge of the range (overshoot ->
-    // 0) the Gauss-Newton stiffness k M S M^T is the torque's full Jacobian (the left-out terms
+    // 0) the Gauss-Newton stiffness k M Pi M^T is the torque's full Jacobian (the left-out terms
     // scale with the overshoot).
     std::mt19937 rng(5);
     std::normal_distribution<double> g(0, 1);
@@ -339,7 +339,7 @@ TEST(joint_limit_torque_is_its_energy_gradient_and_its_jacobian_the_gauss_newton
     CHECK(jb.bh[kChild].head<3>().norm() == 0 && jb.bh[kParent].head<3>().norm() == 0);  // no force
     CHECK_LT((jb.bh[kChild].tail<3>() - 0.01 * limit.on_child).norm(), 1e-16);
     // just beyond the edge of the range (1e-5 rad on both limited axes) the torque's Jacobian in
-    // the child's turn is -k M S M^T: central differences with steps within that overshoot
+    // the child's turn is -k M Pi M^T: central differences with steps within that overshoot
     HandleState edge = child;
     edge.q = quat_multiply(parent.q, quat_from_rotation_vector(axes * Vec3(0.05 + 1e-5, -0.2 - 1e-5, 0.2)));
     const JointLimit at_edge = joint_limit(k, 0, parent, edge, axes, lo, hi);
@@ -357,6 +357,45 @@ TEST(joint_limit_torque_is_its_energy_gradient_and_its_jacobian_the_gauss_newton
     }
     std::printf("joint limit stiffness beyond the edge of its range against differences: %.2g relative\n", worst);
     CHECK_LT(worst, 1e-4);
+    // there, with both bones spinning alike (the damping's left-out term scales with their
+    // relative spin), the blocks of Eq. 7, -dt dW_s/dv_t - dt^2 dW_s/dx_t, against differences of
+    // each end's wrench in each end's turn and spin; no force rows or columns
+    edge.omega = parent.omega;
+    const double dt = 0.01;
+    const JointBlocks blocks = joint_limit_blocks(joint_limit(k, d, parent, edge, axes, lo, hi), dt);
+    auto wrench = [&](const HandleState* h, int s) {
+        const Vec3 tau = joint_limit(k, d, h[kParent], h[kChild], axes, lo, hi).on_child;
+        return Vec3(s == kChild ? tau : Vec3(-tau));
+    };
+    double worst_block = 0, scale = 0;
+    for (int s = 0; s < 2; ++s)
+        for (int t = 0; t < 2; ++t) {
+            Mat3 expected;
+            for (int i = 0; i < 3; ++i) {
+                auto moved = [&](double sgn, bool spin) {
+                    HandleState h[2] = {parent, edge};
+                    Vec3 u = Vec3::Zero();
+                    u[i] = sgn * 1e-7;
+                    if (spin) h[t].omega += u;
+                    else h[t].q = quat_multiply(quat_from_rotation_vector(u), h[t].q);
+                    return wrench(h, s);
+                };
+                const Vec3 dx = (moved(1, false) - moved(-1, false)) / 2e-7, dv = (moved(1, true) - moved(-1, true)) / 2e-7;
+                expected.col(i) = -dt * dv - dt * dt * dx;
+            }
+            CHECK(blocks.ah[s][t].topRows<3>().norm() == 0 && blocks.ah[s][t].leftCols<3>().norm() == 0);
+            worst_block = std::max(worst_block, (blocks.ah[s][t].bottomRightCorner<3, 3>() - expected).norm());
+            scale = std::max(scale, expected.norm());
+        }
+    std::printf("joint limit blocks against differences of the wrenches: %.2g relative\n", worst_block / scale);
+    CHECK_LT(worst_block, 1e-4 * scale);
+    const JointLimit spinning = joint_limit(k, d, parent, edge, axes, lo, hi);
+    CHECK_LT((blocks.bh[kParent].tail<3>() + dt * spinning.on_child).norm(), 1e-16);
+    // the damping takes nothing along the free axis's direction in psi (M^T's preimage of e_z)
+    const Vec3 free_direction = spinning.damping.fullPivLu().kernel().col(0).normalized();
+    const Mat3 m = quat_to_matrix(parent.q) * left_jacobian_inverse(quat_to_rotation_vector(
+                       quat_multiply(quat_conjugate(parent.q), edge.q))).transpose() * axes;
+    CHECK_LT(std::abs((m.transpose() * free_direction).head<2>().norm()), 1e-9);
 }
 
 TEST(joint_blocks_enter_the_step_between_parent_and_child) {

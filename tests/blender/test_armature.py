@@ -94,6 +94,11 @@ def test_ik_limits_export_as_the_bones_angular_limits_in_their_rest_axes(addon):
     np.testing.assert_allclose(bones["index_2"]["axes"], np.array(expected), atol=1e-6)
     assert "limits" not in bones["palm"] and "limits" not in bones["index_1"]
     assert model.n_bones == 16
+    for obj in (hand, arm):  # mirrored: the limits' axes would be left-handed
+        obj.scale = (-1.0, 1.0, 1.0)
+    context.view_layer.update()
+    problems = armature.rig(context.scene).problems
+    assert any("'index_2' has IK limits, but the armature" in p and "Apply > Scale" in p for p in problems), problems
 
 
 def test_the_automatic_radius_is_the_limbs_own_with_a_margin(addon):

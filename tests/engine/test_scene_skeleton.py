@@ -104,6 +104,8 @@ def test_the_scenes_bone_limits_reach_the_model(scene_dir):
     ({"min": [-0.1, 0.1, 0.0], "max": [0.1, 0.2, 0.0]}, None, r"limits = .* does not hold the bone's rest pose"),
     ({"low": [0, 0, 0]}, None, r"limits = .* is invalid: give \{\"min\""),
     ({"min": [-0.1, "a", 0.0]}, None, r"limits.min = .* is invalid: give three angles in radians"),
+    ({"min": [float("nan"), 0.0, 0.0]}, None, r"limits = .* is invalid: give angles within \(-pi, pi\)"),
+    ({"max": [4.0, None, None]}, None, r"limits = .* is invalid: give angles within \(-pi, pi\)"),
     (None, [[2, 0, 0], [0, 1, 0], [0, 0, 1]], r"axes = .* is not a rotation matrix"),
     (None, "x", r"axes = .* is not a rotation matrix"),
 ])

@@ -362,6 +362,7 @@ def test_limits_off_step_as_without_limits_and_the_palm_model_refuses_them():
 @pytest.mark.parametrize("limits, axes, message", [
     ([[-0.1, 0.02, -0.1], [0.1, 0.1, 0.1]], None, "does not hold its rest pose"),
     ([[-0.1, np.nan, -0.1], [0.1, 0.1, 0.1]], None, "NaN angular limit"),
+    ([[-4.0, -0.1, -0.1], [0.1, 0.1, 0.1]], None, "reaches a half turn"),
     ([[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]], 2 * np.eye(3), "rest axes are not a rotation"),
 ])
 def test_bad_limits_are_refused_naming_the_bone_and_the_fix(limits, axes, message):

@@ -55,9 +55,9 @@ def drop_switching(cells: int, first: str, then: str) -> np.ndarray:
 
 @pytest.mark.parametrize("first, then", [("cholesky", "reused_cholesky"), ("reused_cholesky", "cholesky")])
 def test_a_solver_switched_between_steps_analyses_in_its_own_forms(first, then):
-    # The factor's analysis is made when the body is added (before its first step) and again
-    # after a switch, in the new solver's forms: the run goes on, and agrees with the per-step
-    # factor's run within the reused factor's CG tolerance.
+    # The run goes on across the switch and agrees with the per-step factor's run within the
+    # reused factor's CG tolerance. (The factor is analysed when the body is added, before its
+    # first step; a switch drops that analysis, and the new solver makes its own.)
     switched = drop_switching(4, first, then)
     assert np.isfinite(switched).all()
     assert np.abs(switched - drop(4, "cholesky")).max() < 1e-5

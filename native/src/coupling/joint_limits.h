@@ -6,14 +6,15 @@
 // their range are decided at the state the step linearizes about (as a contact's activity).
 //
 // With M = R_p J_l^-T(phi) B (phi = log(R_p^T R_c); dpsi = M^T (dtheta_c - dtheta_p), theta a
-// world-frame rotation increment, J_l the left Jacobian of SO(3)) and S selecting the axes
-// beyond range:
-//   tau_c = -M S k (psi - clamp(psi)) - M S d M^T (omega_c - omega_p),   tau_p = -tau_c
+// world-frame rotation increment, J_l the left Jacobian of SO(3)) and Pi selecting the axes
+// beyond range (a diagonal of 0 and 1):
+//   tau_c = -M Pi k (psi - clamp(psi)) - M Pi d M^T (omega_c - omega_p),   tau_p = -tau_c
 // a pure torque pair (no force). Its Jacobians in Eq. 7 are the Gauss-Newton ones,
-// d tau_c / d theta_t = -sigma_t k M S M^T and d tau_c / d omega_t = -sigma_t d M S M^T
+// d tau_c / d theta_t = -sigma_t k M Pi M^T and d tau_c / d omega_t = -sigma_t d M Pi M^T
 // (sigma_p = -1, sigma_c = +1): the terms with the derivative of M, proportional to the
-// overshoot, are left out, as the co-rotational flesh leaves out its rotations' derivatives.
-// Symmetric and positive semi-definite, so S stays symmetric positive definite.
+// overshoot (and to the relative spin), are left out, as the co-rotational flesh leaves out its
+// rotations' derivatives. Symmetric and positive semi-definite, so the Schur complement stays
+// symmetric positive definite.
 #pragma once
 
 #include "coupling/joints.h"
@@ -23,9 +24,9 @@ namespace hh {
 struct JointLimit {
     Vec3 psi = Vec3::Zero();  // rad, the rotation in the bone's rest axes
     Vec3 on_child = Vec3::Zero();  // N m, tau_c (the parent feels -tau_c)
-    Mat3 stiffness = Mat3::Zero();  // k M S M^T
-    Mat3 damping = Mat3::Zero();    // d M S M^T
-    double energy = 0;              // k/2 |S (psi - clamp(psi))|^2
+    Mat3 stiffness = Mat3::Zero();  // k M Pi M^T
+    Mat3 damping = Mat3::Zero();    // d M Pi M^T
+    double energy = 0;              // k/2 |psi - clamp(psi)|^2
     bool active = false;            // an axis is beyond its range
 };
 

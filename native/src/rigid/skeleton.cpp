@@ -15,23 +15,31 @@ std::string quoted(const BoneDesc& bone) { return "bone '" + bone.name + "'"; }
 
 constexpr double kFree = std::numeric_limits<double>::infinity();  // an axis without a limit
 
+bool has_limits(const BoneDesc& bone) {
+    return (bone.limit_min.array() > -kFree).any() || (bone.limit_max.array() < kFree).any();
+}
+
 // Its angular limits: right-handed orthonormal rest axes, ranges that hold its rest pose (a
-// range beside the rest pose would push the bone out of it from the first step), none on a root.
+// range beside the rest pose would push the bone out of it from the first step) within a half
+// turn (a rotation vector's length is at most pi: a range past it could never be left, and
+// near it the vector flips), none on a root.
 void check_limits(const BoneDesc& bone) {
-    const bool limited = (bone.limit_min.array() > -kFree).any() || (bone.limit_max.array() < kFree).any();
     require(!bone.limit_min.hasNaN() && !bone.limit_max.hasNaN(),
             quoted(bone) + " has a NaN angular limit: give radians, or -inf / +inf for a free axis");
-    require(!limited || bone.parent >= 0,
+    require(!has_limits(bone) || bone.parent >= 0,
             quoted(bone) + " is a root with angular limits: a root turns with its target, not against a parent; "
                            "remove its limits");
-    for (int i = 0; i < 3; ++i)
-        require(bone.limit_min[i] <= 0 && bone.limit_max[i] >= 0,
-                quoted(bone) + "'s angular limit on its " + std::string(1, "xyz"[i]) + " axis, [" +
-                    std::to_string(bone.limit_min[i]) + ", " + std::to_string(bone.limit_max[i]) +
-                    "] rad, does not hold its rest pose (0): give a minimum <= 0 <= maximum");
+    for (int i = 0; i < 3; ++i) {
+        const double lo = bone.limit_min[i], hi = bone.limit_max[i];
+        const std::string axis = quoted(bone) + ": its angular limit on its " + std::string(1, "xyz"[i]) + " axis, [" +
+                                 std::to_string(lo) + ", " + std::to_string(hi) + "] rad,";
+        require(lo <= 0 && hi >= 0, axis + " does not hold its rest pose (0): give a minimum <= 0 <= maximum");
+        require((lo == -kFree || lo > -M_PI) && (hi == kFree || hi < M_PI),
+                axis + " reaches a half turn: give limits within (-pi, pi) rad, or -inf / +inf for a free axis");
+    }
     require(bone.axes.allFinite() && (bone.axes.transpose() * bone.axes - Mat3::Identity()).cwiseAbs().maxCoeff() < 1e-6 &&
                 bone.axes.determinant() > 0,
-            quoted(bone) + "'s rest axes are not a rotation (orthonormal, right-handed columns x, y, z): give its "
+            quoted(bone) + ": its rest axes are not a rotation (orthonormal, right-handed columns x, y, z): give its "
                            "rest matrix's axes");
 }
 
@@ -183,8 +191,7 @@ SkeletonModel build_skeleton(const VecX& rest, const VecX& node_masses, const st
         s.limit_axes.push_back(bone.axes);
         s.limit_min.push_back(bone.limit_min);
         s.limit_max.push_back(bone.limit_max);
-        s.limited.push_back(bone.parent >= 0 && ((bone.limit_min.array() > -kFree).any() ||
-                                                 (bone.limit_max.array() < kFree).any()));
+        s.limited.push_back(bone.parent >= 0 && has_limits(bone));
     }
     return s;
 }

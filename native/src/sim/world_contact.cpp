@@ -304,21 +304,26 @@ void World::begin_contact_body(int bi) {
     cs.build.at(bi).touched_nodes = std::move(touched_nodes);
 }
 
-// Whether the body's responses cost less on its contact rows than on its touched unknowns
-// (after its free solve: a skeleton hand's bones_prescribed is the step's). A unit column on the
-// step's Cholesky factor at the touched rows only (solve_upper_units: a soft body's, or a
-// skeleton hand's whose bones all follow their targets) costs about a third of a row's full
-// solve: in the grasp scene's opening, 31 contacts on the hand, 93 row solves took 5.8 ms where
-// its 213 unit columns take 3.9 ms. Any other unit column costs about a row's.
-bool World::rows_cost_less(int bi) const {
+// Whether the body's unit columns are solved on the step's Cholesky factor at the touched rows
+// only (solve_upper_units): a soft body's, or a skeleton hand's whose bones all follow their
+// targets and whose contacts touch only its flesh (see ready_contact_body). After the body's
+// free solve: a skeleton hand's bones_prescribed is the step's.
+bool World::units_at_touched_rows(int bi) const {
     const Body& b = *bodies[bi];
     const ContactBody& cb = contact_bodies.at(bi);
     const DeformableSystem* system = b.kind == BodyKind::Soft ? b.soft.tool.get() : b.kind == BodyKind::Hand ? &b.hand->tool : nullptr;
-    const bool upper = system && system->solver() == DeformableSolver::Cholesky && !cb.touched.empty() &&
-                       (b.kind == BodyKind::Soft ||
-                        (b.skeleton() && b.hand->bones_prescribed && cb.touched.front() >= b.handle_dofs()));
-    const size_t rows = cb.rows.size(), units = cb.touched.size();
-    return (upper ? kUnitsPerRow : 1) * rows < units;
+    return system && system->solver() == DeformableSolver::Cholesky && !cb.touched.empty() &&
+           (b.kind == BodyKind::Soft ||
+            (b.skeleton() && b.hand->bones_prescribed && cb.touched.front() >= b.handle_dofs()));
+}
+
+// Whether the body's responses cost less on its contact rows than on its touched unknowns. A
+// unit column at the touched rows only costs about a third of a row's full solve: in the grasp
+// scene's opening, 31 contacts on the hand, 93 row solves took 5.8 ms where its 213 unit
+// columns take 3.9 ms. Any other unit column costs about a row's.
+bool World::rows_cost_less(int bi) const {
+    const ContactBody& cb = contact_bodies.at(bi);
+    return (units_at_touched_rows(bi) ? kUnitsPerRow : 1) * cb.rows.size() < cb.touched.size();
 }
 
 // Once the body's free solve is done too (its system, factor and Schur complement are the step's)
@@ -351,9 +356,7 @@ void World::ready_contact_body(int bi) {
     // itself. Its unit columns then need the factor only at the touched nodes, not at every
     // bone's nodes too (A_ht's rows read those): the grasping hand's ~200 columns cost ~0.6 of
     // that pass (bench/bench_grasp.py). The same values, bit for bit, at the touched rows.
-    const bool flesh_alone = b.skeleton() && b.hand->bones_prescribed && !cb.row_basis &&
-                             b.hand->tool.solver() == DeformableSolver::Cholesky && !cb.touched.empty() &&
-                             cb.touched.front() >= b.handle_dofs();
+    const bool flesh_alone = b.skeleton() && !cb.row_basis && units_at_touched_rows(bi);
     DeformableSystem* system = b.response_system();
     if (system && system->prepare_concurrent_solves() && !cb.row_basis && build.first == 0) {
         const int base = b.handle_dofs();

@@ -1215,7 +1215,7 @@ struct SolveScratch {
     std::vector<float> work_f, gather_f, saved_f, copy_f;  // the same for the float passes (float_passes)
     std::vector<unsigned char> wanted_node, wanted_sn;
     std::vector<int> dirty;
-    std::vector<unsigned char> path;  // unit_path's mask, all zero between its calls
+    std::vector<unsigned char> path;  // unit_path's mask: the last call's path (the next call clears it)
     std::vector<int> path_set;        // the supernodes it set
 };
 // Lanes of a solve pass for k right-hand sides: the kernels' widths (1, 4, 8; 16, 32 supernodal)

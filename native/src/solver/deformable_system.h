@@ -91,8 +91,8 @@ public:
     // once (a soft body's contact responses, World::step). Returns whether that holds (false
     // for the iterative solvers, whose warm-start slots each call writes).
     bool prepare_concurrent_solves();
-    // Cholesky solvers: the symbolic analysis now, on the pattern (A takes it when it has none
-    // yet), instead of in the first step's solve, where a loop sees it as a dropped frame (the
+    // Cholesky solvers: the symbolic analysis now, on the pattern (A takes it when its size
+    // differs), instead of in the first step's solve, where a loop sees it as a dropped frame (the
     // grasping hand's first step: ~15 ms of its ~21). The same analysis either way. Nothing for CG.
     void analyse_ahead(const SpMat& pattern);
     // Cholesky with the supernodal factor: the factorization's parts that may run on two threads
