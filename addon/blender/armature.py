@@ -130,6 +130,20 @@ def ik_limits(pose_bone) -> np.ndarray | None:
     return None if np.isinf(out).all() else out
 
 
+def limits_text(limits: np.ndarray | None) -> str:
+    """The bone list's words for its limits, in degrees as Blender shows angles: each limited
+    axis's range, a locked one as locked; '' without limits."""
+    if limits is None:
+        return ""
+    parts = []
+    for axis, lo, hi in zip("xyz", limits[0], limits[1]):
+        if lo == hi == 0:
+            parts.append(f"{axis} locked")
+        elif np.isfinite(lo) or np.isfinite(hi):
+            parts.append(f"{axis} {math.degrees(lo):.0f}°..{math.degrees(hi):.0f}°")
+    return "limits " + ", ".join(parts)
+
+
 def rest_axes(arm_obj, bone) -> np.ndarray:
     """The bone's rest axes in the world (columns x, y, z): its rest matrix through the armature
     object's, without the object's scale (the orthogonal factor of their polar decomposition; a

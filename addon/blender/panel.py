@@ -108,7 +108,9 @@ def draw_skeleton(layout, context) -> None:
     for b in rig.bones:
         held = f"radius {b.radius * 1000:.1f} mm" + (" (auto)" if b.auto_radius else "") if b.radius is not None \
             else "vertex group"
-        col.label(text=f"{b.name}: {b.count} nodes, {held}", icon="ERROR" if b.problems else "BONE_DATA")
+        limits = armature.limits_text(b.limits)
+        col.label(text=f"{b.name}: {b.count} nodes, {held}" + (f", {limits}" if limits else ""),
+                  icon="ERROR" if b.problems else "BONE_DATA")
     for problem in rig.problems:
         layout.label(text=problem, icon="ERROR")
     bone = s.armature.data.bones.active

@@ -94,6 +94,8 @@ def test_ik_limits_export_as_the_bones_angular_limits_in_their_rest_axes(addon):
     np.testing.assert_allclose(bones["index_2"]["axes"], np.array(expected), atol=1e-6)
     assert "limits" not in bones["palm"] and "limits" not in bones["index_1"]
     assert model.n_bones == 16
+    listed = [t for t in labels(draw_panels(context)) if t.startswith("index_2:")]
+    assert listed and listed[0].endswith(", limits x -86°..6°, z locked"), listed  # (-1.5 rad, 0.1 rad)
     for obj in (hand, arm):  # mirrored: the limits' axes would be left-handed
         obj.scale = (-1.0, 1.0, 1.0)
     context.view_layer.update()
