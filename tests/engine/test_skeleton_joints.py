@@ -193,12 +193,14 @@ def test_compare_solvers_with_joints_sixteen_bones(sample_hand):
 # --------------------------------------------------------------------------------------------
 
 
-def two_bone_bar(**params):
+def two_bone_bar(root_limits=None, child_limits=None, child_axes=None, **params):
     """An 8 x 2 x 2 cm bar along x: a root bone holding its left end, a child bone holding its
-    right end (head at x = 0.01 m), flesh between them."""
+    right end (head at x = 0.01 m), flesh between them; each bone's angular limits as given."""
     nodes, tets = mesh.structured_box((0.08, 0.02, 0.02), (8, 2, 2), (-0.04, -0.01, -0.01))
-    bones = sk.Skeleton([sk.Bone("root", None, np.array([-0.04, 0, 0]), np.array([-0.025, 0, 0]), 0.012),
-                         sk.Bone("child", "root", np.array([0.01, 0, 0]), np.array([0.035, 0, 0]), 0.011)])
+    bones = sk.Skeleton([sk.Bone("root", None, np.array([-0.04, 0, 0]), np.array([-0.025, 0, 0]), 0.012,
+                                 limits=root_limits),
+                         sk.Bone("child", "root", np.array([0.01, 0, 0]), np.array([0.035, 0, 0]), 0.011,
+                                 limits=child_limits, axes=child_axes)])
     base = dict(rayleigh_alpha=8.0, young_modulus=2e4)
     base.update(params)
     return ns.SkeletonModel(nodes, tets, bones, drive_scales=[1.0, 0.0], **base)
@@ -257,16 +259,8 @@ def limited_bar(**params):
     """two_bone_bar pinned at the knuckle (joints 1e6 N/m), the child's rotation about y within
     +-LIMIT_Y, x and z free, its rest axes the world's (turned axes: test_skeleton.cpp's
     joint_limit test)."""
-    bar = two_bone_bar(joint_stiffness=1e6)
-    axes = np.eye(3)
     limits = np.array([[-np.inf, -LIMIT_Y, -np.inf], [np.inf, LIMIT_Y, np.inf]])
-    root, child = bar.skeleton.bones
-    bones = sk.Skeleton([root, sk.Bone(child.name, child.parent, child.head, child.tail, child.radius,
-                                       limits=limits, axes=axes)])
-    nodes, tets = mesh.structured_box((0.08, 0.02, 0.02), (8, 2, 2), (-0.04, -0.01, -0.01))
-    base = dict(rayleigh_alpha=8.0, young_modulus=2e4, joint_stiffness=1e6)
-    base.update(params)
-    return ns.SkeletonModel(nodes, tets, bones, drive_scales=[1.0, 0.0], **base)
+    return two_bone_bar(child_limits=limits, child_axes=np.eye(3), **{"joint_stiffness": 1e6, **params})
 
 
 def limit_energy(k: float, qp, qc, limits: np.ndarray) -> float:
@@ -366,17 +360,10 @@ def test_limits_off_step_as_without_limits_and_the_palm_model_refuses_them():
     ([[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]], 2 * np.eye(3), "rest axes are not a rotation"),
 ])
 def test_bad_limits_are_refused_naming_the_bone_and_the_fix(limits, axes, message):
-    bar = two_bone_bar()
-    root, child = bar.skeleton.bones
-    bones = sk.Skeleton([root, sk.Bone(child.name, child.parent, child.head, child.tail, child.radius,
-                                       limits=np.array(limits), axes=axes)])
-    nodes, tets = mesh.structured_box((0.08, 0.02, 0.02), (8, 2, 2), (-0.04, -0.01, -0.01))
     with pytest.raises(native.InvalidInput, match=f"bone 'child'.*{message}"):
-        ns.SkeletonModel(nodes, tets, bones, drive_scales=[1.0, 0.0])
-    root_limited = sk.Skeleton([sk.Bone(root.name, None, root.head, root.tail, root.radius,
-                                        limits=np.array([[-0.1] * 3, [0.1] * 3])), child])
+        two_bone_bar(child_limits=np.array(limits), child_axes=axes)
     with pytest.raises(native.InvalidInput, match="bone 'root' is a root with angular limits"):
-        ns.SkeletonModel(nodes, tets, root_limited, drive_scales=[1.0, 0.0])
+        two_bone_bar(root_limits=np.array([[-0.1] * 3, [0.1] * 3]))
 
 
 # --------------------------------------------------------------------------------------------

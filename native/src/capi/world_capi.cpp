@@ -245,7 +245,7 @@ int hh_world_set_body_solver(hh_world* world, int body, int solver, double cg_to
         require_idle(world);
         b.soft.tool->configure(soft_solver(solver, static_cast<int>(b.soft.flesh->mesh.tets.size())), cg_tolerance,
                                cg_max_iterations);
-        b.soft.tool->analyse_ahead(b.soft.flesh->pattern.matrix);
+        b.soft.tool->analyse_ahead();
         b.carried_impulse.resize(0);
         return HH_OK;
     });

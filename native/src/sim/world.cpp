@@ -42,8 +42,7 @@ int World::add(std::unique_ptr<Body> body) {
         if (b.self_collision) b.self_exclusions = rest_exclusions(b.surface, DetectionSettings{rest_reach});
     }
     // the factor's symbolic analysis now rather than in the first step (analyse_ahead)
-    if (b.kind == BodyKind::Soft) b.soft.tool->analyse_ahead(b.soft.flesh->pattern.matrix);
-    if (b.kind == BodyKind::Hand) b.hand->tool.analyse_ahead(b.hand->tool.A);
+    if (DeformableSystem* system = b.response_system()) system->analyse_ahead();
     return static_cast<int>(bodies.size() - 1);
 }
 

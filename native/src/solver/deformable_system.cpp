@@ -264,10 +264,9 @@ void DeformableSystem::configure(DeformableSolver solver, double cg_tolerance, i
     factor_valid_ = false;
 }
 
-void DeformableSystem::analyse_ahead(const SpMat& pattern) {
+void DeformableSystem::analyse_ahead() {
     Impl& m = *impl_;
-    if (A.rows() != pattern.rows()) A = pattern;
-    if (m.cholesky.analysed()) return;
+    if (A.rows() == 0 || m.cholesky.analysed()) return;
     if (m.solver == DeformableSolver::Cholesky) m.analyze_per_step(A);
     else if (m.solver == DeformableSolver::ReusedCholesky) m.analyse(*this);
 }

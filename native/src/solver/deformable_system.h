@@ -91,10 +91,10 @@ public:
     // once (a soft body's contact responses, World::step). Returns whether that holds (false
     // for the iterative solvers, whose warm-start slots each call writes).
     bool prepare_concurrent_solves();
-    // Cholesky solvers: the symbolic analysis now, on the pattern (A takes it when its size
-    // differs), instead of in the first step's solve, where a loop sees it as a dropped frame (the
-    // grasping hand's first step: ~15 ms of its ~21). The same analysis either way. Nothing for CG.
-    void analyse_ahead(const SpMat& pattern);
+    // Cholesky solvers: the symbolic analysis of A's pattern now (once A holds it), instead of in
+    // the first step's solve, where a loop sees it as a dropped frame (the grasping hand's first
+    // step: ~15 ms of its ~21). The same analysis either way. Nothing for CG.
+    void analyse_ahead();
     // Cholesky with the supernodal factor: the factorization's parts that may run on two threads
     // at once (BlockLDLT::factor_parts: 2 for large factors, else 0; 0 for CG; analyses the
     // pattern if that is not done yet). ReusedCholesky: the same for a step that renews its
