@@ -43,10 +43,11 @@ def gripper(gap: float):
     return nodes, tets, sk.Skeleton(bones)
 
 
-def add_gripper(world: nw.World, gap: float, friction: float, gravity):
-    """The gripper in the world; returns (hand body, model, rest nodes)."""
+def add_gripper(world: nw.World, gap: float, friction: float, gravity, solver: str = "cholesky"):
+    """The gripper in the world, its flesh on `solver` (the hand's solver.name); returns (hand
+    body, model, rest nodes)."""
     nodes, tets, skeleton = gripper(gap)
-    model = ns.SkeletonModel(nodes, tets, skeleton, dt=world.dt, gravity=list(gravity), **HAND)
+    model = ns.SkeletonModel(nodes, tets, skeleton, dt=world.dt, gravity=list(gravity), solver=solver, **HAND)
     surface_nodes, surface_weights = nw.vertex_surface(len(nodes))
     hand = world.add_hand(model, surface_nodes, surface_weights, mesh.tet_boundary_faces(tets), friction=friction)
     return hand, model, nodes
@@ -81,12 +82,12 @@ BALL = dict(young_modulus=3e4, poisson_ratio=0.3, density=500.0)
 CLOSE, LIFTED, HELD, OPEN_FOR = 10, 25, 85, 15   # steps: closed by, lifted by, held until; then open
 
 
-def grasp_world(friction: float, **world):
+def grasp_world(friction: float, hand_solver: str = "cholesky", **world):
     """The gripper open above a ground plane, a soft ball (8.5 mm voxel radius) resting on the
-    ground between its fingers; friction on every pair; world: more hh_world_params (threads).
-    Returns (world, hand, ball)."""
+    ground between its fingers; friction on every pair; the hand's flesh on hand_solver; world:
+    more hh_world_params (threads). Returns (world, hand, ball)."""
     w = nw.World(dt=DT, gravity=[0.0, 0.0, -9.81], **world)
-    hand, _, _ = add_gripper(w, GAP, friction, (0.0, 0.0, -9.81))
+    hand, _, _ = add_gripper(w, GAP, friction, (0.0, 0.0, -9.81), hand_solver)
     nodes, tets = voxel_ball(0.0085, np.array([FINGER + GAP / 2, 0.0, -0.035]))
     w.add_plane([0.0, 0.0, nodes[:, 2].min() - 0.001], [0.0, 0.0, 1.0], friction=friction)
     ball = add_soft(w, nodes, tets, friction, **BALL)

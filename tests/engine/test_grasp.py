@@ -45,6 +45,39 @@ def test_a_closed_grasp_holds_a_ball_by_friction_and_opening_drops_it():
     assert gr.OPEN_FOR * gr.DT <= 0.5
 
 
+def held_grasp(hand_solver: str):
+    """The grasp closed, lifted and held until just before the fingers open: the ball's contact
+    force, the bones' spring forces and the ball's mean node position."""
+    w, hand, ball = gr.grasp_world(0.8, hand_solver=hand_solver)
+    p0, q0, _ = w.bone_states(hand)
+    lagged = 0  # steps whose free solve ran CG on an earlier step's factor
+    for k in range(gr.HELD):
+        w.set_bone_targets(hand, np.full(3, ns.PRESCRIBED), gr.grasp_targets(p0, k), q0)
+        w.step()
+        lagged += w.hand_step_stats(hand)["cg_iterations"] > 0
+    return w.contact_force(ball), w.bone_states(hand)[2][:, :3], w.nodes(ball)[0].mean(axis=0), lagged
+
+
+def test_a_held_grasp_on_the_reused_factor_keeps_the_statics_of_the_exact_step():
+    """With every bone prescribed, the flesh's contact responses on the reused factor come from the
+    blocks that factor keeps at the touched nodes (World::kept_flesh_units), and the impulses'
+    velocities from a pass through it per step: one operator, so the sweeps' impulses are the ones
+    the velocities receive. Held still, a step on the lagged factor carries the last impulses
+    into its free solve and is Eq. 7's exact step, so the grasp settles where the per-step factor's
+    does: the fingers carry the ball's weight m g (contact force on it, m g up, from its tets'
+    volume), with the same spring forces on every bone and the ball at the same place."""
+    force, springs, centre, _ = held_grasp("cholesky")
+    force_r, springs_r, centre_r, lagged = held_grasp("reused_cholesky")
+    assert lagged > 0  # (the reused factor did lag)
+    nodes, tets = gr.voxel_ball(0.0085, np.zeros(3))
+    a, b, c, d = (nodes[tets[:, k]] for k in range(4))
+    weight = gr.BALL["density"] * np.abs(np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a)).sum() / 6 * 9.81
+    for f in (force, force_r):
+        assert np.linalg.norm(f - [0.0, 0.0, weight]) < 1e-3 * weight
+    assert np.abs(springs_r - springs).max() < 1e-3 * np.abs(springs).max()
+    assert np.linalg.norm(centre_r - centre) < 1e-6
+
+
 def test_without_friction_the_same_grasp_lifts_nothing():
     """The control: the squeeze alone (no friction) cannot carry the weight, so the hand rises
     without the ball, which stays on the ground."""

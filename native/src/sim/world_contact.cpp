@@ -317,6 +317,29 @@ bool World::units_at_touched_rows(int bi) const {
             (b.skeleton() && b.hand->bones_prescribed && cb.touched.front() >= b.handle_dofs()));
 }
 
+// Whether the body is a skeleton hand on the reused factor whose bones all follow their targets
+// and whose contacts touch only its flesh: its response is then A_t's lagged operator P^-1
+// itself (S = I, v_h = 0 in SkeletonSystem::apply_inverse_many), whose blocks at the touched
+// nodes the factor keeps from step to step as a soft body's (kept_flesh_units).
+bool World::flesh_alone_on_reused_factor(int bi) const {
+    const Body& b = *bodies[bi];
+    const ContactBody& cb = contact_bodies.at(bi);
+    return b.skeleton() && b.hand->bones_prescribed && b.hand->tool.solver() == DeformableSolver::ReusedCholesky &&
+           !cb.touched.empty() && cb.touched.front() >= b.handle_dofs();
+}
+
+// The unit columns of such a hand (flesh_alone_on_reused_factor) from the blocks its factor
+// keeps (DeformableSystem::response_units, as a soft body's): the same operator as
+// apply_inverse_many's pass per column, without a pass through the factor for the nodes
+// touched since the factor was renewed. False when the factor keeps none (not yet made).
+bool World::kept_flesh_units(int bi) {
+    Body& b = *bodies[bi];
+    ContactBody& cb = contact_bodies.at(bi);
+    std::vector<int> flesh(cb.touched.size());
+    for (size_t k = 0; k < cb.touched.size(); ++k) flesh[k] = cb.touched[k] - b.handle_dofs();
+    return b.hand->tool.response_units(flesh, cb.K, b.hand->hand.beside);
+}
+
 // Whether the body's responses cost less on its contact rows than on its touched unknowns. A
 // unit column at the touched rows only costs about a third of a row's full solve: in the grasp
 // scene's opening, 31 contacts on the hand, 93 row solves took 5.8 ms where its 213 unit
@@ -340,6 +363,7 @@ void World::ready_contact_body(int bi) {
     const bool palm = b.kind == BodyKind::Hand && !b.skeleton();
     if (!cb.row_basis && palm) units = b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
     if (!cb.row_basis && b.kind == BodyKind::Soft) units = b.soft.tool->response_units(cb.touched, cb.K, b.soft.beside);
+    if (!cb.row_basis && flesh_alone_on_reused_factor(bi)) units = kept_flesh_units(bi);
     if (palm) {
         if (!cb.row_basis && !units) b.hand->hand.prepare_unit_columns(cb.touched);
         if (!handle_terms_apart(bi)) form_handle_terms(bi);
