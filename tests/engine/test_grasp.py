@@ -60,7 +60,7 @@ def held_grasp(hand_solver: str):
 
 def test_a_held_grasp_on_the_reused_factor_keeps_the_statics_of_the_exact_step():
     """With every bone prescribed, the flesh's contact responses on the reused factor come from the
-    blocks that factor keeps at the touched nodes (World::kept_flesh_units), and the impulses'
+    blocks that factor keeps at the touched nodes (World::kept_units), and the impulses'
     velocities from a pass through it per step: one operator, so the sweeps' impulses are the ones
     the velocities receive. Held still, a step on the lagged factor carries the last impulses
     into its free solve and is Eq. 7's exact step, so the grasp settles where the per-step factor's

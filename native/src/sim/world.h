@@ -172,10 +172,10 @@ private:
     int contact_body_parts(int body) const;  // (after prepare_contacts)
     void begin_contact_body(int body);  // (reads only the contacts: may run beside the body's free solve)
     void ready_contact_body(int body);  // after both: the body's factor ready for solves side by side
+    bool flesh_alone(int body) const;
     bool units_at_touched_rows(int body) const;
     bool rows_cost_less(int body) const;  // the basis of the body's responses (ready_contact_body)
-    bool flesh_alone_on_reused_factor(int body) const;
-    bool kept_flesh_units(int body);
+    bool kept_units(int body);
     void form_handle_terms(int body);  // a hand's ContactBody::handle_terms
     bool handle_terms_apart(int body) const;
     void solve_contact_body(int body, int part, int parts);

@@ -304,40 +304,37 @@ void World::begin_contact_body(int bi) {
     cs.build.at(bi).touched_nodes = std::move(touched_nodes);
 }
 
+// Whether the body's contact responses are its flesh system's inverse alone, at its touched
+// unknowns less its handle's: a soft body's, or a skeleton hand's whose bones all follow their
+// targets and whose contacts touch only its flesh (S = I and v_h = 0 in
+// SkeletonSystem::apply_inverse_many: A_t^-1 itself, on the reused factor its lagged operator
+// P^-1). After the body's free solve: a skeleton hand's bones_prescribed is the step's.
+bool World::flesh_alone(int bi) const {
+    const Body& b = *bodies[bi];
+    const ContactBody& cb = contact_bodies.at(bi);
+    return !cb.touched.empty() &&
+           (b.kind == BodyKind::Soft || (b.skeleton() && b.hand->bones_prescribed && cb.touched.front() >= b.handle_dofs()));
+}
+
 // Whether the body's unit columns are solved on the step's Cholesky factor at the touched rows
-// only (solve_upper_units): a soft body's, or a skeleton hand's whose bones all follow their
-// targets and whose contacts touch only its flesh (see ready_contact_body). After the body's
-// free solve: a skeleton hand's bones_prescribed is the step's.
+// only (solve_upper_units): flesh alone, on the per-step factor (see ready_contact_body)
 bool World::units_at_touched_rows(int bi) const {
     const Body& b = *bodies[bi];
-    const ContactBody& cb = contact_bodies.at(bi);
     const DeformableSystem* system = b.kind == BodyKind::Soft ? b.soft.tool.get() : b.kind == BodyKind::Hand ? &b.hand->tool : nullptr;
-    return system && system->solver() == DeformableSolver::Cholesky && !cb.touched.empty() &&
-           (b.kind == BodyKind::Soft ||
-            (b.skeleton() && b.hand->bones_prescribed && cb.touched.front() >= b.handle_dofs()));
+    return system && system->solver() == DeformableSolver::Cholesky && flesh_alone(bi);
 }
 
-// Whether the body is a skeleton hand on the reused factor whose bones all follow their targets
-// and whose contacts touch only its flesh: its response is then A_t's lagged operator P^-1
-// itself (S = I, v_h = 0 in SkeletonSystem::apply_inverse_many), whose blocks at the touched
-// nodes the factor keeps from step to step as a soft body's (kept_flesh_units).
-bool World::flesh_alone_on_reused_factor(int bi) const {
-    const Body& b = *bodies[bi];
-    const ContactBody& cb = contact_bodies.at(bi);
-    return b.skeleton() && b.hand->bones_prescribed && b.hand->tool.solver() == DeformableSolver::ReusedCholesky &&
-           !cb.touched.empty() && cb.touched.front() >= b.handle_dofs();
-}
-
-// The unit columns of such a hand (flesh_alone_on_reused_factor) from the blocks its factor
-// keeps (DeformableSystem::response_units, as a soft body's): the same operator as
-// apply_inverse_many's pass per column, without a pass through the factor for the nodes
-// touched since the factor was renewed. False when the factor keeps none (not yet made).
-bool World::kept_flesh_units(int bi) {
+// The unit columns of a body whose flesh responds alone (flesh_alone) from the blocks its
+// reused factor keeps at the touched nodes (DeformableSystem::response_units): the same
+// operator as the impulses' pass, without a pass through the factor for the nodes touched since
+// it was renewed. False on the other solvers, or when the factor keeps none (not yet made).
+bool World::kept_units(int bi) {
     Body& b = *bodies[bi];
     ContactBody& cb = contact_bodies.at(bi);
     std::vector<int> flesh(cb.touched.size());
     for (size_t k = 0; k < cb.touched.size(); ++k) flesh[k] = cb.touched[k] - b.handle_dofs();
-    return b.hand->tool.response_units(flesh, cb.K, b.hand->hand.beside);
+    const Beside& beside = b.kind == BodyKind::Soft ? b.soft.beside : b.hand->hand.beside;
+    return b.response_system()->response_units(flesh, cb.K, beside);
 }
 
 // Whether the body's responses cost less on its contact rows than on its touched unknowns. A
@@ -362,8 +359,7 @@ void World::ready_contact_body(int bi) {
     // (a skeleton hand's columns all go through SkeletonSystem::apply_inverse_many)
     const bool palm = b.kind == BodyKind::Hand && !b.skeleton();
     if (!cb.row_basis && palm) units = b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
-    if (!cb.row_basis && b.kind == BodyKind::Soft) units = b.soft.tool->response_units(cb.touched, cb.K, b.soft.beside);
-    if (!cb.row_basis && flesh_alone_on_reused_factor(bi)) units = kept_flesh_units(bi);
+    if (!cb.row_basis && flesh_alone(bi)) units = kept_units(bi);
     if (palm) {
         if (!cb.row_basis && !units) b.hand->hand.prepare_unit_columns(cb.touched);
         if (!handle_terms_apart(bi)) form_handle_terms(bi);
