@@ -14,17 +14,25 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from haptic_hand.engine import gripper as gr
+from haptic_hand.engine import mesh
 from haptic_hand.engine import native_skeleton as ns
 from haptic_hand.engine import native_world as nw
 
-def run_grasp(friction: float):
-    """The ball's mean node position and the palm bone's position after every step."""
-    w, hand, ball = gr.grasp_world(friction)
+def grasp_steps(friction: float, steps: int, hand_solver: str = "cholesky"):
+    """The grasp world after each of its first `steps` steps (bones on gr.grasp_targets): yields
+    (world, hand, ball)."""
+    w, hand, ball = gr.grasp_world(friction, hand_solver=hand_solver)
     p0, q0, _ = w.bone_states(hand)
-    ball_at, palm_at = [], []
-    for k in range(gr.HELD + gr.OPEN_FOR):
+    for k in range(steps):
         w.set_bone_targets(hand, np.full(3, ns.PRESCRIBED), gr.grasp_targets(p0, k), q0)
         w.step()
+        yield w, hand, ball
+
+
+def run_grasp(friction: float):
+    """The ball's mean node position and the palm bone's position after every step."""
+    ball_at, palm_at = [], []
+    for w, hand, ball in grasp_steps(friction, gr.HELD + gr.OPEN_FOR):
         ball_at.append(w.nodes(ball)[0].mean(axis=0))
         palm_at.append(w.bone_states(hand)[0][0].copy())
     return np.array(ball_at), np.array(palm_at)
@@ -48,12 +56,8 @@ def test_a_closed_grasp_holds_a_ball_by_friction_and_opening_drops_it():
 def held_grasp(hand_solver: str):
     """The grasp closed, lifted and held until just before the fingers open: the ball's contact
     force, the bones' spring forces and the ball's mean node position."""
-    w, hand, ball = gr.grasp_world(0.8, hand_solver=hand_solver)
-    p0, q0, _ = w.bone_states(hand)
     lagged = 0  # steps whose free solve ran CG on an earlier step's factor
-    for k in range(gr.HELD):
-        w.set_bone_targets(hand, np.full(3, ns.PRESCRIBED), gr.grasp_targets(p0, k), q0)
-        w.step()
+    for w, hand, ball in grasp_steps(0.8, gr.HELD, hand_solver):
         lagged += w.hand_step_stats(hand)["cg_iterations"] > 0
     return w.contact_force(ball), w.bone_states(hand)[2][:, :3], w.nodes(ball)[0].mean(axis=0), lagged
 
@@ -69,9 +73,7 @@ def test_a_held_grasp_on_the_reused_factor_keeps_the_statics_of_the_exact_step()
     force, springs, centre, _ = held_grasp("cholesky")
     force_r, springs_r, centre_r, lagged = held_grasp("reused_cholesky")
     assert lagged > 0  # (the reused factor did lag)
-    nodes, tets = gr.voxel_ball(0.0085, np.zeros(3))
-    a, b, c, d = (nodes[tets[:, k]] for k in range(4))
-    weight = gr.BALL["density"] * np.abs(np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a)).sum() / 6 * 9.81
+    weight = gr.BALL["density"] * mesh.tet_signed_volumes(*gr.voxel_ball(0.0085, np.zeros(3))).sum() * 9.81
     for f in (force, force_r):
         assert np.linalg.norm(f - [0.0, 0.0, weight]) < 1e-3 * weight
     assert np.abs(springs_r - springs).max() < 1e-3 * np.abs(springs).max()

@@ -17,6 +17,10 @@ int Body::dofs() const {
 }
 
 DeformableSystem* Body::response_system() {
+    return const_cast<DeformableSystem*>(static_cast<const Body&>(*this).response_system());
+}
+
+const DeformableSystem* Body::response_system() const {
     if (kind == BodyKind::Soft) return soft.tool.get();
     if (kind == BodyKind::Hand) return &hand->hand.tool;
     return nullptr;

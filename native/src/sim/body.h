@@ -107,6 +107,7 @@ struct Body {
     int handle_dofs() const { return kind == BodyKind::Hand ? 6 * hand_model->n_bones() : 0; }
     // The flesh system its contact responses are solved through (hand, soft body), or null
     DeformableSystem* response_system();
+    const DeformableSystem* response_system() const;
     // points from the body's state (the surface's points: flesh nodes or mesh vertices)
     void update_points();
     // the surface's vertex positions from the points (normals and boxes: the next detection)

@@ -319,8 +319,7 @@ bool World::flesh_alone(int bi) const {
 // Whether the body's unit columns are solved on the step's Cholesky factor at the touched rows
 // only (solve_upper_units): flesh alone, on the per-step factor (see ready_contact_body)
 bool World::units_at_touched_rows(int bi) const {
-    const Body& b = *bodies[bi];
-    const DeformableSystem* system = b.kind == BodyKind::Soft ? b.soft.tool.get() : b.kind == BodyKind::Hand ? &b.hand->tool : nullptr;
+    const DeformableSystem* system = static_cast<const Body&>(*bodies[bi]).response_system();
     return system && system->solver() == DeformableSolver::Cholesky && flesh_alone(bi);
 }
 
@@ -353,10 +352,10 @@ void World::ready_contact_body(int bi) {
     cb.row_basis = rows_cost_less(bi);
     cb.K.resize(cb.touched.size(), cb.row_basis ? cb.rows.size() : cb.touched.size());
     if (cb.row_basis) setup_->build.at(bi).gt = cb.G.transpose();  // (unit columns need none)
-    // the unit columns from the kept response columns, when the body's solver keeps them
-    // (the hand's with Eq. 12 on top)
+    // the unit columns from the kept response columns, when the body's solver keeps them: the
+    // palm hand's with Eq. 12 on top; a soft body's or a prescribed skeleton hand's flesh alone
+    // (any other skeleton hand's columns go through SkeletonSystem::apply_inverse_many)
     bool units = false;
-    // (a skeleton hand's columns all go through SkeletonSystem::apply_inverse_many)
     const bool palm = b.kind == BodyKind::Hand && !b.skeleton();
     if (!cb.row_basis && palm) units = b.hand->hand.apply_inverse_units(cb.touched, cb.touched, cb.K);
     if (!cb.row_basis && flesh_alone(bi)) units = kept_units(bi);
