@@ -694,6 +694,11 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
             MatX via_solve, via_tool_units;
             d.tool.solve_response(ef, via_solve);
             CHECK(d.tool.response_units(flesh, via_tool_units));
+            // what the contact build weighs when it picks its basis (World::rows_cost_less): the
+            // columns just served are kept, so none is solved afresh; a node never asked for
+            // (flesh node 7: no row, unknown or touched node above) costs its three columns
+            CHECK(d.tool.fresh_response_unknowns(flesh) == 0);
+            CHECK(d.tool.fresh_response_unknowns({3 * 7 + 1, flesh[0]}) == 3);
             double worst = 0, largest = 0;
             for (size_t r = 0; r < flesh.size(); ++r)
                 for (size_t j = 0; j < flesh.size(); ++j) {

@@ -176,6 +176,7 @@ private:
     bool units_at_touched_rows(int body) const;
     bool rows_cost_less(int body) const;  // the basis of the body's responses (ready_contact_body)
     bool kept_units(int body);
+    std::vector<int> touched_flesh(int body) const;
     void form_handle_terms(int body);  // a hand's ContactBody::handle_terms
     bool handle_terms_apart(int body) const;
     void solve_contact_body(int body, int part, int parts);

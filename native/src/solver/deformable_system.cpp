@@ -367,6 +367,19 @@ void DeformableSystem::solve_response_column(const VecX& b, VecX& x, bool single
     if (!x.allFinite()) throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
 }
 
+int DeformableSystem::fresh_response_unknowns(const std::vector<int>& unknowns) const {
+    const Impl& m = *impl_;
+    if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) return -1;
+    std::vector<int> nodes;
+    for (int u : unknowns) nodes.push_back(u / 3);
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    int fresh = 0;
+    for (int node : nodes)
+        fresh += node < 0 || node >= static_cast<int>(m.column_slot.size()) || m.column_slot[node] < 0 ? 3 : 0;
+    return fresh;
+}
+
 bool DeformableSystem::response_units(const std::vector<int>& unknowns, MatX& out, const Beside& beside) {
     // the unknowns' nodes, each once, and per node its unknowns (index in `unknowns`, direction)
     std::vector<int> nodes;

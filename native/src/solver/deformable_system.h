@@ -151,6 +151,10 @@ public:
     // which then cost unit solves only for nodes not seen since the last factorization, where
     // on the per-step factor every one of them is solved every step. beside: as above.
     bool response_units(const std::vector<int>& unknowns, MatX& out, const Beside& beside = nullptr);
+    // ReusedCholesky with a factor: how many of these unknowns' response columns response_units
+    // would solve afresh (every unknown of a node whose blocks are not kept since the last
+    // factorization). -1 on the other solvers, which keep none.
+    int fresh_response_unknowns(const std::vector<int>& unknowns) const;
     // Element rotations of the step (the co-rotation), for ReusedCholesky's warp: each node's
     // rotation (the rotation of the sum of its elements' rotations) relative to its rotation
     // when the factor was made. Ignored by the other solvers.
