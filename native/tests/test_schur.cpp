@@ -576,6 +576,36 @@ TEST(reused_cholesky_policy_counts_work_so_runs_repeat_exactly) {
     }
 }
 
+TEST(reused_cholesky_prices_the_kept_contact_responses_into_a_renewal) {
+    // A renewal also makes the contact build solve again every response column kept since the
+    // last one (response_units): with the responses of every flesh node kept each step, the same
+    // motion renews its factor later than with none kept. Reading the kept columns changes no
+    // solve, so both runs iterate alike until the first of them renews.
+    auto first_renewal = [](bool keep) {
+        const Model m = reused_box_model();
+        Data d(m);
+        d.device.enabled = true;
+        std::vector<int> flesh(static_cast<size_t>(3 * m.mesh.n_nodes));
+        for (size_t u = 0; u < flesh.size(); ++u) flesh[u] = static_cast<int>(u);
+        MatX responses;
+        for (int s = 0; s < 40; ++s) {
+            const double t = s * m.params.dt;
+            d.device.position = m.handle.rest_com + 0.03 * Vec3(std::cos(3 * t) - 1, std::sin(3 * t), 0.5 * std::sin(2 * t));
+            d.device.quaternion = quat_from_rotation_vector(Vec3(0.6 * std::sin(2 * t), 0.4 * std::sin(1.5 * t), 1.5 * t));
+            formulate(m, d);
+            d.tool.reset_counters();
+            d.hand.solve();
+            if (s > 0 && d.tool.factorizations > 0) return s;
+            if (keep) CHECK(d.tool.response_units(flesh, responses));
+            integrate(m, d, d.hand.s);
+        }
+        return 40;
+    };
+    const int without = first_renewal(false), with = first_renewal(true);
+    CHECK(without < 40);  // (the motion does call for a renewal)
+    CHECK(with > without);
+}
+
 TEST(reused_cholesky_matches_a_fresh_factorization_every_step_on_a_larger_hand) {
     // a box big enough for wide supernodes (the dense-panel kernels and their 8-column groups)
     // and the single-precision passes: the reused-factor run against the per-step exact
