@@ -726,9 +726,23 @@ TEST(reused_cholesky_contact_responses_use_one_operator_close_to_the_exact_inver
             CHECK(d.tool.response_units(flesh, via_tool_units));
             // what the contact build weighs when it picks its basis (World::rows_cost_less): the
             // columns just served are kept, so none is solved afresh; a node never asked for
-            // (flesh node 7: no row, unknown or touched node above) costs its three columns
+            // (flesh node 7: no row, unknown, touched or loaded node here) costs its three columns
             CHECK(d.tool.fresh_response_unknowns(flesh) == 0);
             CHECK(d.tool.fresh_response_unknowns({3 * 7 + 1, flesh[0]}) == 3);
+            // the carried impulses' response at the touched unknowns (World::read_carried): f on
+            // the touched nodes and on node 8 (never asked for before; its columns are solved
+            // then and kept) is solve_response's P f there
+            VecX f = VecX::Zero(n - 6);
+            for (size_t j = 0; j < flesh.size(); ++j) f[flesh[j]] = 1.0 + 0.1 * static_cast<double>(j);
+            f.segment<3>(3 * 8) = Vec3(0.3, -0.2, 0.5);
+            VecX at;
+            CHECK(d.tool.response_at(flesh, f, at));
+            MatX whole;
+            d.tool.solve_response(f, whole);
+            double off = 0;
+            for (size_t j = 0; j < flesh.size(); ++j) off = std::max(off, std::abs(at[static_cast<Eigen::Index>(j)] - whole(flesh[j], 0)));
+            CHECK_LT(off, 1e-12 * whole.cwiseAbs().maxCoeff());
+            CHECK(d.tool.fresh_response_unknowns({3 * 8}) == 0);
             double worst = 0, largest = 0;
             for (size_t r = 0; r < flesh.size(); ++r)
                 for (size_t j = 0; j < flesh.size(); ++j) {

@@ -139,7 +139,7 @@ Vec3 Body::drift() const {
     }
 }
 
-void SoftParts::solve_free(double dt, const Vec3& gravity, const VecX& carried, VecX& v_free) {
+void SoftParts::solve_free(double dt, const Vec3& gravity, const VecX& carried, VecX& v_free, bool take_out_carried) {
     const int n3 = 3 * flesh->mesh.n_nodes;
     rhs.resize(n3);
     formulate_flesh(*flesh, state, dt, gravity, alpha, beta, *tool, rhs);
@@ -161,7 +161,7 @@ void SoftParts::solve_free(double dt, const Vec3& gravity, const VecX& carried, 
     tool->select_slot(0);
     tool->solve();
     v_free = tool->s;
-    if (carried.size()) {
+    if (carried.size() && take_out_carried) {
         VecX response;
         tool->solve_response_single(carried, response);
         v_free -= response;

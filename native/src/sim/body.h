@@ -44,7 +44,8 @@ struct SoftParts {
 
     // v_free = At^-1 (b + carried) - P^-1 carried for the step from state (P: the reused
     // factor's response operator; carried: the last step's contact impulses, empty without)
-    void solve_free(double dt, const Vec3& gravity, const VecX& carried, VecX& v_free);
+    // take_out_carried false: P f is left in v_free (World::defers_carried)
+    void solve_free(double dt, const Vec3& gravity, const VecX& carried, VecX& v_free, bool take_out_carried = true);
     // state advanced by the velocities v (the fixed nodes' held at zero)
     void integrate(const VecX& v, double dt);
 };
@@ -97,6 +98,10 @@ struct Body {
     // the last step's contact impulses on its unknowns (J^T lambda, N s), which its next free
     // solve takes as a known load (World::solve_free); empty when it had no contact.
     VecX carried_impulse;
+    // This step's carried impulses f whose response P f is still in v_free (and v_new): the
+    // contact build reads it at the touched unknowns and the impulse pass takes it out
+    // (sim/world_carried.cpp); empty otherwise.
+    VecX carried_pending;
 
     bool dynamic() const { return kind == BodyKind::Hand || kind == BodyKind::Soft || kind == BodyKind::Rigid; }
     // a hand driven by a skeleton of more than one bone (docs/skeleton.md): its step is

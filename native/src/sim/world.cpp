@@ -69,6 +69,7 @@ VecX take_carried_impulse(Body& b, const DeformableSystem& tool) {
 
 void World::solve_free(Body& b) {
     const double dt = settings.dt;
+    b.carried_pending.resize(0);
     switch (b.kind) {
         case BodyKind::Hand: {
             if (b.skeleton()) {
@@ -117,7 +118,13 @@ void World::solve_free(Body& b) {
             st.t_total = st.t_assembly + parts + seconds_since(t1);
             break;
         }
-        case BodyKind::Soft: b.soft.solve_free(dt, settings.gravity, take_carried_impulse(b, *b.soft.tool), b.v_free); break;
+        case BodyKind::Soft: {
+            const VecX carried = take_carried_impulse(b, *b.soft.tool);
+            const bool defer = defers_carried(b, carried);
+            b.soft.solve_free(dt, settings.gravity, carried, b.v_free, !defer);
+            if (defer) b.carried_pending = carried;  // (sim/world_carried.cpp)
+            break;
+        }
         case BodyKind::Rigid: b.mesh.solve_free(dt, settings.gravity, b.v_free); break;
         default: b.v_free.resize(0);
     }
@@ -145,7 +152,8 @@ void World::solve_free_skeleton(Body& b) {
     }
     sys.solve();
     b.v_free = skeleton_frame_velocities(*b.hand_model, d.frame, d.carried, sys.s);
-    if (carried.size()) b.v_free -= sys.apply_inverse(carried);
+    if (defers_carried(b, carried)) b.carried_pending = carried;  // (sim/world_carried.cpp)
+    else if (carried.size()) b.v_free -= sys.apply_inverse(carried);
     st.t_deformable = sys.t_deformable;
     st.t_schur = sys.t_schur;
     st.cg_iterations = d.tool.iterations;

@@ -102,6 +102,9 @@ public:
         // at the handle's end-of-step pose, Data::end_aht), for the handle-space linearization
         // (contact_handle_terms); else empty
         MatX handle_terms;
+        // P f of the body's carried impulses still in its free velocities (Body::carried_pending)
+        // at the touched unknowns (World::read_carried); empty when none is pending
+        VecX carried_at_touched;
     };
     std::vector<ContactGroup> contact_groups;
     std::vector<int> contact_group_of;  // per contact: its group
@@ -177,6 +180,12 @@ private:
     bool rows_cost_less(int body) const;  // the basis of the body's responses (ready_contact_body)
     bool kept_units(int body);
     std::vector<int> touched_flesh(int body) const;
+    // the carried impulses' response (sim/world_carried.cpp)
+    bool defers_carried(const Body& b, const VecX& carried) const;
+    VecX lagged_response(Body& b, const VecX& load);
+    void take_out_carried(int body);
+    void read_carried(int body);
+    VecX impulse_pass_load(const Body& b, const VecX& impulses) const;
     void form_handle_terms(int body);  // a hand's ContactBody::handle_terms
     bool handle_terms_apart(int body) const;
     void solve_contact_body(int body, int part, int parts);

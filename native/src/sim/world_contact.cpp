@@ -362,6 +362,7 @@ void World::ready_contact_body(int bi) {
     Body& b = *bodies[bi];
     ContactBody& cb = contact_bodies.at(bi);
     cb.row_basis = rows_cost_less(bi);
+    read_carried(bi);
     cb.K.resize(cb.touched.size(), cb.row_basis ? cb.rows.size() : cb.touched.size());
     if (cb.row_basis) setup_->build.at(bi).gt = cb.G.transpose();  // (unit columns need none)
     // the unit columns from the kept response columns, when the body's solver keeps them: the
@@ -520,6 +521,7 @@ void World::finish_contact_body(int bi) {
     // u_free, and the body's symmetric response on its basis for the sweeps
     VecX v_touched(nt);
     for (int k = 0; k < nt; ++k) v_touched[k] = b.v_free[cb.touched[k]];
+    if (cb.carried_at_touched.size()) v_touched -= cb.carried_at_touched;  // (P f still in v_free)
     cs.u_body.at(bi) = cb.G * v_touched;
     MatX& response = cs.response.at(bi);
     if (cb.row_basis) {
@@ -636,7 +638,7 @@ void World::apply_contact_body(int bi) {
     for (size_t k = 0; k < cb.touched.size(); ++k) rhs[cb.touched[k]] = f[k];
     switch (b.kind) {
         case BodyKind::Hand:
-            b.v_new += b.skeleton() ? b.hand->skeleton.apply_inverse(rhs) : b.hand->hand.apply_inverse(rhs);
+            b.v_new += b.skeleton() ? b.hand->skeleton.apply_inverse(impulse_pass_load(b, rhs)) : b.hand->hand.apply_inverse(rhs);
             // (carried into the next free solve, World::solve_free)
             if (b.hand->tool.solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
             break;
@@ -645,7 +647,7 @@ void World::apply_contact_body(int bi) {
             // exact solve; on the reused one its lagged operator, and the impulses carried into
             // the next free solve, World::solve_free)
             MatX x;
-            b.soft.tool->solve_response(rhs, x);
+            b.soft.tool->solve_response(impulse_pass_load(b, rhs), x);
             b.v_new += x.col(0);
             if (b.soft.tool->solver() == DeformableSolver::ReusedCholesky) b.carried_impulse = rhs;
             break;

@@ -232,6 +232,12 @@ void World::add_contact_bodies(StepTasks& tasks, std::vector<int>& built) {
             graph.add([this, &seconds, bi, parts] { timed(seconds[3 + parts], [&] { form_handle_terms(bi); }); }, {ready},
                       kHandleTerms);
     }
+    // a body out of contact this step whose carried impulses' response waits (sim/world_carried.cpp;
+    // known only once its free solve is done, which may still run: a task after it either way)
+    for (size_t bi = 0; bi < bodies.size(); ++bi)
+        if (built[bi] < 0 && bodies[bi]->dynamic())
+            graph.add([this, &tasks, bi] { timed(tasks.apply_seconds[bi], [&] { take_out_carried(static_cast<int>(bi)); }); },
+                      {tasks.free_task[bi]}, kResponses + bodies[bi]->dofs());
 }
 
 // Per group, once its bodies' responses are built: setup, its columns in shares (side by

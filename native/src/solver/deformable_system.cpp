@@ -387,6 +387,47 @@ int DeformableSystem::fresh_response_unknowns(const std::vector<int>& unknowns) 
     return fresh;
 }
 
+bool DeformableSystem::response_at(const std::vector<int>& unknowns, const VecX& f, VecX& out, const Beside& beside) {
+    Impl& m = *impl_;
+    if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor || f.size() != A.rows()) return false;
+    std::vector<int> loaded, nodes;  // f's nodes; theirs and the unknowns' (sorted, each once)
+    for (Eigen::Index i = 0; i < f.size() / 3; ++i)
+        if (!f.segment<3>(3 * i).isZero(0)) loaded.push_back(static_cast<int>(i));
+    nodes = loaded;
+    for (int u : unknowns) nodes.push_back(u / 3);
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    const double* data = nullptr;
+    long ld = 0;
+    const std::vector<int>* row_slot = nullptr;
+    const std::vector<int>* column_slot = nullptr;
+    const std::vector<Mat3>* warp = nullptr;
+    if (!response_blocks(nodes, nodes, data, ld, row_slot, column_slot, warp, beside)) return false;
+    auto rot = [&](int node) -> Mat3 { return warp ? (*warp)[node] : Mat3::Identity(); };
+    // W_b^T f_b once per loaded node, then per asked node a: W_a sum_b (Af^-1)_ab (W_b^T f_b)
+    std::vector<Vec3> turned(loaded.size());
+    for (size_t j = 0; j < loaded.size(); ++j) turned[j] = rot(loaded[j]).transpose() * f.segment<3>(3 * loaded[j]);
+    out.resize(static_cast<Eigen::Index>(unknowns.size()));
+    int last = -1;
+    Vec3 at = Vec3::Zero();
+    for (size_t i = 0; i < unknowns.size(); ++i) {
+        const int a = unknowns[i] / 3;
+        if (a != last) {
+            Vec3 sum = Vec3::Zero();
+            for (size_t j = 0; j < loaded.size(); ++j) {
+                const double* column = data + 3 * static_cast<long>((*column_slot)[loaded[j]]) * ld;
+                const Eigen::Map<const Mat3, 0, Eigen::OuterStride<>> block(column + 3 * static_cast<long>((*row_slot)[a]), 3, 3,
+                                                                            Eigen::OuterStride<>(ld));
+                sum += block * turned[j];
+            }
+            at = rot(a) * sum;
+            last = a;
+        }
+        out[static_cast<Eigen::Index>(i)] = at[unknowns[i] % 3];
+    }
+    return true;
+}
+
 bool DeformableSystem::response_units(const std::vector<int>& unknowns, MatX& out, const Beside& beside) {
     // the unknowns' nodes, each once, and per node its unknowns (index in `unknowns`, direction)
     std::vector<int> nodes;

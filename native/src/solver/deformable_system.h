@@ -155,6 +155,11 @@ public:
     // would solve afresh (every unknown of a node whose blocks are not kept since the last
     // factorization). -1 on the other solvers, which keep none.
     int fresh_response_unknowns(const std::vector<int>& unknowns) const;
+    // ReusedCholesky with a factor: out[i] = (W Af^-1 W^T f)[unknowns[i]], the response operator
+    // applied to f (3n, nonzero at few nodes) at the given unknowns only, from the blocks kept
+    // between f's nodes and theirs (solving those not kept yet, as response_units). False on the
+    // other solvers, before the first factorization, or past the blocks' budget.
+    bool response_at(const std::vector<int>& unknowns, const VecX& f, VecX& out, const Beside& beside = nullptr);
     // Element rotations of the step (the co-rotation), for ReusedCholesky's warp: each node's
     // rotation (the rotation of the sum of its elements' rotations) relative to its rotation
     // when the factor was made. Ignored by the other solvers.
