@@ -62,6 +62,14 @@ Model reused_box_model() {
     p.cg_tolerance = 1e-10;
     return build_model(b.nodes.data(), b.n_nodes(), b.tets.data(), b.n_tets(), p);
 }
+
+// The device circling 3 cm around the handle's rest and turning (the reused factor's policy tests)
+void wave_device(const Model& m, Data& d, int step) {
+    const double t = step * m.params.dt;
+    d.device.position = m.handle.rest_com + 0.03 * Vec3(std::cos(3 * t) - 1, std::sin(3 * t), 0.5 * std::sin(2 * t));
+    d.device.quaternion = quat_from_rotation_vector(Vec3(0.6 * std::sin(2 * t), 0.4 * std::sin(1.5 * t), 1.5 * t));
+}
+
 double schur_vs_monolithic(int solver, double cg_tol, const FactorForms& forms = FactorForms()) {
     const BoxMesh b = make_box(4, 3, 2, 0.01);
     hh_params p = box_params();
@@ -459,9 +467,7 @@ TEST(reused_cholesky_measures_a_nearly_cancelled_load_against_its_reference_norm
         std::normal_distribution<double> n(0, 1);
         Run out;
         for (int s = 0; s < 20; ++s) {
-            const double t = s * m.params.dt;
-            d.device.position = m.handle.rest_com + 0.03 * Vec3(std::cos(3 * t) - 1, std::sin(3 * t), 0.5 * std::sin(2 * t));
-            d.device.quaternion = quat_from_rotation_vector(Vec3(0.6 * std::sin(2 * t), 0.4 * std::sin(1.5 * t), 1.5 * t));
+            wave_device(m, d, s);
             formulate(m, d);
             const VecX r = d.hand.r;  // the step's own system, to integrate the same states in both runs
             const Eigen::Index n3 = d.tool.A.rows();
@@ -556,9 +562,7 @@ TEST(reused_cholesky_policy_counts_work_so_runs_repeat_exactly) {
         d.tool.reuse_iteration_limit = limit;
         d.device.enabled = true;
         for (int s = 0; s < 30; ++s) {
-            const double t = s * p.dt;
-            d.device.position = m.handle.rest_com + 0.03 * Vec3(std::cos(3 * t) - 1, std::sin(3 * t), 0.5 * std::sin(2 * t));
-            d.device.quaternion = quat_from_rotation_vector(Vec3(0.6 * std::sin(2 * t), 0.4 * std::sin(1.5 * t), 1.5 * t));
+            wave_device(m, d, s);
             step(m, d, false);
             if (d.tool.factorizations > 0) factored.push_back(s);
         }
@@ -589,9 +593,7 @@ TEST(reused_cholesky_prices_the_kept_contact_responses_into_a_renewal) {
         for (size_t u = 0; u < flesh.size(); ++u) flesh[u] = static_cast<int>(u);
         MatX responses;
         for (int s = 0; s < 40; ++s) {
-            const double t = s * m.params.dt;
-            d.device.position = m.handle.rest_com + 0.03 * Vec3(std::cos(3 * t) - 1, std::sin(3 * t), 0.5 * std::sin(2 * t));
-            d.device.quaternion = quat_from_rotation_vector(Vec3(0.6 * std::sin(2 * t), 0.4 * std::sin(1.5 * t), 1.5 * t));
+            wave_device(m, d, s);
             formulate(m, d);
             d.tool.reset_counters();
             d.hand.solve();

@@ -16,6 +16,33 @@ namespace {
 // Width of a node-major block of k right-hand sides (the kernels take 1, 4 or 8).
 int padded_width(int k) { return k == 1 ? 1 : (k <= 4 ? 4 : 8); }
 
+// The nodes of some unknowns, added to `nodes`, sorted, each once
+std::vector<int> nodes_of(const std::vector<int>& unknowns, std::vector<int> nodes = {}) {
+    for (int u : unknowns) nodes.push_back(u / 3);
+    std::sort(nodes.begin(), nodes.end());
+    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
+    return nodes;
+}
+
+// The reused factor's kept blocks between some nodes (DeformableSystem::response_blocks), read
+// as the response operator's: W_a (Af^-1)_ab W_b^T
+struct KeptBlocks {
+    const double* data = nullptr;
+    long ld = 0;
+    const std::vector<int>* row_slot = nullptr;
+    const std::vector<int>* column_slot = nullptr;
+    const std::vector<Mat3>* warp = nullptr;
+    bool read(DeformableSystem& sys, const std::vector<int>& nodes, const Beside& beside) {
+        return sys.response_blocks(nodes, nodes, data, ld, row_slot, column_slot, warp, beside);
+    }
+    Mat3 rot(int node) const { return warp ? (*warp)[node] : Mat3::Identity(); }
+    // (Af^-1)_ab, unwarped
+    Eigen::Map<const Mat3, 0, Eigen::OuterStride<>> block(int a, int b) const {
+        const double* column = data + 3 * static_cast<long>((*column_slot)[b]) * ld;
+        return {column + 3 * static_cast<long>((*row_slot)[a]), 3, 3, Eigen::OuterStride<>(ld)};
+    }
+};
+
 // Y = A X on node-major storage for any symmetric pattern (the fallback of the block kernel):
 // column c of the compressed-column storage is row c, a dot product with X's rows.
 template <int W>
@@ -377,12 +404,8 @@ void DeformableSystem::solve_response_column(const VecX& b, VecX& x, bool single
 int DeformableSystem::fresh_response_unknowns(const std::vector<int>& unknowns) const {
     const Impl& m = *impl_;
     if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor) return -1;
-    std::vector<int> nodes;
-    for (int u : unknowns) nodes.push_back(u / 3);
-    std::sort(nodes.begin(), nodes.end());
-    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
     int fresh = 0;
-    for (int node : nodes)
+    for (int node : nodes_of(unknowns))
         fresh += node < 0 || node >= static_cast<int>(m.column_slot.size()) || m.column_slot[node] < 0 ? 3 : 0;
     return fresh;
 }
@@ -390,23 +413,14 @@ int DeformableSystem::fresh_response_unknowns(const std::vector<int>& unknowns) 
 bool DeformableSystem::response_at(const std::vector<int>& unknowns, const VecX& f, VecX& out, const Beside& beside) {
     Impl& m = *impl_;
     if (m.solver != DeformableSolver::ReusedCholesky || !m.have_factor || f.size() != A.rows()) return false;
-    std::vector<int> loaded, nodes;  // f's nodes; theirs and the unknowns' (sorted, each once)
+    std::vector<int> loaded;  // f's nodes
     for (Eigen::Index i = 0; i < f.size() / 3; ++i)
         if (!f.segment<3>(3 * i).isZero(0)) loaded.push_back(static_cast<int>(i));
-    nodes = loaded;
-    for (int u : unknowns) nodes.push_back(u / 3);
-    std::sort(nodes.begin(), nodes.end());
-    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
-    const double* data = nullptr;
-    long ld = 0;
-    const std::vector<int>* row_slot = nullptr;
-    const std::vector<int>* column_slot = nullptr;
-    const std::vector<Mat3>* warp = nullptr;
-    if (!response_blocks(nodes, nodes, data, ld, row_slot, column_slot, warp, beside)) return false;
-    auto rot = [&](int node) -> Mat3 { return warp ? (*warp)[node] : Mat3::Identity(); };
+    KeptBlocks kept;
+    if (!kept.read(*this, nodes_of(unknowns, loaded), beside)) return false;
     // W_b^T f_b once per loaded node, then per asked node a: W_a sum_b (Af^-1)_ab (W_b^T f_b)
     std::vector<Vec3> turned(loaded.size());
-    for (size_t j = 0; j < loaded.size(); ++j) turned[j] = rot(loaded[j]).transpose() * f.segment<3>(3 * loaded[j]);
+    for (size_t j = 0; j < loaded.size(); ++j) turned[j] = kept.rot(loaded[j]).transpose() * f.segment<3>(3 * loaded[j]);
     out.resize(static_cast<Eigen::Index>(unknowns.size()));
     int last = -1;
     Vec3 at = Vec3::Zero();
@@ -414,13 +428,8 @@ bool DeformableSystem::response_at(const std::vector<int>& unknowns, const VecX&
         const int a = unknowns[i] / 3;
         if (a != last) {
             Vec3 sum = Vec3::Zero();
-            for (size_t j = 0; j < loaded.size(); ++j) {
-                const double* column = data + 3 * static_cast<long>((*column_slot)[loaded[j]]) * ld;
-                const Eigen::Map<const Mat3, 0, Eigen::OuterStride<>> block(column + 3 * static_cast<long>((*row_slot)[a]), 3, 3,
-                                                                            Eigen::OuterStride<>(ld));
-                sum += block * turned[j];
-            }
-            at = rot(a) * sum;
+            for (size_t j = 0; j < loaded.size(); ++j) sum += kept.block(a, loaded[j]) * turned[j];
+            at = kept.rot(a) * sum;
             last = a;
         }
         out[static_cast<Eigen::Index>(i)] = at[unknowns[i] % 3];
@@ -430,33 +439,22 @@ bool DeformableSystem::response_at(const std::vector<int>& unknowns, const VecX&
 
 bool DeformableSystem::response_units(const std::vector<int>& unknowns, MatX& out, const Beside& beside) {
     // the unknowns' nodes, each once, and per node its unknowns (index in `unknowns`, direction)
-    std::vector<int> nodes;
-    for (int u : unknowns) nodes.push_back(u / 3);
-    std::sort(nodes.begin(), nodes.end());
-    nodes.erase(std::unique(nodes.begin(), nodes.end()), nodes.end());
-    const double* data = nullptr;
-    long ld = 0;
-    const std::vector<int>* row_slot = nullptr;
-    const std::vector<int>* column_slot = nullptr;
-    const std::vector<Mat3>* warp = nullptr;
-    if (!response_blocks(nodes, nodes, data, ld, row_slot, column_slot, warp, beside)) return false;
+    const std::vector<int> nodes = nodes_of(unknowns);
+    KeptBlocks kept;
+    if (!kept.read(*this, nodes, beside)) return false;
     std::vector<std::vector<std::pair<int, int>>> of_node(nodes.size());
     for (size_t j = 0; j < unknowns.size(); ++j) {
         const size_t a = static_cast<size_t>(std::lower_bound(nodes.begin(), nodes.end(), unknowns[j] / 3) - nodes.begin());
         of_node[a].emplace_back(static_cast<int>(j), unknowns[j] % 3);
     }
-    auto rot = [&](int node) -> Mat3 { return warp ? (*warp)[node] : Mat3::Identity(); };
     const Eigen::Index k = static_cast<Eigen::Index>(unknowns.size());
     out.resize(k, k);
     // per pair of nodes the operator's 3x3 block W_i (Af^-1)_ik W_k^T, then its entries; the
     // operator is symmetric, so each pair once, its transpose for (k, i)
     for (size_t b = 0; b < nodes.size(); ++b) {
-        const Mat3 wk = rot(nodes[b]);
-        const double* column = data + 3 * static_cast<long>((*column_slot)[nodes[b]]) * ld;
+        const Mat3 wk = kept.rot(nodes[b]);
         for (size_t a = b; a < nodes.size(); ++a) {
-            const Eigen::Map<const Mat3, 0, Eigen::OuterStride<>> block(column + 3 * static_cast<long>((*row_slot)[nodes[a]]), 3, 3,
-                                                                        Eigen::OuterStride<>(ld));
-            const Mat3 response = rot(nodes[a]) * block * wk.transpose();
+            const Mat3 response = kept.rot(nodes[a]) * kept.block(nodes[a], nodes[b]) * wk.transpose();
             for (const auto& r : of_node[a])
                 for (const auto& c : of_node[b]) out(r.first, c.first) = out(c.first, r.first) = response(r.second, c.second);
         }
