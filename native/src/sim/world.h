@@ -176,6 +176,8 @@ private:
     void begin_contact_body(int body);  // (reads only the contacts: may run beside the body's free solve)
     void ready_contact_body(int body);  // after both: the body's factor ready for solves side by side
     bool flesh_alone(int body) const;
+    static bool loads_flesh_alone(const Body& b, bool on_bones);
+    static const Beside& flesh_beside(const Body& b);
     bool units_at_touched_rows(int body) const;
     bool rows_cost_less(int body) const;  // the basis of the body's responses (ready_contact_body)
     bool kept_units(int body);

@@ -18,8 +18,7 @@ bool World::defers_carried(const Body& b, const VecX& carried) const {
     if (!carried.size()) return false;
     const DeformableSystem* system = b.response_system();
     if (!system || system->solver() != DeformableSolver::ReusedCholesky) return false;
-    if (b.kind == BodyKind::Soft) return true;
-    return b.skeleton() && b.hand->bones_prescribed && carried.head(b.handle_dofs()).isZero(0);
+    return loads_flesh_alone(b, !carried.head(b.handle_dofs()).isZero(0));
 }
 
 // The body's lagged response to a load on its unknowns (the operator of its impulse pass)
@@ -47,11 +46,10 @@ void World::read_carried(int bi) {
     cb.carried_at_touched.resize(0);
     if (!b.carried_pending.size()) return;
     const Eigen::Index flesh = b.dofs() - b.handle_dofs();
-    const Beside& beside = b.kind == BodyKind::Soft ? b.soft.beside : b.hand->hand.beside;
     if (!cb.row_basis && flesh_alone(bi) &&
-        b.response_system()->response_at(touched_flesh(bi), b.carried_pending.tail(flesh), cb.carried_at_touched, beside))
+        b.response_system()->response_at(touched_flesh(bi), b.carried_pending.tail(flesh), cb.carried_at_touched,
+                                         flesh_beside(b)))
         return;
-    cb.carried_at_touched.resize(0);
     take_out_carried(bi);
 }
 

@@ -312,9 +312,17 @@ void World::begin_contact_body(int bi) {
 bool World::flesh_alone(int bi) const {
     const Body& b = *bodies[bi];
     const ContactBody& cb = contact_bodies.at(bi);
-    return !cb.touched.empty() &&
-           (b.kind == BodyKind::Soft || (b.skeleton() && b.hand->bones_prescribed && cb.touched.front() >= b.handle_dofs()));
+    return !cb.touched.empty() && loads_flesh_alone(b, cb.touched.front() < b.handle_dofs());
 }
+
+// Whether a load on the body moves its flesh alone: a soft body's, or a skeleton hand's whose
+// bones all follow their targets when the load is on flesh only (on_bones false)
+bool World::loads_flesh_alone(const Body& b, bool on_bones) {
+    return b.kind == BodyKind::Soft || (b.skeleton() && b.hand->bones_prescribed && !on_bones);
+}
+
+// The jobs the body's flesh solves may run as (its system's two threads)
+const Beside& World::flesh_beside(const Body& b) { return b.kind == BodyKind::Soft ? b.soft.beside : b.hand->hand.beside; }
 
 // Whether the body's unit columns are solved on the step's Cholesky factor at the touched rows
 // only (solve_upper_units): flesh alone, on the per-step factor (see ready_contact_body)
@@ -329,8 +337,7 @@ bool World::units_at_touched_rows(int bi) const {
 // it was renewed. False on the other solvers, or when the factor keeps none (not yet made).
 bool World::kept_units(int bi) {
     Body& b = *bodies[bi];
-    const Beside& beside = b.kind == BodyKind::Soft ? b.soft.beside : b.hand->hand.beside;
-    return b.response_system()->response_units(touched_flesh(bi), contact_bodies.at(bi).K, beside);
+    return b.response_system()->response_units(touched_flesh(bi), contact_bodies.at(bi).K, flesh_beside(b));
 }
 
 // The body's touched unknowns counted in its flesh system (past the handle's unknowns)
