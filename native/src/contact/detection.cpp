@@ -219,22 +219,36 @@ inline void vertex_against_triangle(const CollisionSurface& sa, int v, const Col
     closest.offer(v, r, dist, w, q);
 }
 
+// Edge pairs that cannot be a contact, for reasons cheaper to see than the closest points:
+// - their boxes are apart by more than the reach on some axis (most of the edges of a
+//   triangle near ea are);
+// - a's edge does not reach into b's slab (the points projecting inside b's edge): the
+//   closest point on b would be an end of b, a vertex contact. At a long reach (a fast ball
+//   falling past a hand) nearly every pair within reach is of this kind, and it is decided
+//   from the two projections alone. The closest points' parameter on b is that projection of
+//   the point on a, so the test agrees with edge_against_edge's (whose ends are 1e-6 of the
+//   edge in) with a wide margin; an edge b too short to project on reliably is left to it.
+bool edge_pair_culled(const Vec3& p0, const Vec3& p1, const Vec3& q0, const Vec3& q1, double reach) {
+    const double gap = reach + 1e-9;  // 1e-9 m, far above rounding
+    for (int k = 0; k < 3; ++k)
+        if (std::min(p0[k], p1[k]) - std::max(q0[k], q1[k]) > gap || std::min(q0[k], q1[k]) - std::max(p0[k], p1[k]) > gap)
+            return true;
+    const Vec3 d = q1 - q0;
+    const double e = d.squaredNorm(), f = d.dot(p0 - q0), g = d.dot(p1 - q0);
+    if (std::abs(f) + std::abs(g) > 1e6 * e) return false;
+    return std::max(f, g) < 0.5e-6 * e || std::min(f, g) > (1 - 0.5e-6) * e;
+}
+
 // Edge ea of sa against edge eb of sb: a contact when the closest points are inside both
 // edges (the other configurations are vertex-triangle contacts), within reach, and the edges
-// face each other.
+// face each other. `culled`: whether edge_pair_culled was asked already.
 bool edge_against_edge(const CollisionSurface& sa, int body_a, int ea, const Vec3& na, const CollisionSurface& sb,
-                       int body_b, int eb, double reach, Contact& c) {
+                       int body_b, int eb, double reach, Contact& c, bool culled = false) {
     const Vec3& p0 = sa.x[sa.edges[ea][0]];
     const Vec3& p1 = sa.x[sa.edges[ea][1]];
     const Vec3& q0 = sb.x[sb.edges[eb][0]];
     const Vec3& q1 = sb.x[sb.edges[eb][1]];
-    // Edges whose boxes are apart by more than the reach on some axis are too far: most of
-    // the edges of a triangle near ea are. The slack (1e-9 m, far above rounding) keeps every
-    // pair whose rounded distance could still fall below the reach.
-    const double gap = reach + 1e-9;
-    for (int k = 0; k < 3; ++k)
-        if (std::min(p0[k], p1[k]) - std::max(q0[k], q1[k]) > gap || std::min(q0[k], q1[k]) - std::max(p0[k], p1[k]) > gap)
-            return false;
+    if (!culled && edge_pair_culled(p0, p1, q0, q1, reach)) return false;
     double s, u;
     closest_between_segments(p0, p1, q0, q1, s, u);
     if (s <= 1e-6 || s >= 1 - 1e-6 || u <= 1e-6 || u >= 1 - 1e-6) return false;
@@ -289,11 +303,13 @@ void leaf_edges(const CollisionSurface& sa, int body_a, int ia, const CollisionS
         const Vec3& p1 = sa.x[sa.edges[ea][1]];
         const Vec3 lo = p0.cwiseMin(p1), hi = p0.cwiseMax(p1);
         if (!overlaps_within(sb.bvh, lo, hi, b.lo, b.hi, grow)) continue;
+        const Vec3 na = edge_normal_at(sa, ea);
         for (int r = b.begin; r < b.end; ++r) {
             if (!overlaps_within(sb.bvh, lo, hi, boxes[r].lo, boxes[r].hi, grow)) continue;
             const int t = sb.bvh.order()[r];
             for (int j = 0; j < 3; ++j) {
                 const int eb = sb.triangle_edges[t][j];
+                if (edge_pair_culled(p0, p1, sb.x[sb.edges[eb][0]], sb.x[sb.edges[eb][1]], reach)) continue;
                 bool first = true;  // no lower-ranked triangle of eb overlaps ea's box
                 for (int m = sb.edge_rank_begin[eb]; m < sb.edge_rank_begin[eb + 1] && sb.edge_ranks[m] < r; ++m)
                     if (overlaps_within(sb.bvh, lo, hi, boxes[sb.edge_ranks[m]].lo, boxes[sb.edge_ranks[m]].hi, grow)) {
@@ -301,7 +317,7 @@ void leaf_edges(const CollisionSurface& sa, int body_a, int ia, const CollisionS
                         break;
                     }
                 if (!first) continue;
-                if (edge_against_edge(sa, body_a, ea, edge_normal_at(sa, ea), sb, body_b, eb, reach, c))
+                if (edge_against_edge(sa, body_a, ea, na, sb, body_b, eb, reach, c, true))
                     scratch.edge_found.emplace_back(EdgeKey{ea, r, j}, c);
             }
         }
