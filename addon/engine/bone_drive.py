@@ -34,6 +34,13 @@ class BoneDrive:
         if rig.root_device:  # the device holds the root through the coupling, as it holds the palm handle
             self.modes[0] = ns.COUPLED if device_on else ns.FREE
         self.previous = None  # the last targets set: the next step's velocities are backward differences
+        # per keyed bone: its turn and head offsets over time, and its rest head (None: the head
+        # rides on the parent)
+        self.keyed = {}
+        for b, track in rig.tracks.items():
+            offsets = track.positions if track.positions is not None else np.zeros((len(track.times), 3))
+            head = None if track.positions is None else np.asarray(rig.skeleton.bones[b].head, dtype=float)
+            self.keyed[b] = (Trajectory(track.times, offsets, track.quaternions), head)
 
     def animated(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Every bone's pose at t from the keyed targets or the tracking stream (rest without)."""
@@ -41,11 +48,10 @@ class BoneDrive:
         if rig.stream is not None:
             return tracking.bone_targets(rig.stream, rig.skeleton, self.coms, rig.tracking_map, t)
         turns, heads = [None] * len(rig.skeleton), [None] * len(rig.skeleton)
-        for b, track in rig.tracks.items():
-            offsets = track.positions if track.positions is not None else np.zeros((len(track.times), 3))
-            offset, turns[b] = Trajectory(track.times, offsets, track.quaternions).pose(t)
-            if track.positions is not None:
-                heads[b] = np.asarray(rig.skeleton.bones[b].head, dtype=float) + offset
+        for b, (track, head) in self.keyed.items():
+            offset, turns[b] = track.pose(t)
+            if head is not None:
+                heads[b] = head + offset
         return sk.pose_bones(rig.skeleton, self.coms, turns, heads)
 
     def targets(self, t: float, root: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -65,8 +71,10 @@ class BoneDrive:
     def apply(self, world, hand: int, t: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Sets the targets of the step that ends at t, velocities by backward difference over
         the step; returns the target poses."""
-        positions, quaternions, _ = world.bone_states(hand)
-        root = (positions[0], quaternions[0])
+        root = None
+        if self.rig.root_device:  # (the only drive that reads the bones back)
+            positions, quaternions, _ = world.bone_states(hand)
+            root = (positions[0], quaternions[0])
         p, q = self.targets(t, root)
         p0, q0 = self.previous if self.previous is not None else self.targets(t - dt, root)
         v = (p - p0) / dt

@@ -12,6 +12,8 @@ Pure numpy; the native engine will implement the same rule (docs/skeleton.md, Se
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -94,6 +96,8 @@ class Skeleton:
         self._index = {name: i for i, name in enumerate(names)}
         self.parents = np.array([-1 if b.parent is None else self._index[b.parent] for b in self.bones])
         self._check_tree()
+        self.order = parents_first(self)  # (pose_bones runs every visual-loop step)
+        self.heads = np.array([np.asarray(b.head, dtype=float) for b in self.bones])
 
     @staticmethod
     def _check_bone(i: int, bone: Bone, names: list[str]) -> None:
@@ -242,14 +246,14 @@ def pose_bones(skeleton: Skeleton, coms: np.ndarray, turns: list, heads: list) -
     motion = [None] * len(skeleton)  # each bone's rigid motion: (turn, its matrix, rest head, moved head)
     positions, quaternions = np.empty((len(skeleton), 3)), np.empty((len(skeleton), 4))
     still = (np.array([0.0, 0.0, 0.0, 1.0]), np.eye(3))
-    for b in parents_first(skeleton):
-        head, parent = np.asarray(skeleton.bones[b].head, dtype=float), skeleton.parents[b]
+    for b in skeleton.order:
+        head, parent = skeleton.heads[b], skeleton.parents[b]
         inherited = motion[parent] if parent >= 0 else (*still, head, head)
         if turns[b] is None:
             turn, matrix = inherited[0], inherited[1]
         else:
             turn = np.asarray(turns[b], dtype=float)
-            turn = turn / np.linalg.norm(turn)
+            turn = turn / math.sqrt(turn @ turn)  # (np.linalg.norm's value, without its overhead)
             matrix = quat.to_matrix(turn)
         moved = _moved(inherited, head) if heads[b] is None else np.asarray(heads[b], dtype=float)
         motion[b] = (turn, matrix, head, moved)
@@ -260,7 +264,7 @@ def pose_bones(skeleton: Skeleton, coms: np.ndarray, turns: list, heads: list) -
 
 def _moved(motion, x) -> np.ndarray:
     _, matrix, pivot, moved = motion
-    return moved + matrix @ (np.asarray(x, dtype=float) - pivot)
+    return moved + matrix @ (x - pivot)
 
 
 def parents_first(skeleton: Skeleton) -> list[int]:
