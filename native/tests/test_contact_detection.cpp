@@ -500,6 +500,61 @@ TEST(detection_matches_reference_on_blobs_and_a_folded_sheet) {
     CHECK(synthetic_edges > 0);  // the order of edge-edge contacts is checked too
 }
 
+// A flat square grid of n x n quads in the plane z = height, its corner at (x0, y0).
+void flat_sheet(CollisionSurface& s, std::vector<Vec3>& points, double x0, double y0, double height, int n,
+                double spacing, bool facing_down) {
+    const int base = static_cast<int>(points.size());
+    for (int r = 0; r <= n; ++r)
+        for (int c = 0; c <= n; ++c) {
+            points.push_back(Vec3(x0 + c * spacing, y0 + r * spacing, height));
+            s.nodes.push_back(Eigen::Vector4i(static_cast<int>(points.size() - 1), 0, 0, 0));
+            s.weights.push_back(Vec4(1, 0, 0, 0));
+        }
+    for (int r = 0; r < n; ++r)
+        for (int c = 0; c < n; ++c) {
+            const int a = base + r * (n + 1) + c, b = a + 1, d = a + n + 1, e = d + 1;
+            if (facing_down) {
+                s.triangles.push_back({a, e, b});
+                s.triangles.push_back({a, d, e});
+            } else {
+                s.triangles.push_back({a, b, e});
+                s.triangles.push_back({a, e, d});
+            }
+        }
+}
+
+// The edge pairs' culls (detection.cpp, edge_pair_culled) where they are easiest to get wrong: a
+// reach several times the edges (a fast ball's speculative search), edges parallel to each
+// other (two aligned grids, and grids offset by half a cell: every pair's closest points are
+// ill-defined or on an edge's end), and slivers (an edge a hundred-thousandth of a
+// nanometre long). The contacts must still be the reference's, bit for bit.
+TEST(detection_matches_reference_at_long_reach_with_parallel_edges_and_slivers) {
+    std::mt19937 rng(11);
+    std::vector<Contact> want, got;
+    size_t edge_contacts = 0;
+    for (int trial = 0; trial < 6; ++trial) {
+        Scene scene;
+        scene.bodies.resize(4);
+        blob(scene.bodies[0].surface, scene.bodies[0].points, Vec3(0, 0, 0), 0.05, 4, 0.02, rng);
+        blob(scene.bodies[1].surface, scene.bodies[1].points, Vec3(0.085 + 0.003 * trial, 0.01, 0.005), 0.04, 3, 0.03, rng);
+        const double offset = trial % 2 ? 0.0025 : 0.0;  // half a cell, or aligned
+        flat_sheet(scene.bodies[2].surface, scene.bodies[2].points, -0.04, -0.04, 0.08, 16, 0.005, false);
+        flat_sheet(scene.bodies[3].surface, scene.bodies[3].points, -0.04 + offset, -0.04 + offset, 0.095, 16, 0.005, true);
+        // slivers: a few of the smaller blob's vertices onto a neighbour, 1e-14 m off
+        std::vector<Vec3>& p = scene.bodies[1].points;
+        for (int k = 0; k < 6; ++k) {
+            const Eigen::Vector3i& t = scene.bodies[1].surface.triangles[(37 * k + 5 * trial) % scene.bodies[1].surface.triangles.size()];
+            p[t[1]] = p[t[0]] + Vec3(1e-14, 0, 0);
+        }
+        scene.init(0.002);
+        for (const double reach : {0.01, 0.02, 0.035}) {
+            CHECK(scene.check(reach, "long reach", want, got));
+            for (const Contact& c : want) edge_contacts += c.a.count == 2;
+        }
+    }
+    CHECK(edge_contacts > 0);
+}
+
 namespace {
 
 template <class T>
