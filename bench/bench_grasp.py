@@ -18,7 +18,8 @@ Prints, for each, the median, mean (the loop's rate over the run), 95th percenti
 step, their frame rates, the median's split (dynamics, contact), the share of steps over 1/60 s
 (of all the runs' steps, and of the steps over it in every run: the code's cost there, apart
 from moments the shared machine spent elsewhere), the ratios to the one-handle step and the
-machine; for the hand on one thread, its phases and the steps over 1/60 s in every run.
+machine; for the hand on one thread, its phases and the steps over 1/60 s in every run, with
+their engine's parts in their fastest run (detection, dynamics, contact).
 
     .venv/bin/python bench/bench_grasp.py [--repeats 3] [--plot docs/images/grasp_steps.png] [--solve-separating]
 """
@@ -93,7 +94,7 @@ def timed(step, walls: list, split: list) -> None:
     t0 = time.perf_counter()
     stats = step()
     walls.append(time.perf_counter() - t0)
-    split.append((stats["t_dynamics"], stats["t_contact"]))
+    split.append((stats["t_dynamics"], stats["t_contact"], stats["t_detection"]))
 
 
 def whole_runs(hand: dict, steps: dict, repeats: int) -> tuple[dict, dict]:
@@ -131,7 +132,7 @@ def report(title: str, walls: dict, split: dict, steps: dict) -> None:
     print(title)
     for (name, threads), wall in walls.items():
         median, mean, p95, worst = np.median(wall), np.mean(wall), np.percentile(wall, 95), np.max(wall)
-        dynamics, contact = np.median(np.array(split[name, threads]), axis=0)
+        dynamics, contact = np.median(np.array(split[name, threads])[:, :2], axis=0)
         every = over_in_every_run(wall, steps[name])
         print(f"  {name}, {threads} thread(s): median {1e3 * median:.2f} ms ({1 / median:.0f} Hz, "
               f"{median / base:.2f}x one handle), mean {1e3 * mean:.2f} ms (the loop's rate over its run: "
@@ -150,6 +151,17 @@ def by_phase(wall: list, hand: dict) -> None:
         inside = wall[:, (end > t0 + 1e-9) & (end <= t1 + 1e-9)]
         if inside.size:
             print(f"    t {t0:.1f}-{t1:.1f} s: median {1e3 * np.median(inside):.1f} ms, slowest {1e3 * inside.max():.1f} ms")
+
+
+def over_in_every(wall: list, split: list, frames: int) -> None:
+    """The steps over 1/60 s in every run, each with its fastest run's wall time and its engine's
+    parts (detection, dynamics, contact: where the step's time goes)."""
+    wall, split = np.array(wall).reshape(-1, frames), np.array(split).reshape(-1, frames, 3)
+    run = wall.argmin(axis=0)
+    over = [f"{k} ({1e3 * wall[run[k], k]:.1f} ms: detection {1e3 * split[run[k], k, 2]:.1f}, dynamics "
+            f"{1e3 * split[run[k], k, 0]:.1f}, contact {1e3 * split[run[k], k, 1]:.1f})"
+            for k in np.nonzero(wall.min(axis=0) > 1 / 60)[0]]
+    print("  hand, 1 thread, steps over 1/60 s in every run (their fastest run): " + (", ".join(over) or "none"))
 
 
 def plot_steps(wall: list, hand: dict, path: str) -> None:
@@ -199,9 +211,7 @@ def main() -> None:
     report("whole runs, one after another:", walls, split, steps)
     print("  hand, 1 thread, between its keyed targets:")
     by_phase(walls["hand", 1], hand)
-    fastest = np.array(walls["hand", 1]).reshape(-1, hand["frames"]).min(axis=0)
-    print("  hand, 1 thread, steps over 1/60 s in every run (their fastest run): " +
-          (", ".join(f"{k} ({1e3 * fastest[k]:.1f} ms)" for k in np.nonzero(fastest > 1 / 60)[0]) or "none"))
+    over_in_every(walls["hand", 1], split["hand", 1], hand["frames"])
     if args.plot:
         plot_steps(walls["hand", 1], hand, args.plot)
     report("interleaved step by step:", *interleaved(hand, steps, args.repeats), steps)
