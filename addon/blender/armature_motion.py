@@ -90,7 +90,7 @@ def key_targets(arm_obj, drive, skeleton: sk.Skeleton, times, frames) -> None:
     world = meshdata.matrix(arm_obj)
     inverse = np.linalg.inv(world)
     rests = {b.name: np.array(arm_obj.data.bones[b.name].matrix_local, dtype=np.float64) for b in skeleton.bones}
-    order = sk.parents_first(skeleton)
+    order = skeleton.order
     rotations, locations = {b.name: [] for b in skeleton.bones}, {b.name: [] for b in skeleton.bones}
     for t in times:
         heads, turns = drive.animated(float(t))

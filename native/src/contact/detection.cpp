@@ -239,16 +239,15 @@ bool edge_pair_culled(const Vec3& p0, const Vec3& p1, const Vec3& q0, const Vec3
     return std::max(f, g) < 0.5e-6 * e || std::min(f, g) > (1 - 0.5e-6) * e;
 }
 
-// Edge ea of sa against edge eb of sb: a contact when the closest points are inside both
-// edges (the other configurations are vertex-triangle contacts), within reach, and the edges
-// face each other. `culled`: whether edge_pair_culled was asked already.
+// Edge ea of sa against edge eb of sb, a pair edge_pair_culled kept: a contact when the closest
+// points are inside both edges (the other configurations are vertex-triangle contacts), within
+// reach, and the edges face each other.
 bool edge_against_edge(const CollisionSurface& sa, int body_a, int ea, const Vec3& na, const CollisionSurface& sb,
-                       int body_b, int eb, double reach, Contact& c, bool culled = false) {
+                       int body_b, int eb, double reach, Contact& c) {
     const Vec3& p0 = sa.x[sa.edges[ea][0]];
     const Vec3& p1 = sa.x[sa.edges[ea][1]];
     const Vec3& q0 = sb.x[sb.edges[eb][0]];
     const Vec3& q1 = sb.x[sb.edges[eb][1]];
-    if (!culled && edge_pair_culled(p0, p1, q0, q1, reach)) return false;
     double s, u;
     closest_between_segments(p0, p1, q0, q1, s, u);
     if (s <= 1e-6 || s >= 1 - 1e-6 || u <= 1e-6 || u >= 1 - 1e-6) return false;
@@ -317,7 +316,7 @@ void leaf_edges(const CollisionSurface& sa, int body_a, int ia, const CollisionS
                         break;
                     }
                 if (!first) continue;
-                if (edge_against_edge(sa, body_a, ea, na, sb, body_b, eb, reach, c, true))
+                if (edge_against_edge(sa, body_a, ea, na, sb, body_b, eb, reach, c))
                     scratch.edge_found.emplace_back(EdgeKey{ea, r, j}, c);
             }
         }
@@ -476,7 +475,9 @@ void rest_edge_pairs(const CollisionSurface& s, double reach, SelfExclusions& re
                 if (static_cast<int>(ea) >= eb || s.edges[ea][0] == s.edges[eb][0] || s.edges[ea][0] == s.edges[eb][1] ||
                     s.edges[ea][1] == s.edges[eb][0] || s.edges[ea][1] == s.edges[eb][1])
                     continue;
-                if (edge_against_edge(s, -1, static_cast<int>(ea), na, s, -1, eb, reach, found)) record.edge_edge.insert(SelfExclusions::key(static_cast<int>(ea), eb));
+                if (!edge_pair_culled(p0, p1, s.x[s.edges[eb][0]], s.x[s.edges[eb][1]], reach) &&
+                    edge_against_edge(s, -1, static_cast<int>(ea), na, s, -1, eb, reach, found))
+                    record.edge_edge.insert(SelfExclusions::key(static_cast<int>(ea), eb));
             }
         });
     }
