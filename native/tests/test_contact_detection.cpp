@@ -17,6 +17,7 @@
 #include <map>
 #include <stdexcept>
 #include <fstream>
+#include <functional>
 #include <random>
 #include <string>
 
@@ -432,33 +433,53 @@ void blob(CollisionSurface& s, std::vector<Vec3>& points, const Vec3& centre, do
     for (const auto& t : f) s.triangles.push_back(t);
 }
 
-// A sheet folded over itself (a U), so its two halves face each other within reach.
-void folded_sheet(CollisionSurface& s, std::vector<Vec3>& points, int n, double gap, double jitter, std::mt19937& rng) {
-    std::uniform_real_distribution<double> u(-jitter, jitter);
-    const int cols = n, rows = 2 * n + 6;
+// A grid of rows x cols points, point (r, c) at at(r, c), two triangles a cell, facing +z
+// (or -z when facing_down) where the grid lies flat with rows along +y
+void grid_sheet(CollisionSurface& s, std::vector<Vec3>& points, int rows, int cols,
+                const std::function<Vec3(int, int)>& at, bool facing_down = false) {
+    const int base = static_cast<int>(points.size());
     for (int r = 0; r < rows; ++r)
         for (int c = 0; c < cols; ++c) {
-            const double along = r / static_cast<double>(n);  // 0..2+
-            Vec3 p;
-            if (r <= n) {
-                p = Vec3(c / static_cast<double>(n), along, 0);
-            } else if (r < n + 6) {  // the bend: a half circle of radius gap / 2
-                const double a = M_PI * (r - n) / 6.0;
-                p = Vec3(c / static_cast<double>(n), 1 + 0.5 * gap * std::sin(a), 0.5 * gap * (1 - std::cos(a)));
-            } else {
-                p = Vec3(c / static_cast<double>(n), 1 - (r - n - 6) / static_cast<double>(n), gap);
-            }
-            points.push_back(p + Vec3(u(rng), u(rng), u(rng)));
-            const int i = static_cast<int>(points.size() - 1);
-            s.nodes.push_back(Eigen::Vector4i(i, 0, 0, 0));
+            points.push_back(at(r, c));
+            s.nodes.push_back(Eigen::Vector4i(static_cast<int>(points.size() - 1), 0, 0, 0));
             s.weights.push_back(Vec4(1, 0, 0, 0));
         }
     for (int r = 0; r + 1 < rows; ++r)
         for (int c = 0; c + 1 < cols; ++c) {
-            const int a = r * cols + c, b = a + 1, d = a + cols, e = d + 1;
-            s.triangles.push_back({a, b, e});
-            s.triangles.push_back({a, e, d});
+            const int a = base + r * cols + c, b = a + 1, d = a + cols, e = d + 1;
+            if (facing_down) {
+                s.triangles.push_back({a, e, b});
+                s.triangles.push_back({a, d, e});
+            } else {
+                s.triangles.push_back({a, b, e});
+                s.triangles.push_back({a, e, d});
+            }
         }
+}
+
+// A sheet folded over itself (a U), so its two halves face each other within reach.
+void folded_sheet(CollisionSurface& s, std::vector<Vec3>& points, int n, double gap, double jitter, std::mt19937& rng) {
+    std::uniform_real_distribution<double> u(-jitter, jitter);
+    grid_sheet(s, points, 2 * n + 6, n, [&](int r, int c) {
+        const double along = r / static_cast<double>(n);  // 0..2+
+        Vec3 p;
+        if (r <= n) {
+            p = Vec3(c / static_cast<double>(n), along, 0);
+        } else if (r < n + 6) {  // the bend: a half circle of radius gap / 2
+            const double a = M_PI * (r - n) / 6.0;
+            p = Vec3(c / static_cast<double>(n), 1 + 0.5 * gap * std::sin(a), 0.5 * gap * (1 - std::cos(a)));
+        } else {
+            p = Vec3(c / static_cast<double>(n), 1 - (r - n - 6) / static_cast<double>(n), gap);
+        }
+        return Vec3(p + Vec3(u(rng), u(rng), u(rng)));
+    });
+}
+
+// A flat square grid of n x n quads in the plane z = height, its corner at (x0, y0).
+void flat_sheet(CollisionSurface& s, std::vector<Vec3>& points, double x0, double y0, double height, int n,
+                double spacing, bool facing_down) {
+    grid_sheet(s, points, n + 1, n + 1, [&](int r, int c) { return Vec3(x0 + c * spacing, y0 + r * spacing, height); },
+               facing_down);
 }
 
 }  // namespace
@@ -498,29 +519,6 @@ TEST(detection_matches_reference_on_blobs_and_a_folded_sheet) {
         CHECK(scene.check(0.01, "ties", want, got));
     }
     CHECK(synthetic_edges > 0);  // the order of edge-edge contacts is checked too
-}
-
-// A flat square grid of n x n quads in the plane z = height, its corner at (x0, y0).
-void flat_sheet(CollisionSurface& s, std::vector<Vec3>& points, double x0, double y0, double height, int n,
-                double spacing, bool facing_down) {
-    const int base = static_cast<int>(points.size());
-    for (int r = 0; r <= n; ++r)
-        for (int c = 0; c <= n; ++c) {
-            points.push_back(Vec3(x0 + c * spacing, y0 + r * spacing, height));
-            s.nodes.push_back(Eigen::Vector4i(static_cast<int>(points.size() - 1), 0, 0, 0));
-            s.weights.push_back(Vec4(1, 0, 0, 0));
-        }
-    for (int r = 0; r < n; ++r)
-        for (int c = 0; c < n; ++c) {
-            const int a = base + r * (n + 1) + c, b = a + 1, d = a + n + 1, e = d + 1;
-            if (facing_down) {
-                s.triangles.push_back({a, e, b});
-                s.triangles.push_back({a, d, e});
-            } else {
-                s.triangles.push_back({a, b, e});
-                s.triangles.push_back({a, e, d});
-            }
-        }
 }
 
 // The edge pairs' culls (detection.cpp, edge_pair_culled) where they are easiest to get wrong: a
