@@ -1,13 +1,14 @@
 """Build the sample .blend scenes from the engine's sample scenes (procedural hand with its
 stored tets, procedural bunny and letters, boxes): hand + soft bunny on the ground, hand +
-soft letters, fingers squeezed between two moving pads, and the rigged hand: an armature of
-the procedural hand's 16 bones (engine/skeleton.py) whose action closes the fingers onto a
-soft block (procedural_hand_close.json).
+soft letters, fingers squeezed between two moving pads, and the rigged hands, armatures of 16
+bones (engine/skeleton.py) whose actions close the procedural hand's fingers onto a soft block
+(procedural_hand_close.json), lift a soft ball with the grasping hand (grasp_ball_hand.json)
+and pinch a soft letter with it (pinch_letter_hand.json).
 
-    .venv/bin/python blender_scenes/build_scenes.py [bunny letters fingers hand_close] [--out DIR]
+    .venv/bin/python blender_scenes/build_scenes.py [bunny letters fingers hand_close hand_grasp hand_pinch] [--out DIR]
 
-Writes DIR/<name>.blend (default DIR: blender_scenes/), and for the rigged hand also its
-export, DIR/hand_close/scene.json with its meshes: the scene a bake of the .blend simulates,
+Writes DIR/<name>.blend (default DIR: blender_scenes/), and for each rigged hand also its
+export, DIR/<name>/scene.json with its meshes: the scene a bake of the .blend simulates,
 which the command line runs too. The bunny's coarse tets are made by pytetwild when the scene
 is built (not deterministic) and stored in the .blend, so every bake of one .blend gives the
 same result.

@@ -14,6 +14,10 @@ SCENES = {  # the .blend name -> the engine's sample scene it is built from
     "letters": "letters_push.json",
     "fingers": "finger_squeeze.json",
     "hand_close": "procedural_hand_close.json",  # the rigged hand: an armature of 16 bones closing the fingers
+    # the grasping hand (16 bones, an opposing thumb): its action lifts a soft ball by friction,
+    # or pinches a soft letter between the index finger's and the thumb's pads
+    "hand_grasp": "grasp_ball_hand.json",
+    "hand_pinch": "pinch_letter_hand.json",
 }
 COLOURS = {"hand": (0.85, 0.62, 0.5, 1.0), "soft": (0.45, 0.6, 0.9, 1.0), "plane": (0.55, 0.55, 0.52, 1.0),
            "other": (0.6, 0.75, 0.45, 1.0)}

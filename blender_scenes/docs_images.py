@@ -4,7 +4,8 @@
 
 blender_rig.png: the hand see-through, its tets as wires, the handle sphere around the palm
 seed; blender_bake.png: frames of a bake of the bunny scene side by side (the hand at rest,
-pressing, stroking). Each is a render of the .blend the scripts build, not a mock-up.
+pressing, stroking); blender_grasp.png: frames of a bake of the rigged grasping hand
+(hand_grasp: open, closed on the ball, holding it lifted, open again). Each is a render of the .blend the scripts build, not a mock-up.
 blender_panel.png: the Haptic Hand tab as its own draw code lays it out for the bunny scene with
 the bunny selected (headless Blender draws no UI, so the panels draw into a recording layout
 and matplotlib paints what they drew); blender_panel.txt beside it lists what it shows, so a
@@ -67,12 +68,17 @@ def rig_picture(out: pathlib.Path, work: pathlib.Path) -> None:
     render(scene, out / "blender_rig.png")
 
 
-def bake_picture(out: pathlib.Path, work: pathlib.Path, frames=(1, 31, 76)) -> None:
+def bake_picture(out: pathlib.Path, work: pathlib.Path, name="bunny", frames=(1, 31, 76),
+                 picture="blender_bake.png", camera=None) -> None:
+    """Frames of a bake of the sample scene `name` side by side (camera: a function that places
+    the scene's camera, given the built objects)."""
     import bpy
     from PIL import Image
 
-    common.build("bunny", work / "bake.blend", resolution=(480, 400))
+    objects = common.build(name, work / f"{name}.blend", resolution=(480, 400))
     scene = bpy.context.scene
+    if camera:
+        camera(scene.camera, objects)
     s = scene.haptic_hand
     s.bake_frame_end = max(frames)
     assert bpy.ops.haptic_hand.bake() == {"FINISHED"}
@@ -87,8 +93,32 @@ def bake_picture(out: pathlib.Path, work: pathlib.Path, frames=(1, 31, 76)) -> N
     for t in tiles:
         strip.paste(t, (x, 0))
         x += t.width
-    strip.save(out / "blender_bake.png", optimize=True)
-    print(f"wrote {out / 'blender_bake.png'}")
+    strip.save(out / picture, optimize=True)
+    print(f"wrote {out / picture}")
+
+
+def grasp_picture(out: pathlib.Path, work: pathlib.Path) -> None:
+    """The rigged grasping hand's bake: open, closed on the ball, holding it lifted, opened;
+    seen square to gravity, whose up is the picture's (the scene's gravity lies the hand on its
+    thumb side, docs/skeleton.md 9)."""
+    import bpy
+    import mathutils
+
+    def square_to_gravity(cam, objects):
+        up = -mathutils.Vector(bpy.context.scene.gravity).normalized()
+        look = mathutils.Vector(VIEW_GRASP).normalized()
+        look = (look - look.dot(up) * up).normalized()
+        ball = objects["ball"]
+        centre = ball.matrix_world @ (sum((v.co for v in ball.data.vertices), mathutils.Vector()) / len(ball.data.vertices))
+        centre += 0.02 * up + 0.045 * mathutils.Vector((0.0, 0.0, 1.0))  # the lift and the palm in view
+        back = -look
+        cam.matrix_world = mathutils.Matrix.Translation(centre + 0.27 * back) @ mathutils.Matrix(
+            (up.cross(back), up, back)).transposed().to_4x4()
+
+    bake_picture(out, work, "hand_grasp", (1, 21, 60, 121), "blender_grasp.png", square_to_gravity)
+
+
+VIEW_GRASP = (0.70, -0.71, -0.4)  # from the palm's side, a little towards the fingertips
 
 
 class PanelRecorder:
@@ -214,7 +244,7 @@ def panel_picture(out: pathlib.Path, work: pathlib.Path) -> None:
     print(f"wrote {out / 'blender_panel.png'}")
 
 
-PICTURES = {"rig": rig_picture, "bake": bake_picture, "panel": panel_picture}
+PICTURES = {"rig": rig_picture, "bake": bake_picture, "grasp": grasp_picture, "panel": panel_picture}
 
 
 def main(argv=None) -> int:

@@ -1,9 +1,10 @@
-"""The rigged hand sample (blender_scenes/hand_close.blend and its export hand_close/scene.json,
-written by blender_scenes/build_scenes.py): an armature of the procedural hand's 16 bones whose
-action closes the fingers, exporting to the engine's sample procedural_hand_close.json where
-that makes sense: the same bones (as a list instead of "procedural"), the same motion of every
-bone at every frame, the same drive, frames, step and block. The two-finger samples import and
-export to their own motion too."""
+"""The rigged hand samples (blender_scenes/hand_close.blend, hand_grasp.blend and hand_pinch.blend
+and their exports <name>/scene.json, written by blender_scenes/build_scenes.py): armatures of
+16 bones whose actions close the procedural hand's fingers onto a block, lift a ball with the
+grasping hand, or pinch a letter with it, each exporting to the engine's sample it is built from
+where that makes sense: the same bones (as a list instead of "procedural"), the same motion of
+every bone at every frame, the same drive, frames, step, gravity, solver and bodies. The
+two-finger samples import and export to their own motion too."""
 
 import json
 import shutil
@@ -24,44 +25,79 @@ SAMPLE_BLENDS = Path(__file__).resolve().parents[2] / "blender_scenes"
 F32 = 2e-7  # metres: float32 rounding of coordinates below 1 m, as Blender stores them
 
 
-def test_the_rigged_hand_sample_exports_to_the_engines_sample(addon, tmp_path):
-    context = open_copy(SAMPLE_BLENDS / "hand_close.blend", tmp_path)
+RIGGED = {  # the rigged hands' .blend -> the engine's sample it is built from
+    "hand_close": "procedural_hand_close",
+    "hand_grasp": "grasp_ball_hand",
+    "hand_pinch": "pinch_letter_hand",
+}
+
+
+def sample_bones(sample_json: dict) -> list[tuple]:
+    """(name, parent, head + tail, radius) of the sample's bones: its list, or the procedural hand's."""
+    given = sample_json["hand"]["skeleton"]
+    if given == "procedural":
+        return [(n, b.parent, np.concatenate([b.head, b.tail]), b.radius)
+                for n, b in zip(sk.procedural_hand_skeleton().names, sk.procedural_hand_skeleton().bones)]
+    return [(b["name"], b.get("parent"), np.array(b["head"] + b["tail"]), b["radius"]) for b in given]
+
+
+def assert_same_bodies(got, sample):
+    """The sample's bodies, by name, as the export gives them: type, material, friction, fixing,
+    planes' point and normal (meshes are written as the .blend holds them)."""
+    assert sorted(b["name"] for b in got.bodies) == sorted(b["name"] for b in sample.bodies)
+    for want in sample.bodies:
+        body = next(b for b in got.bodies if b["name"] == want["name"])
+        assert body["type"] == want["type"] and body.get("fixed") == want.get("fixed"), want["name"]
+        assert body.get("friction") == pytest.approx(want.get("friction")), want["name"]
+        for key in ("young_modulus", "poisson_ratio", "density"):
+            assert body.get("material", {}).get(key) == pytest.approx(want.get("material", {}).get(key)), key
+        if want["type"] == "plane":
+            np.testing.assert_allclose(body["normal"], want["normal"], atol=1e-6)
+            assert np.dot(np.subtract(body["point"], want["point"]), want["normal"]) == pytest.approx(0, abs=F32)
+
+
+@pytest.mark.parametrize("blend", list(RIGGED))
+def test_the_rigged_hand_samples_export_to_the_engines_samples(addon, tmp_path, blend):
+    """Each rigged hand's .blend (16 bones, an action) exports to its engine sample: the same
+    bones, the same motion of every bone at every frame, the same drive, frames, step, gravity,
+    solver, contact settings and bodies; and its committed export is this .blend's."""
+    name = RIGGED[blend]
+    context = open_copy(SAMPLE_BLENDS / f"{blend}.blend", tmp_path)
     s = context.scene.haptic_hand
     arm = s.armature
     assert arm is not None and len(arm.data.bones) == 16
-    assert arm.animation_data.action is not None, "an action closes the fingers"
-    sample = scenes.load(SAMPLES / "procedural_hand_close.json")
+    assert arm.animation_data.action is not None, "an action moves the bones"
+    sample = scenes.load(SAMPLES / f"{name}.json")
     export = scene_export.export(context)
     try:
         got = export.scene
         shutil.copytree(export.folder, tmp_path / "fresh")
     finally:
         export.cleanup()
-    reference = sk.procedural_hand_skeleton()
     bones = got.data["hand"]["skeleton"]
-    assert [b["name"] for b in bones] == list(reference.names)
-    for spec, bone in zip(bones, reference.bones):
-        np.testing.assert_allclose(spec["head"] + spec["tail"], np.concatenate([bone.head, bone.tail]), atol=F32)
-        assert spec["parent"] == bone.parent and spec["radius"] == pytest.approx(bone.radius, rel=1e-7)
+    want = sample_bones(json.loads((SAMPLES / f"{name}.json").read_text()))
+    assert [b["name"] for b in bones] == [w[0] for w in want]
+    for spec, (_, parent, ends, radius) in zip(bones, want):
+        np.testing.assert_allclose(spec["head"] + spec["tail"], ends, atol=F32)
+        assert spec["parent"] == parent and spec["radius"] == pytest.approx(radius, rel=1e-7)
     assert (got.frames, got.dt) == (sample.frames, pytest.approx(sample.dt))
+    for key in ("gravity", "solver", "contact", "material", "springs"):
+        assert got.data[key] == pytest.approx(sample.data[key]), key
     assert got.data["skeleton"]["drive"] == pytest.approx(sample.data["skeleton"]["drive"])
     motion, expected = bone_motion(got), bone_motion(sample)
-    assert np.abs(expected[-1] - expected[0]).max() > 0.01, "the fingers close: the comparison can fail"
+    assert np.abs(expected[-1] - expected[:-1]).max() > 0.01, "the bones move: the comparison can fail"
     np.testing.assert_allclose(motion, expected, atol=1e-6)
-    block = next(b for b in got.bodies if b["name"] == "block")
-    want = next(b for b in sample.bodies if b["name"] == "block")
-    assert block["type"] == "soft" and block["fixed"] == want["fixed"] == "bottom"
-    assert block["material"] == pytest.approx(want["material"])
+    assert_same_bodies(got, sample)
     # the committed export is this .blend's: the same scene, field for field but its file names
-    committed = json.loads((SAMPLE_BLENDS / "hand_close" / "scene.json").read_text())
+    committed = json.loads((SAMPLE_BLENDS / blend / "scene.json").read_text())
     fresh = json.loads((tmp_path / "fresh" / "scene.json").read_text())
-    stale = "blender_scenes/hand_close/ is stale: run blender_scenes/build_scenes.py hand_close"
+    stale = f"blender_scenes/{blend}/ is stale: run blender_scenes/build_scenes.py {blend}"
     keys = [committed["skeleton"].pop("targets"), fresh["skeleton"].pop("targets")]  # sampled: round-off apart
     assert committed == fresh, stale
-    poses = [[[k["t"], *p["quaternion"]] for k in ks for p in k["bones"].values()] for ks in keys]
+    poses = [[v for k in ks for p in k["bones"].values() for v in (k["t"], *p.get("quaternion", []), *p.get("position", []))]
+             for ks in keys]
     np.testing.assert_allclose(poses[0], poses[1], atol=1e-9, err_msg=stale)
-    np.testing.assert_allclose(bone_motion(scenes.load(SAMPLE_BLENDS / "hand_close" / "scene.json")), expected,
-                               atol=1e-6)
+    np.testing.assert_allclose(bone_motion(scenes.load(SAMPLE_BLENDS / blend / "scene.json")), expected, atol=1e-6)
 
 
 @pytest.mark.parametrize("name", ["grasp_ball", "pinch_letter"])
