@@ -24,6 +24,81 @@ std::vector<int> nodes_of(const std::vector<int>& unknowns, std::vector<int> nod
     return nodes;
 }
 
+// The fresh columns' unit solves for response_blocks: `units` are the fresh column nodes'
+// unknowns in the factor's elimination order, `row_nodes` the rows: the first
+// `every_batch_rows` (kept from before, or rows only), then the fresh columns' own in
+// elimination order. A batch of units is solved at the first rows and at the fresh columns'
+// rows from its first node on only; a fresh column's row before that is, by Af^-1's symmetry,
+// the transpose of that row's own column, which an earlier batch solved at this batch's rows.
+// A batch's backward pass then reaches only the nodes eliminated after its first one and their
+// ancestors, not every row's.
+// In two jobs of whole batches, side by side when `beside` lets them, the same batches either
+// way: as few batches as kWidestSolve allows (at least two from two nodes on), of about equal
+// width. A batch's pass costs about a pass over the factor's part above its rows (the handle's
+// coupled nodes among them: ~1.1 ms on the ~17000-tet hand for one node's three units) plus
+// its width; the hand touches a few new nodes a step, 6-15 units that took one batch on one
+// thread beside an idle one (measured alternating in one run, those calls 15-25% shorter;
+// ~0.1 ms a 10x bunny frame). The two jobs take the batches in turn from a shared counter
+// rather than half each: batches differ in cost and the other thread may join late, and with
+// fixed halves a renewal frame of the 10x bunny had one thread on the hand's responses for
+// 13.7 ms, the other for 5.8 ms and then idle. A batch's columns are the same whichever thread
+// solves it.
+struct FreshColumns {
+    const BlockLDLT& factor;
+    const std::vector<int>& units;
+    const std::vector<int>& row_nodes;
+    const std::vector<int>& row_slot;
+    const std::vector<int>& column_slot;
+    Eigen::Index every_batch_rows;
+
+    // the units' columns into b from column first_column on, at every row
+    void solve(MatX& b, Eigen::Index first_column, const Beside& beside) const {
+        const int k = static_cast<int>(units.size());
+        const int batches = k < 6 ? 1 : std::max(2, (k + kWidestSolve - 1) / kWidestSolve);
+        const int width = (k + batches - 1) / batches;
+        std::vector<Eigen::Index> from(static_cast<size_t>(batches));  // each batch's first fresh column's row
+        for (int batch = 0; batch < batches; ++batch) from[batch] = first_fresh_row(units[std::min(batch * width, k - 1)] / 3);
+        std::atomic<int> next{0};
+        auto take_batches = [&] {
+            for (int batch = next++; batch < batches && batch * width < k; batch = next++)
+                solve_batch(b, first_column, batch * width, std::min(width, k - batch * width), from[batch]);
+        };
+        if (beside && batches > 1)
+            beside(take_batches, take_batches);
+        else
+            take_batches();
+        for (int j = 0; j < k; ++j) {  // the fresh columns' rows before each batch's first, by symmetry
+            const Eigen::Index row_of_j = 3 * row_slot[units[j] / 3] + units[j] % 3;
+            for (Eigen::Index q = every_batch_rows; q < every_batch_rows + from[j / width]; ++q)
+                for (int d = 0; d < 3; ++d)
+                    b(3 * q + d, first_column + j) = b(row_of_j, 3 * column_slot[row_nodes[q]] + d);
+        }
+    }
+    // how many of the fresh columns' rows the factor eliminates before this node
+    Eigen::Index first_fresh_row(int node) const {
+        Eigen::Index q = every_batch_rows;
+        while (q < static_cast<Eigen::Index>(row_nodes.size()) && factor.position(row_nodes[q]) < factor.position(node)) ++q;
+        return q - every_batch_rows;
+    }
+    // units [first, first + w) at the first rows and the fresh columns' rows from `from` on
+    void solve_batch(MatX& b, Eigen::Index first_column, int first, int w, Eigen::Index from) const {
+        std::vector<int> rows, wanted;
+        const Eigen::Index total = static_cast<Eigen::Index>(row_nodes.size());
+        auto add = [&](Eigen::Index q) {
+            wanted.push_back(row_nodes[q]);
+            for (int d = 0; d < 3; ++d) rows.push_back(3 * row_nodes[q] + d);
+        };
+        for (Eigen::Index q = 0; q < every_batch_rows; ++q) add(q);
+        for (Eigen::Index q = every_batch_rows + from; q < total; ++q) add(q);
+        std::sort(wanted.begin(), wanted.end());
+        MatX out(static_cast<Eigen::Index>(rows.size()), w);
+        factor.solve_units(units.data() + first, w, rows, wanted, out.data(), out.rows());
+        const Eigen::Index kept = 3 * every_batch_rows;
+        b.block(0, first_column + first, kept, w) = out.topRows(kept);
+        b.block(3 * (every_batch_rows + from), first_column + first, out.rows() - kept, w) = out.bottomRows(out.rows() - kept);
+    }
+};
+
 // The reused factor's kept blocks between some nodes (DeformableSystem::response_blocks), read
 // as the response operator's: W_a (Af^-1)_ab W_b^T
 struct KeptBlocks {
@@ -514,55 +589,31 @@ bool DeformableSystem::response_blocks(const std::vector<int>& columns, const st
             grown.topLeftCorner(3 * kept_rows, 3 * kept_columns) = b.topLeftCorner(3 * kept_rows, 3 * kept_columns);
             b.swap(grown);
         }
-        for (int node : fresh_rows) {
-            m.row_slot[node] = static_cast<int>(m.row_nodes.size());
-            m.row_nodes.push_back(node);
-        }
         // the fresh columns' units in the factor's elimination order (a batch's units then
-        // share their paths to the root)
-        std::sort(fresh_columns.begin(), fresh_columns.end(),
-                  [&](int x, int y) { return m.cholesky.position(x) < m.cholesky.position(y); });
+        // share their paths to the root); the fresh rows that are not fresh columns (rows only,
+        // like the handle's coupled nodes), then the others in that order (FreshColumns)
+        auto eliminated_first = [&](int x, int y) { return m.cholesky.position(x) < m.cholesky.position(y); };
+        std::sort(fresh_columns.begin(), fresh_columns.end(), eliminated_first);
         for (int node : fresh_columns) {
             m.column_slot[node] = static_cast<int>(m.column_nodes.size());
             m.column_nodes.push_back(node);
         }
-        // the fresh columns at every row, straight into place (their slots follow the kept ones)
-        std::vector<int> unknowns_at(static_cast<size_t>(3 * total_rows)), units;
-        for (Eigen::Index q = 0; q < total_rows; ++q)
-            for (int d = 0; d < 3; ++d) unknowns_at[static_cast<size_t>(3 * q + d)] = 3 * m.row_nodes[q] + d;
+        auto fresh_column = [&](int node) { return m.column_slot[node] >= kept_columns; };
+        std::sort(fresh_rows.begin(), fresh_rows.end(), [&](int x, int y) {
+            return fresh_column(x) != fresh_column(y) ? fresh_column(y) : eliminated_first(x, y);
+        });
+        for (int node : fresh_rows) {
+            m.row_slot[node] = static_cast<int>(m.row_nodes.size());
+            m.row_nodes.push_back(node);
+        }
+        const Eigen::Index every_batch_rows =
+            kept_rows + std::count_if(fresh_rows.begin(), fresh_rows.end(), [&](int node) { return !fresh_column(node); });
+        std::vector<int> units;
         for (int node : fresh_columns)
             for (int d = 0; d < 3; ++d) units.push_back(3 * node + d);
         if (!units.empty()) {
-            std::vector<int> wanted = m.row_nodes;
-            std::sort(wanted.begin(), wanted.end());
-            // In two jobs of whole batches, side by side when `beside` lets them, the same
-            // batches either way: as few batches as kWidestSolve allows (at least two from two
-            // nodes on), of about equal width. A batch's
-            // pass costs about a pass over the factor's part above the wanted rows (the handle's
-            // coupled nodes among them: ~1.1 ms on the ~17000-tet hand for one node's three
-            // units) plus its width; the hand touches a few new nodes a step, 6-15 units that
-            // took one batch on one thread beside an idle one (measured alternating in one run,
-            // those calls 15-25% shorter; ~0.1 ms a 10x bunny frame).
-            // The two jobs take the batches in turn from a shared counter rather than half each:
-            // batches differ in cost and the other thread may join late, and with fixed halves a
-            // renewal frame of the 10x bunny had one thread on the hand's responses for 13.7 ms,
-            // the other for 5.8 ms and then idle. A batch's columns are the same whichever thread
-            // solves it.
-            const int k = static_cast<int>(units.size());
-            const int batches = k < 6 ? 1 : std::max(2, (k + kWidestSolve - 1) / kWidestSolve);
-            const int width = (k + batches - 1) / batches;
-            std::atomic<int> next{0};
-            auto take_batches = [&] {
-                for (int batch = next++; batch < batches && batch * width < k; batch = next++) {
-                    const int first = batch * width;
-                    m.cholesky.solve_units(units.data() + first, std::min(width, k - first), unknowns_at, wanted,
-                                           b.data() + (3 * kept_columns + first) * b.rows(), b.rows());
-                }
-            };
-            if (beside && batches > 1)
-                beside(take_batches, take_batches);
-            else
-                take_batches();
+            const FreshColumns fresh{m.cholesky, units, m.row_nodes, m.row_slot, m.column_slot, every_batch_rows};
+            fresh.solve(b, 3 * kept_columns, beside);
             if (!b.block(0, 3 * kept_columns, 3 * total_rows, 3 * (total_columns - kept_columns)).allFinite())
                 throw NumericalError("the deformable solve produced non-finite values: reduce the time step");
         }
