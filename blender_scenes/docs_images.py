@@ -97,6 +97,9 @@ def bake_picture(out: pathlib.Path, work: pathlib.Path, name="bunny", frames=(1,
     print(f"wrote {out / picture}")
 
 
+VIEW_GRASP = (0.70, -0.71, -0.4)  # the grasp's camera: from the palm's side, a little towards the fingertips
+
+
 def grasp_picture(out: pathlib.Path, work: pathlib.Path) -> None:
     """The rigged grasping hand's bake: open, closed on the ball, holding it lifted, opened;
     seen square to gravity, whose up is the picture's (the scene's gravity lies the hand on its
@@ -116,9 +119,6 @@ def grasp_picture(out: pathlib.Path, work: pathlib.Path) -> None:
             (up.cross(back), up, back)).transposed().to_4x4()
 
     bake_picture(out, work, "hand_grasp", (1, 21, 60, 121), "blender_grasp.png", square_to_gravity)
-
-
-VIEW_GRASP = (0.70, -0.71, -0.4)  # from the palm's side, a little towards the fingertips
 
 
 class PanelRecorder:
