@@ -7,8 +7,8 @@ and pinch a soft letter with it (pinch_letter_hand.json).
 
     .venv/bin/python blender_scenes/build_scenes.py [bunny letters fingers hand_close hand_grasp hand_pinch] [--out DIR]
 
-Writes DIR/<name>.blend (default DIR: blender_scenes/), and for each rigged hand also its
-export, DIR/<name>/scene.json with its meshes: the scene a bake of the .blend simulates,
+Writes DIR/<name>.blend (default DIR: blender_scenes/), and for the rigged hand_close also its
+export, DIR/hand_close/scene.json with its meshes (common.EXPORTED): the scene a bake of the .blend simulates,
 which the command line runs too. The bunny's coarse tets are made by pytetwild when the scene
 is built (not deterministic) and stored in the .blend, so every bake of one .blend gives the
 same result.
@@ -39,7 +39,7 @@ def main(argv=None) -> int:
             path = pathlib.Path(args.out) / f"{name}.blend"
             objects = common.build(name, path)
             print(f"{name}: {path} ({path.stat().st_size / 1e6:.1f} MB)")
-            if "armature" in objects:
+            if name in common.EXPORTED:
                 common.export(pathlib.Path(args.out) / name)
                 print(f"{name}: its export in {pathlib.Path(args.out) / name}/scene.json")
     finally:

@@ -32,7 +32,7 @@ def grasp_bake(tmp_path_factory):
         context = open_copy(SAMPLE_BLENDS / "hand_grasp.blend", folder)
         s = context.scene.haptic_hand
         s.bake_format = "PC2"
-        scene = json.loads((SAMPLE_BLENDS / "hand_grasp" / "scene.json").read_text())
+        scene = json.loads((SAMPLES / "grasp_ball_hand.json").read_text())  # what the .blend is built from
         assert (s.bake_frame_start, s.bake_frame_end) == (1, 1 + scene["frames"]), "the whole action is baked"
         reference = reference_run(context)
         assert bpy.ops.haptic_hand.bake() == {"FINISHED"}
@@ -60,13 +60,12 @@ def test_the_baked_ball_rises_with_the_palm_and_falls_when_the_fingers_open(gras
     """Read from what Blender shows: the ball's centre rises by the palm's lift (3 cm) within
     3 mm and stays within 3 mm of where the palm carries it for the 2 s hold; once the fingers
     are open plus a free fall's time sqrt(2 h / g), its lowest point is on the ground (within the
-    1 mm contact thickness + 0.5 mm). The phases' times are the engine sample's keys (the export
-    samples its action every frame)."""
+    1 mm contact thickness + 0.5 mm). The phases' times are the engine sample's keys."""
     scene, reference, shown, _ = grasp_bake
     gravity = np.array(scene["gravity"])
     g = np.linalg.norm(gravity)
     up, dt = -gravity / g, scene["dt"]
-    keys = json.loads((SAMPLES / "grasp_ball_hand.json").read_text())["skeleton"]["targets"]
+    keys = scene["skeleton"]["targets"]
     lifted, opening, opened = (round(key["t"] / dt) for key in keys[3:6])  # the keys: lifted, held until, open
     lift = np.linalg.norm(keys[3]["bones"]["palm"]["position"])
     assert lift == pytest.approx(0.03, abs=1e-6)  # (the keyed position rounded to 1 um)

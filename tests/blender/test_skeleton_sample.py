@@ -1,5 +1,5 @@
-"""The rigged hand samples (blender_scenes/hand_close.blend, hand_grasp.blend and hand_pinch.blend
-and their exports <name>/scene.json, written by blender_scenes/build_scenes.py): armatures of
+"""The rigged hand samples (blender_scenes/hand_close.blend, hand_grasp.blend and hand_pinch.blend,
+and hand_close's export hand_close/scene.json, written by blender_scenes/build_scenes.py): armatures of
 16 bones whose actions close the procedural hand's fingers onto a block, lift a ball with the
 grasping hand, or pinch a letter with it, each exporting to the engine's sample it is built from
 where that makes sense: the same bones (as a list instead of "procedural"), the same motion of
@@ -30,14 +30,15 @@ RIGGED = {  # the rigged hands' .blend -> the engine's sample it is built from
     "hand_grasp": "grasp_ball_hand",
     "hand_pinch": "pinch_letter_hand",
 }
+COMMITTED_EXPORTS = {"hand_close"}  # blender_scenes/common.EXPORTED: exports kept beside their .blend
 
 
 def sample_bones(sample_json: dict) -> list[tuple]:
     """(name, parent, head + tail, radius) of the sample's bones: its list, or the procedural hand's."""
     given = sample_json["hand"]["skeleton"]
     if given == "procedural":
-        return [(n, b.parent, np.concatenate([b.head, b.tail]), b.radius)
-                for n, b in zip(sk.procedural_hand_skeleton().names, sk.procedural_hand_skeleton().bones)]
+        reference = sk.procedural_hand_skeleton()
+        return [(n, b.parent, np.concatenate([b.head, b.tail]), b.radius) for n, b in zip(reference.names, reference.bones)]
     return [(b["name"], b.get("parent"), np.array(b["head"] + b["tail"]), b["radius"]) for b in given]
 
 
@@ -60,7 +61,7 @@ def assert_same_bodies(got, sample):
 def test_the_rigged_hand_samples_export_to_the_engines_samples(addon, tmp_path, blend):
     """Each rigged hand's .blend (16 bones, an action) exports to its engine sample: the same
     bones, the same motion of every bone at every frame, the same drive, frames, step, gravity,
-    solver, contact settings and bodies; and its committed export is this .blend's."""
+    solver, contact settings and bodies; and an export kept beside it is this .blend's."""
     name = RIGGED[blend]
     context = open_copy(SAMPLE_BLENDS / f"{blend}.blend", tmp_path)
     s = context.scene.haptic_hand
@@ -88,9 +89,16 @@ def test_the_rigged_hand_samples_export_to_the_engines_samples(addon, tmp_path, 
     assert np.abs(expected[-1] - expected[:-1]).max() > 0.01, "the bones move: the comparison can fail"
     np.testing.assert_allclose(motion, expected, atol=1e-6)
     assert_same_bodies(got, sample)
-    # the committed export is this .blend's: the same scene, field for field but its file names
+    committed = SAMPLE_BLENDS / blend / "scene.json"
+    assert committed.exists() == (blend in COMMITTED_EXPORTS)
+    if committed.exists():
+        assert_committed_export_is_fresh(blend, tmp_path / "fresh", expected)
+
+
+def assert_committed_export_is_fresh(blend, fresh_folder, expected):
+    """The committed export is this .blend's: the same scene, field for field but its file names."""
     committed = json.loads((SAMPLE_BLENDS / blend / "scene.json").read_text())
-    fresh = json.loads((tmp_path / "fresh" / "scene.json").read_text())
+    fresh = json.loads((fresh_folder / "scene.json").read_text())
     stale = f"blender_scenes/{blend}/ is stale: run blender_scenes/build_scenes.py {blend}"
     keys = [committed["skeleton"].pop("targets"), fresh["skeleton"].pop("targets")]  # sampled: round-off apart
     assert committed == fresh, stale
